@@ -1,0 +1,194 @@
+"""Alignment probes: regress true low-dimensional state from learned latents (paper Sec. 2/Fig. 2).
+
+A small MLP is fit on (latent, state) pairs and judged by mean absolute error on held-out pairs.
+Errors are put next to the best constant predictor (training median) and divided by the spread
+of the held-out states, so entries in different units can be averaged.
+
+Normalisation choice: ``spread`` is the mean absolute deviation around the median. With it a
+normalised error of 1.0 means "as good as predicting the held-out median", so the normalised
+constant baseline is ~1 whenever train and test distributions match, and 0 is perfect.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+from typing import Any, Sequence
+
+import flax.linen as nn
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optax
+from flax import struct
+
+from bulbjax.eval.spec import StateEntry
+
+_EPS = 1e-6
+
+
+@dataclasses.dataclass(frozen=True)
+class ProbeConfig:
+    """Probe MLP and its training schedule (hashable: pass it as a static argument)."""
+
+    hidden: tuple[int, ...] = (256, 256)
+    lr: float = 1e-3
+    steps: int = 500
+    batch_size: int = 256
+
+
+@struct.dataclass
+class ProbeParams:
+    """Trained probe: MLP weights plus the training-set standardisation of inputs and targets."""
+
+    mlp: Any
+    x_mean: jax.Array  # [L]
+    x_std: jax.Array  # [L], 0 for constant columns
+    y_mean: jax.Array  # [D]
+    y_std: jax.Array  # [D], 0 for constant columns
+    hidden: tuple[int, ...] = struct.field(pytree_node=False, default=(256, 256))
+
+
+class _MLP(nn.Module):
+    hidden: tuple[int, ...]
+    out: int
+
+    @nn.compact
+    def __call__(self, x: jax.Array) -> jax.Array:
+        for width in self.hidden:
+            x = nn.relu(nn.Dense(width)(x))
+        return nn.Dense(self.out)(x)
+
+
+def _moments(x: jax.Array) -> tuple[jax.Array, jax.Array]:
+    """Mean and std over the batch; constant columns get std 0."""
+    std = jnp.std(x, axis=0)
+    return jnp.mean(x, axis=0), jnp.where(std > _EPS, std, 0.0)
+
+
+def _safe(std: jax.Array) -> jax.Array:
+    """Divisor for standardising: constant columns are only centred, never divided by ~0."""
+    return jnp.where(std > 0, std, 1.0)
+
+
+@functools.partial(jax.jit, static_argnames=("config",))
+def fit(
+    key: jax.Array, latents: jax.Array, states: jax.Array, config: ProbeConfig = ProbeConfig()
+) -> ProbeParams:
+    """Fit an MLP ``latents [B, L] -> states [B, D]`` with Adam on standardised MSE, using
+    ``config.steps`` minibatches drawn with replacement. Jitted; vmap over ``key`` for seeds."""
+    latents = latents.astype(jnp.float32)
+    states = states.astype(jnp.float32)
+    x_mean, x_std = _moments(latents)
+    y_mean, y_std = _moments(states)
+    x = (latents - x_mean) / _safe(x_std)
+    y = (states - y_mean) / _safe(y_std)
+
+    model = _MLP(config.hidden, states.shape[-1])
+    init_key, train_key = jax.random.split(key)
+    mlp = model.init(init_key, x[:1])
+    opt = optax.adam(config.lr)
+
+    def loss_fn(p: Any, xb: jax.Array, yb: jax.Array) -> jax.Array:
+        return jnp.mean((model.apply(p, xb) - yb) ** 2)
+
+    def step(carry: tuple[Any, Any], k: jax.Array) -> tuple[tuple[Any, Any], jax.Array]:
+        p, opt_state = carry
+        idx = jax.random.randint(k, (config.batch_size,), 0, x.shape[0])
+        loss, grads = jax.value_and_grad(loss_fn)(p, x[idx], y[idx])
+        updates, opt_state = opt.update(grads, opt_state, p)
+        return (optax.apply_updates(p, updates), opt_state), loss
+
+    (mlp, _), _ = jax.lax.scan(step, (mlp, opt.init(mlp)), jax.random.split(train_key, config.steps))
+    return ProbeParams(mlp, x_mean, x_std, y_mean, y_std, hidden=config.hidden)
+
+
+@jax.jit
+def predict(params: ProbeParams, latents: jax.Array) -> jax.Array:
+    """Predicted states ``[B, D]`` in the states' own units."""
+    model = _MLP(params.hidden, params.y_mean.shape[-1])
+    x = (latents.astype(jnp.float32) - params.x_mean) / _safe(params.x_std)
+    # y_std is 0 for targets constant in training, so those are predicted exactly as that constant.
+    return model.apply(params.mlp, x) * params.y_std + params.y_mean
+
+
+def mae(pred: jax.Array, states: jax.Array) -> jax.Array:
+    """Per-entry mean absolute error ``[D]``."""
+    return jnp.mean(jnp.abs(pred - states), axis=0)
+
+
+def constant_baseline(train_states: jax.Array, test_states: jax.Array) -> jax.Array:
+    """Per-entry test MAE ``[D]`` of always predicting the training median (the MAE-optimal
+    constant): the bar a probe has to clear for a latent to carry any information."""
+    return mae(jnp.median(train_states, axis=0), test_states)
+
+
+def spread(states: jax.Array) -> jax.Array:
+    """Per-entry mean absolute deviation around the median ``[D]`` of held-out states; the unit
+    used to normalise errors (see module docstring)."""
+    return mae(jnp.median(states, axis=0), states)
+
+
+def _aggregate(
+    idx: list[int], spec: Sequence[StateEntry], m: np.ndarray, b: np.ndarray, mn: np.ndarray, bn: np.ndarray
+) -> dict[str, Any]:
+    """Mean over entries ``idx``; raw means only when all entries share a unit."""
+    units = {spec[i].unit for i in idx}
+    unit = units.pop() if len(units) == 1 else None
+    ok = [i for i in idx if np.isfinite(mn[i])]
+    return {
+        "n": len(idx),
+        "unit": unit,
+        "mae": float(np.mean(m[idx])) if unit is not None and idx else None,
+        "baseline": float(np.mean(b[idx])) if unit is not None and idx else None,
+        "mae_norm": float(np.mean(mn[ok])) if ok else float("nan"),
+        "baseline_norm": float(np.mean(bn[ok])) if ok else float("nan"),
+    }
+
+
+def summarise(
+    mae_D: Any, baseline_D: Any, spread_D: Any, spec: Sequence[StateEntry]
+) -> dict[str, Any]:
+    """Host-side report of one probe evaluation.
+
+    Returns ``{"entries": {name: {...}}, "groups": {group: {...}}, "overall": {...},
+    "excluded": [names]}``. Each entry has ``group, unit, mae, baseline, spread, mae_norm,
+    baseline_norm``; groups and overall have ``n, unit, mae, baseline, mae_norm,
+    baseline_norm``, where normalised values are the equal-weight mean over entries and raw
+    values are given only if every entry has the same unit (else None). Entries whose held-out
+    spread is ~0 (e.g. a contact never made) cannot be normalised: their normalised values are
+    NaN and they are listed in ``excluded`` and left out of normalised averages.
+    """
+    m, b, s = (np.asarray(a, np.float64) for a in (mae_D, baseline_D, spread_D))
+    d = len(spec)
+    if not (m.shape == b.shape == s.shape == (d,)):
+        raise ValueError(f"expected [D={d}] arrays, got {m.shape}, {b.shape}, {s.shape}")
+    names = [e.name for e in spec]
+    if len(set(names)) != d:
+        raise ValueError(f"duplicate state entry names in spec: {names}")
+    good = s > _EPS
+    safe = np.where(good, s, 1.0)
+    mn = np.where(good, m / safe, np.nan)
+    bn = np.where(good, b / safe, np.nan)
+
+    entries = {
+        e.name: {
+            "group": e.group,
+            "unit": e.unit,
+            "mae": float(m[i]),
+            "baseline": float(b[i]),
+            "spread": float(s[i]),
+            "mae_norm": float(mn[i]),
+            "baseline_norm": float(bn[i]),
+        }
+        for i, e in enumerate(spec)
+    }
+    groups: dict[str, list[int]] = {}
+    for i, e in enumerate(spec):
+        groups.setdefault(e.group, []).append(i)
+    return {
+        "entries": entries,
+        "groups": {g: _aggregate(idx, spec, m, b, mn, bn) for g, idx in groups.items()},
+        "overall": _aggregate(list(range(d)), spec, m, b, mn, bn),
+        "excluded": [names[i] for i in range(d) if not good[i]],
+    }

@@ -1,0 +1,92 @@
+"""Alignment probes: learnable vs noise latents, baselines, jit/vmap, summarise."""
+
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from bulbjax.eval import StateEntry, probe
+
+N_TRAIN, N_TEST, D, L = 2048, 1024, 4, 16
+CFG = probe.ProbeConfig(hidden=(64, 64), steps=400, batch_size=128, lr=3e-3)
+SCALES = jnp.array([2.0, 0.1, 30.0, 1.0])  # very different units per entry
+
+
+def _data(key: jax.Array) -> tuple[jax.Array, jax.Array, jax.Array]:
+    ks, kp, kn = jax.random.split(key, 3)
+    states = jax.random.normal(ks, (N_TRAIN + N_TEST, D)) * SCALES + jnp.array([5.0, 0.0, -3.0, 1.0])
+    proj = jax.random.normal(kp, (D, L))
+    latents = jnp.tanh(((states - states.mean(0)) / states.std(0)) @ proj * 0.7)  # learnable, non-linear
+    noise = jax.random.normal(kn, (N_TRAIN + N_TEST, L))
+    return states, latents, noise
+
+
+def _eval(key: jax.Array, latents: jax.Array, states: jax.Array) -> tuple[jax.Array, jax.Array]:
+    params = probe.fit(key, latents[:N_TRAIN], states[:N_TRAIN], CFG)
+    err = probe.mae(probe.predict(params, latents[N_TRAIN:]), states[N_TRAIN:])
+    return err, probe.constant_baseline(states[:N_TRAIN], states[N_TRAIN:])
+
+
+def test_probe_learns_signal_not_noise() -> None:
+    states, latents, noise = _data(jax.random.PRNGKey(0))
+    keys = jax.random.split(jax.random.PRNGKey(1), 3)
+    # One vmapped, jitted call: two seeds on the learnable latents, one on pure noise.
+    err, base = jax.jit(jax.vmap(_eval))(keys, jnp.stack([latents, latents, noise]), jnp.stack([states] * 3))
+    err, base = np.asarray(err), np.asarray(base)
+    assert err.shape == base.shape == (3, D)
+    assert not np.array_equal(err[0], err[1])  # seeds give different probes
+    assert np.all(err[:2] < 0.25 * base[:2]), (err, base)  # wide margin on the learnable target
+    assert np.all(err[2] > 0.9 * base[2]), (err, base)  # no signal, no win
+    # Predictions are in the state's own units: errors scale with the entry's scale.
+    assert np.argmax(err[2]) == 2 and np.argmin(err[2]) == 1
+
+
+def test_baseline_and_spread_definitions() -> None:
+    train = jnp.array([[0.0, 1.0], [1.0, 1.0], [10.0, 1.0]])
+    test = jnp.array([[1.0, 1.0], [3.0, 1.0]])
+    np.testing.assert_allclose(probe.constant_baseline(train, test), [1.0, 0.0])  # median 1
+    np.testing.assert_allclose(probe.spread(train), [(1 + 0 + 9) / 3, 0.0])  # MAD around median
+    np.testing.assert_allclose(probe.mae(test, train[:2]), [1.5, 0.0])
+
+
+def test_fit_handles_constant_columns() -> None:
+    key = jax.random.PRNGKey(0)
+    x = jax.random.normal(key, (256, 3)).at[:, 1].set(2.0)
+    y = jnp.stack([x[:, 0], jnp.zeros(256)], axis=1)
+    params = probe.fit(key, x, y, probe.ProbeConfig(hidden=(8,), steps=20, batch_size=32))
+    pred = probe.predict(params, x)
+    assert np.all(np.isfinite(pred))
+    np.testing.assert_allclose(pred[:, 1], 0.0, atol=1e-5)
+
+
+SPEC = (
+    StateEntry("cart_x", "m", "position"),
+    StateEntry("pole_angle", "rad", "position"),
+    StateEntry("cart_vx", "m/s", "velocity"),
+    StateEntry("foot_contact", "1", "contact"),
+)
+
+
+def test_summarise_groups() -> None:
+    out = probe.summarise([0.5, 0.1, 2.0, 0.3], [1.0, 0.4, 2.0, 0.5], [1.0, 0.5, 4.0, 0.0], SPEC)
+    assert list(out["groups"]) == ["position", "velocity", "contact"]
+    pos = out["groups"]["position"]
+    assert pos["n"] == 2 and pos["unit"] is None and pos["mae"] is None  # mixed units: no raw mean
+    assert pos["mae_norm"] == pytest.approx((0.5 + 0.2) / 2)
+    assert pos["baseline_norm"] == pytest.approx((1.0 + 0.8) / 2)
+    vel = out["groups"]["velocity"]
+    assert vel["unit"] == "m/s" and vel["mae"] == pytest.approx(2.0) and vel["mae_norm"] == pytest.approx(0.5)
+    assert out["excluded"] == ["foot_contact"]  # zero spread cannot be normalised
+    assert math.isnan(out["entries"]["foot_contact"]["mae_norm"])
+    assert math.isnan(out["groups"]["contact"]["mae_norm"])
+    assert out["entries"]["foot_contact"]["mae"] == pytest.approx(0.3)
+    assert out["overall"]["n"] == 4
+    assert out["overall"]["mae_norm"] == pytest.approx((0.5 + 0.2 + 0.5) / 3)
+    assert out["entries"]["pole_angle"] == pytest.approx(
+        {"group": "position", "unit": "rad", "mae": 0.1, "baseline": 0.4, "spread": 0.5,
+         "mae_norm": 0.2, "baseline_norm": 0.8}
+    )
+    with pytest.raises(ValueError):
+        probe.summarise([0.1], [0.1], [0.1], SPEC)
