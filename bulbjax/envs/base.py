@@ -1,0 +1,248 @@
+"""Batched MJX environments that report a frame and the true low-dimensional state every step.
+
+Brax / MuJoCo Playground style: pure `reset(key)` and `step(state, action)` over an `EnvState`
+pytree, batched over `num_envs` worlds (physics vmapped over worlds, MuJoCo Warp kernels), with
+automatic reset when an episode ends. A domain subclasses `MjxPixelEnv` and fills in its model
+file, camera, reset distribution, state, reward and termination.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+from typing import Any, Sequence
+
+import jax
+import jax.numpy as jnp
+import mujoco
+import numpy as np
+from flax import struct
+from mujoco import mjx
+
+from bulbjax.envs.camera import CameraConfig, add_bulb_camera
+from bulbjax.envs.colours import NUM_SCHEMES, scheme_table
+from bulbjax.envs.render import Renderer
+from bulbjax.eval.spec import StateEntry
+
+ASSET_DIR_ENV = "BULBJAX_MJCF_DIR"
+MIN_RES, MAX_RES = 8, 1024
+
+
+def asset_dir() -> str:
+    """Folder of the MJCF files: `$BULBJAX_MJCF_DIR`, else the repo's `mjcf_assets/`."""
+    here = os.path.dirname(os.path.abspath(__file__))
+    default = os.path.normpath(os.path.join(here, "..", "..", "mjcf_assets"))
+    return os.environ.get(ASSET_DIR_ENV, default)
+
+
+@struct.dataclass
+class RenderInput:
+    """What is needed to render a stored step later: joint positions and colour scheme."""
+
+    qpos: jax.Array  # [N, nq]
+    scheme: jax.Array  # [N] int32
+
+
+@struct.dataclass
+class EnvState:
+    """Batched state of `num_envs` worlds after a reset or a step."""
+
+    data: mjx.Data
+    obs: jax.Array  # [N, obs_size] policy input (true state by default)
+    lowdim: jax.Array  # [N, D] true low-dimensional state, in the state spec's order
+    pixels: jax.Array  # [N, H, W, 3] uint8 (H = W = 0 when rendering is off)
+    reward: jax.Array  # [N]
+    done: jax.Array  # [N] 1.0 where this step ended an episode (terminated or truncated)
+    truncated: jax.Array  # [N] 1.0 where it ended by the time limit only
+    step_count: jax.Array  # [N] int32 steps into the current episode
+    episode_return: jax.Array  # [N] running return of the current episode
+    scheme: jax.Array  # [N] int32 colour scheme of the current episode
+    key: jax.Array  # [N, 2] per-world PRNG keys
+    info: dict[str, jax.Array]  # episode_return / episode_length of the episode that just ended
+
+    @property
+    def render_input(self) -> RenderInput:
+        return RenderInput(qpos=self.data.qpos, scheme=self.scheme)
+
+
+@dataclass(frozen=True)
+class EnvConfig:
+    """Construction options shared by all domains."""
+
+    num_envs: int = 64
+    resolution: int = 64
+    render: bool = True
+    multicolour: bool = False
+
+
+class MjxPixelEnv:
+    """Base class; subclasses set the class attributes and the `_` methods below."""
+
+    name: str = ""
+    xml_file: str = ""
+    camera: CameraConfig
+    state_spec: tuple[StateEntry, ...] = ()
+    episode_length: int = 1000
+    solved_return: float = 0.0
+    discrete: bool = False
+    num_actions: int | None = None
+    action_size: int = 1
+    colour_roles: dict[str, str] = {}  # geom name -> colour role, for multicolour
+    njmax: int = 8
+    naconmax_per_world: int = 1
+
+    def __init__(self, config: EnvConfig):
+        _check_config(config)
+        self.config = config
+        self.num_envs = config.num_envs
+        self.resolution = config.resolution
+        spec = mujoco.MjSpec.from_file(os.path.join(asset_dir(), self.xml_file))
+        self._edit_spec(spec)
+        add_bulb_camera(spec, self.camera)
+        self.mj_model = spec.compile()
+        self.mx = mjx.put_model(self.mj_model, impl="warp")
+        self._data0 = mjx.make_data(self.mj_model, impl="warp", njmax=self.njmax,
+                                    naconmax=self.naconmax_per_world * self.num_envs)
+        self.renderer = Renderer(self.mj_model, self.num_envs, self.resolution) if config.render else None
+        self._base_rgba = jnp.asarray(self.mj_model.geom_rgba)
+        roles = {self._geom_id(g): r for g, r in self.colour_roles.items()}
+        ids, rgb = scheme_table(roles) if roles else (np.zeros(0, np.int32), np.zeros((NUM_SCHEMES, 0, 3)))
+        self._colour_ids, self._scheme_rgb = jnp.asarray(ids), jnp.asarray(rgb, jnp.float32)
+
+    # ----- to be provided by domains -----
+    def _edit_spec(self, spec: mujoco.MjSpec) -> None:
+        """Hook to edit the model before compiling (e.g. add a floor)."""
+
+    def _reset_qpos_qvel(self, key: jax.Array) -> tuple[jax.Array, jax.Array]:
+        raise NotImplementedError
+
+    def _lowdim(self, data: mjx.Data) -> jax.Array:
+        raise NotImplementedError
+
+    def _ctrl(self, action: jax.Array) -> jax.Array:
+        raise NotImplementedError
+
+    def _reward_terminated(self, data: mjx.Data, lowdim: jax.Array, ctrl: jax.Array) -> tuple[jax.Array, jax.Array]:
+        raise NotImplementedError
+
+    # ----- public API -----
+    @property
+    def state_dim(self) -> int:
+        return len(self.state_spec)
+
+    @property
+    def obs_size(self) -> int:
+        return self.state_dim
+
+    @property
+    def frame_shape(self) -> tuple[int, int, int]:
+        return (self.resolution, self.resolution, 3)
+
+    def reset(self, key: jax.Array) -> EnvState:
+        """Start `num_envs` episodes; `key` is one PRNG key."""
+        keys = jax.random.split(key, self.num_envs)
+        data, scheme, keys = jax.vmap(self._reset_one)(keys)
+        zeros = jnp.zeros(self.num_envs)
+        lowdim = jax.vmap(self._lowdim)(data)
+        return EnvState(
+            data=data, obs=lowdim, lowdim=lowdim, pixels=self._render(data, scheme),
+            reward=zeros, done=zeros, truncated=zeros,
+            step_count=jnp.zeros(self.num_envs, jnp.int32), episode_return=zeros, scheme=scheme,
+            key=keys, info={"episode_return": zeros, "episode_length": jnp.zeros(self.num_envs, jnp.int32)})
+
+    def step(self, state: EnvState, action: jax.Array) -> EnvState:
+        """Apply `action` to every world, step physics, reset worlds whose episode ended."""
+        action = self._check_action(action)
+        ctrl = jax.vmap(self._ctrl)(action)
+        data = state.data.replace(ctrl=ctrl)
+        data = jax.vmap(mjx.step, in_axes=(None, 0))(self.mx, data)
+        lowdim = jax.vmap(self._lowdim)(data)
+        reward, terminated = jax.vmap(self._reward_terminated)(data, lowdim, ctrl)
+        step_count = state.step_count + 1
+        truncated = (step_count >= self.episode_length) & ~terminated
+        done = terminated | truncated
+        ep_return = state.episode_return + reward
+
+        split = jax.vmap(jax.random.split)(state.key)
+        fresh, fresh_scheme, _ = jax.vmap(self._reset_one, in_axes=(0, None))(split[:, 1], False)
+        data = _where_tree(done, fresh, data)
+        # Positions of the worlds just reset must be recomputed (for frames and contacts); the
+        # Warp forward pass costs as much as a step, so it only runs when some episode ended.
+        data = jax.lax.cond(done.any(), lambda d: jax.vmap(mjx.forward, in_axes=(None, 0))(self.mx, d),
+                            lambda d: d, data)
+        scheme = jnp.where(done, fresh_scheme, state.scheme)
+        obs_lowdim = jnp.where(done[:, None], jax.vmap(self._lowdim)(data), lowdim)
+        info = {"episode_return": jnp.where(done, ep_return, 0.0),
+                "episode_length": jnp.where(done, step_count, 0)}
+        return EnvState(
+            data=data, obs=obs_lowdim, lowdim=obs_lowdim, pixels=self._render(data, scheme),
+            reward=reward, done=done.astype(jnp.float32), truncated=truncated.astype(jnp.float32),
+            step_count=jnp.where(done, 0, step_count), episode_return=jnp.where(done, 0.0, ep_return),
+            scheme=scheme, key=split[:, 0], info=info)
+
+    def render_frames(self, render_input: RenderInput) -> jax.Array:
+        """Frames `[num_envs, H, W, 3]` of stored joint positions (e.g. a subset of a rollout)."""
+        if self.renderer is None:
+            raise ValueError(f"{self.name} was made with render=False; make it with render=True to get frames")
+        data = jax.vmap(lambda q: self._data0.replace(qpos=q))(render_input.qpos)
+        data = jax.vmap(mjx.forward, in_axes=(None, 0))(self.mx, data)
+        return self._render(data, render_input.scheme)
+
+    # ----- internals -----
+    def _reset_one(self, key: jax.Array, forward: bool = True) -> tuple[mjx.Data, jax.Array, jax.Array]:
+        key, k_state, k_colour = jax.random.split(key, 3)
+        qpos, qvel = self._reset_qpos_qvel(k_state)
+        data = self._data0.replace(qpos=qpos, qvel=qvel)
+        if forward:
+            data = mjx.forward(self.mx, data)
+        scheme = (jax.random.randint(k_colour, (), 0, NUM_SCHEMES) if self.config.multicolour
+                  else jnp.zeros((), jnp.int32))
+        return data, scheme.astype(jnp.int32), key
+
+    def _render(self, data: mjx.Data, scheme: jax.Array) -> jax.Array:
+        if self.renderer is None:
+            return jnp.zeros((self.num_envs, 0, 0, 3), jnp.uint8)
+        mx = self.mx
+        if self.config.multicolour and self._colour_ids.size:
+            rgba = jnp.broadcast_to(self._base_rgba, (self.num_envs, *self._base_rgba.shape))
+            rgba = rgba.at[:, self._colour_ids, :3].set(self._scheme_rgb[scheme])
+            mx = mx.tree_replace({"geom_rgba": rgba})
+        return self.renderer(mx, data)
+
+    def _check_action(self, action: Any) -> jax.Array:
+        action = jnp.asarray(action)
+        if self.discrete:
+            if action.shape != (self.num_envs,) or not jnp.issubdtype(action.dtype, jnp.integer):
+                raise ValueError(f"{self.name} takes integer actions of shape ({self.num_envs},) in "
+                                 f"[0, {self.num_actions}); got {action.dtype} {action.shape}")
+            return action.astype(jnp.int32)
+        if action.shape != (self.num_envs, self.action_size):
+            raise ValueError(f"{self.name} takes float actions of shape ({self.num_envs}, {self.action_size}) "
+                             f"in [-1, 1]; got shape {action.shape}")
+        return action.astype(jnp.float32)
+
+    def _geom_id(self, name: str) -> int:
+        gid = mujoco.mj_name2id(self.mj_model, mujoco.mjtObj.mjOBJ_GEOM, name)
+        if gid < 0:
+            raise ValueError(f"geom {name!r} not in {self.xml_file}")
+        return gid
+
+
+def _where_tree(mask: jax.Array, a: Any, b: Any) -> Any:
+    """Per-world select between two batched pytrees; leaves without the world axis (empty
+    Warp buffers) are taken from `b`."""
+    def sel(x, y):
+        if x.ndim == 0 or x.shape[0] != mask.shape[0] or x.shape != y.shape:
+            return y
+        m = mask.reshape(mask.shape + (1,) * (x.ndim - 1))
+        return jnp.where(m, x, y)
+    return jax.tree.map(sel, a, b)
+
+
+def _check_config(config: EnvConfig) -> None:
+    if not isinstance(config.num_envs, (int, np.integer)) or config.num_envs < 1:
+        raise ValueError(f"num_envs must be a positive integer, got {config.num_envs!r}")
+    res = config.resolution
+    if not isinstance(res, (int, np.integer)) or not MIN_RES <= res <= MAX_RES:
+        raise ValueError(f"resolution must be an integer side length in [{MIN_RES}, {MAX_RES}] "
+                         f"(frames are square; 64 is the paper's), got {res!r}")

@@ -1,0 +1,33 @@
+"""`bulbjax.make(name, ...)`: the environment registry."""
+
+from __future__ import annotations
+
+from bulbjax.envs.base import EnvConfig, MjxPixelEnv
+from bulbjax.envs.pendulum import CartPole, CartPoleContinuous, InvertedPendulum
+
+_REGISTRY: dict[str, type[MjxPixelEnv]] = {
+    cls.name: cls for cls in (CartPole, CartPoleContinuous, InvertedPendulum)
+}
+MULTICOLOUR_SUFFIX = "Multicolour"
+ENV_NAMES: tuple[str, ...] = tuple(_REGISTRY)
+
+
+def env_names(with_variants: bool = True) -> list[str]:
+    """Registered names; with the multicolour variants (`<Name>Multicolour`) when asked."""
+    names = list(_REGISTRY)
+    return names + [n + MULTICOLOUR_SUFFIX for n in names] if with_variants else names
+
+
+def make(name: str, num_envs: int = 64, resolution: int = 64, render: bool = True,
+         multicolour: bool = False) -> MjxPixelEnv:
+    """A batched environment of `num_envs` worlds with `resolution`x`resolution` RGB frames.
+
+    `name` is a registered domain (see `env_names()`); a `Multicolour` suffix, or
+    `multicolour=True`, draws one of bulb's four colour schemes per episode."""
+    base = name
+    if name.endswith(MULTICOLOUR_SUFFIX):
+        base, multicolour = name[: -len(MULTICOLOUR_SUFFIX)], True
+    if base not in _REGISTRY:
+        raise ValueError(f"unknown environment {name!r}; available: {', '.join(env_names())}")
+    cfg = EnvConfig(num_envs=num_envs, resolution=resolution, render=render, multicolour=multicolour)
+    return _REGISTRY[base](cfg)

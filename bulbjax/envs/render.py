@@ -1,0 +1,40 @@
+"""Batch rendering through the MuJoCo Warp renderer (`mjx.render`, impl='warp').
+
+One `Renderer` owns one render context, whose number of worlds is fixed when it is made; it
+turns a batch of MJX Data (positions already computed) into uint8 RGB frames. It runs inside
+`jax.jit`, on CPU (Warp's CPU backend) and on GPU.
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import mujoco
+from mujoco import mjx
+
+
+class Renderer:
+    """Renders camera `cam_id` of `nworld` worlds at `resolution` x `resolution`."""
+
+    def __init__(self, mj_model: mujoco.MjModel, nworld: int, resolution: int, cam_id: int = 0,
+                 background: tuple[float, float, float] = (1.0, 1.0, 1.0)):
+        self.nworld = nworld
+        self.resolution = resolution
+        self.cam_id = cam_id
+        # The context object must stay alive as long as its pytree is used (see mjx-warp notes).
+        self._context = mjx.create_render_context(
+            mj_model, nworld=nworld, cam_res=(resolution, resolution), render_rgb=True,
+            render_depth=False, use_textures=True, use_shadows=False,
+            background_color=(*background, 1.0))
+        self._pytree = self._context.pytree()
+
+    def __call__(self, mx: mjx.Model, data: mjx.Data) -> jax.Array:
+        """uint8 frames `[nworld, H, W, 3]` of `data` (batched over worlds, after kinematics).
+
+        `mx` may carry per-world `geom_rgba` of shape `[nworld, ngeom, 4]` (multicolour)."""
+        if data.qpos.shape[0] != self.nworld:
+            raise ValueError(f"renderer was made for {self.nworld} worlds, got a batch of {data.qpos.shape[0]}")
+        data = mjx.refit_bvh(mx, data, self._pytree)
+        rgb, _, _ = mjx.render(mx, data, self._pytree)
+        frames = mjx.get_rgb(self._pytree, self.cam_id, rgb)
+        return jnp.clip(jnp.round(frames * 255.0), 0, 255).astype(jnp.uint8)
