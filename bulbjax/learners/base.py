@@ -1,0 +1,133 @@
+"""Common pieces of the frame learners: config, training state, interface, NaN guard.
+
+A frame learner turns single uint8 frames into latent codes. The evaluation loop only
+relies on the `FrameLearner` protocol below, so the VAE variants and the later
+sequential learners can be swapped freely.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import Any, Mapping, Protocol, runtime_checkable
+
+import flax.struct
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+COMPUTE_DTYPES: tuple[str, ...] = ("float32", "bfloat16")
+
+
+@dataclasses.dataclass(frozen=True)
+class LearnerConfig:
+    """Hyperparameters shared by the frame learners (defaults follow the paper, sec. IV.A).
+
+    `batch_size` is what the caller should sample from replay per update; `update` itself
+    trains on whatever batch it is given. `compute_dtype='bfloat16'` runs the conv stacks in
+    bf16 (XLA's fp32 transposed convs are slow on GPU) while params, optimiser state and the
+    loss stay float32. `retain_fraction` is the share of the initial replay content the
+    learner asks the caller to keep for the whole run (VAE_rpl's replay of early frames).
+    """
+
+    lr: float = 1e-4
+    batch_size: int = 1024
+    beta: float = 1.0
+    conv_features: tuple[int, ...] = (64, 64, 128, 256)
+    hidden: int = 512
+    compute_dtype: str = "float32"
+    retain_fraction: float = 0.0
+
+    def __post_init__(self) -> None:
+        # Accept lists for conv_features but store a tuple, so the config stays hashable.
+        object.__setattr__(self, "conv_features", tuple(int(f) for f in self.conv_features))
+        if not (math.isfinite(self.lr) and self.lr > 0):
+            raise ValueError(f"lr must be a positive finite number, got {self.lr!r}")
+        if self.batch_size < 1:
+            raise ValueError(f"batch_size must be >= 1, got {self.batch_size!r}")
+        if not (math.isfinite(self.beta) and self.beta >= 0):
+            raise ValueError(f"beta must be a finite number >= 0, got {self.beta!r}")
+        if not self.conv_features or any(f < 1 for f in self.conv_features):
+            raise ValueError(
+                f"conv_features must be a non-empty tuple of positive ints, got {self.conv_features!r}"
+            )
+        if self.hidden < 1:
+            raise ValueError(f"hidden must be >= 1, got {self.hidden!r}")
+        if self.compute_dtype not in COMPUTE_DTYPES:
+            raise ValueError(
+                f"compute_dtype must be one of {COMPUTE_DTYPES}, got {self.compute_dtype!r}"
+            )
+        if not 0.0 <= self.retain_fraction < 1.0:
+            raise ValueError(f"retain_fraction must be in [0, 1), got {self.retain_fraction!r}")
+
+    @property
+    def dtype(self) -> jnp.dtype:
+        """The compute dtype as a JAX dtype."""
+        return jnp.dtype(self.compute_dtype)
+
+
+@flax.struct.dataclass
+class LearnerState:
+    """Training state of one learner (one seed); a pytree, so it vmaps and scans.
+
+    `step` is an int32 scalar counting updates.
+    """
+
+    params: Any
+    opt_state: Any
+    step: jax.Array
+
+
+Metrics = dict[str, jax.Array]
+
+
+@runtime_checkable
+class FrameLearner(Protocol):
+    """What the evaluation loop needs from a frame learner. All methods are pure and jittable."""
+
+    latent_dim: int
+    config: LearnerConfig
+
+    @property
+    def retain_fraction(self) -> float:
+        """Share of the initial replay content to keep for the whole run."""
+        ...
+
+    def init(self, key: jax.Array, frame_shape: tuple[int, int, int]) -> LearnerState:
+        """Fresh params and optimiser state for frames of shape (H, W, 3)."""
+        ...
+
+    def update(
+        self, state: LearnerState, frames: jax.Array, key: jax.Array
+    ) -> tuple[LearnerState, Metrics]:
+        """One gradient step on uint8 frames [B, H, W, 3]; metrics are float32 scalars."""
+        ...
+
+    def encode(self, params: Any, frames: jax.Array) -> jax.Array:
+        """Posterior means [B, latent_dim] float32 for uint8 frames [B, H, W, 3]."""
+        ...
+
+    def reconstruct(self, params: Any, frames: jax.Array) -> jax.Array:
+        """Reconstructions [B, H, W, 3] float32 in [0, 1] for uint8 frames."""
+        ...
+
+
+def check_finite(metrics: Mapping[str, Any], where: str) -> None:
+    """Host-side: raise FloatingPointError if any metric is NaN or infinite.
+
+    Jitted code cannot raise on a NaN, so the loss travels out in `metrics`; call this on
+    the fetched metrics (any leading seed/step axes are fine). `where` names the caller,
+    e.g. "vae_rpl update, epoch 3", and is put in the message.
+    """
+    bad = []
+    for name, value in metrics.items():
+        arr = np.asarray(jax.device_get(value), dtype=np.float64)
+        if not np.all(np.isfinite(arr)):
+            bad.append(f"{name}={arr.tolist() if arr.size <= 8 else '<array with non-finite entries>'}")
+    if bad:
+        raise FloatingPointError(
+            f"non-finite learner metrics in {where}: {', '.join(bad)}. "
+            "The training diverged: lower the learning rate (LearnerConfig.lr), try "
+            "compute_dtype='float32' if bf16 was used, and check that the input frames are "
+            "valid uint8 images of the expected shape."
+        )

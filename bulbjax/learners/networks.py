@@ -1,0 +1,125 @@
+"""Conv encoder and deconv decoder of the paper's VAE-based learners (sec. IV.A).
+
+Encoder: len(features) conv layers (4x4, stride 2, ReLU; 64,64,128,256 filters by
+default), a 512-unit FC layer, then two linear heads for the posterior mean and
+log-variance. Decoder mirrors it: FC 512 -> FC to (R/16)x(R/16)x256 -> transposed convs
+(4x4, stride 2) with 128,64,64 filters and ReLU, and a last one to 3 channels of logits.
+
+The two are separate modules so the sequential learners can reuse them. Params are
+always float32; `dtype` sets the compute dtype of the conv/FC stacks. The posterior
+heads run in float32 (they are tiny and their output is what the probes see), and all
+outputs are float32.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any, Sequence
+
+import flax.linen as nn
+import jax
+import jax.numpy as jnp
+
+DEFAULT_FEATURES: tuple[int, ...] = (64, 64, 128, 256)
+
+# Std of a standard normal truncated to [-2, 2]; dividing by it gives unit variance.
+_TRUNC_STD = 0.87962566103423978
+
+
+def lecun_normal_flat(key: jax.Array, shape: Sequence[int], dtype: Any = jnp.float32) -> jax.Array:
+    """Flax's default kernel init (LeCun truncated normal, fan_in = prod(shape[:-1])).
+
+    Same distribution as `nn.initializers.lecun_normal()`, but drawn as a flat vector and
+    reshaped: with jax_threefry_partitionable (the default), XLA:CPU takes seconds to
+    compile each multi-dimensional random draw, which made init take ~40 s on CPU.
+    """
+    fan_in = math.prod(shape[:-1])
+    std = math.sqrt(1.0 / fan_in) / _TRUNC_STD
+    flat = jax.random.truncated_normal(key, -2.0, 2.0, (math.prod(shape),), jnp.float32)
+    return (flat * std).reshape(shape).astype(dtype)
+
+
+def check_frame_shape(
+    frame_shape: Sequence[int], num_layers: int = len(DEFAULT_FEATURES), channels: int = 3
+) -> int:
+    """Return the resolution R of frames shaped (R, R, channels), or raise ValueError.
+
+    Each conv layer halves the resolution, so R must be a positive multiple of
+    2**num_layers (16 for the default 4 layers).
+    """
+    if any(isinstance(d, jax.core.Tracer) for d in frame_shape):
+        raise TypeError(
+            "frame_shape must be a static tuple of ints, not traced values: bind it with "
+            "functools.partial(learner.init, frame_shape=...) before jit/vmap/eval_shape"
+        )
+    shape = tuple(int(d) for d in frame_shape)
+    step = 2**num_layers
+    ok = len(shape) == 3 and shape[0] == shape[1] and shape[2] == channels and shape[0] > 0
+    ok = ok and shape[0] % step == 0
+    if not ok:
+        raise ValueError(
+            f"frames must have shape (R, R, {channels}) per frame: square with R a positive "
+            f"multiple of {step} ({num_layers} stride-2 conv layers; R=64 is the default); "
+            f"got frame shape {shape}"
+        )
+    return shape[0]
+
+
+class ConvEncoder(nn.Module):
+    """Frames [B, R, R, 3] in [0, 1] -> (mean, logvar), each [B, latent_dim] float32."""
+
+    latent_dim: int
+    features: tuple[int, ...] = DEFAULT_FEATURES
+    hidden: int = 512
+    dtype: jnp.dtype = jnp.float32
+
+    @nn.compact
+    def __call__(self, x: jax.Array) -> tuple[jax.Array, jax.Array]:
+        check_frame_shape(x.shape[1:], len(self.features))
+        h = x.astype(self.dtype)
+        for i, f in enumerate(self.features):
+            h = nn.Conv(
+                f, (4, 4), strides=(2, 2), padding="SAME",
+                dtype=self.dtype, param_dtype=jnp.float32, kernel_init=lecun_normal_flat,
+                name=f"conv{i}",
+            )(h)
+            h = nn.relu(h)
+        h = h.reshape((h.shape[0], -1))
+        dense = dict(param_dtype=jnp.float32, kernel_init=lecun_normal_flat)
+        h = nn.relu(nn.Dense(self.hidden, dtype=self.dtype, name="fc", **dense)(h))
+        h = h.astype(jnp.float32)
+        mean = nn.Dense(self.latent_dim, name="mean", **dense)(h)
+        logvar = nn.Dense(self.latent_dim, name="logvar", **dense)(h)
+        return mean, logvar
+
+
+class DeconvDecoder(nn.Module):
+    """Latents [B, latent_dim] -> pixel logits [B, R, R, 3] float32 (sigmoid gives [0, 1]).
+
+    `features` are the encoder's conv features; the decoder walks them in reverse.
+    """
+
+    resolution: int = 64
+    features: tuple[int, ...] = DEFAULT_FEATURES
+    hidden: int = 512
+    channels: int = 3
+    dtype: jnp.dtype = jnp.float32
+
+    @nn.compact
+    def __call__(self, z: jax.Array) -> jax.Array:
+        check_frame_shape(
+            (self.resolution, self.resolution, self.channels), len(self.features), self.channels
+        )
+        start = self.resolution // 2 ** len(self.features)
+        dense = dict(dtype=self.dtype, param_dtype=jnp.float32, kernel_init=lecun_normal_flat)
+        h = nn.relu(nn.Dense(self.hidden, name="fc", **dense)(z.astype(self.dtype)))
+        h = nn.relu(nn.Dense(start * start * self.features[-1], name="fc_grid", **dense)(h))
+        h = h.reshape((h.shape[0], start, start, self.features[-1]))
+        out_features = (*reversed(self.features[:-1]), self.channels)
+        for i, f in enumerate(out_features):
+            h = nn.ConvTranspose(
+                f, (4, 4), strides=(2, 2), padding="SAME", name=f"deconv{i}", **dense
+            )(h)
+            if i < len(out_features) - 1:
+                h = nn.relu(h)
+        return h.astype(jnp.float32)

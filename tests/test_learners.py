@@ -1,0 +1,202 @@
+"""Tests of the frame learners (vae, vae_rpl, beta_vae) on small synthetic frames.
+
+Training tests use a reduced network (narrow convs, small FC) and 32x32 frames so the
+file runs in well under a minute and a half on a 2-core CPU; the paper-sized network is
+checked with jax.eval_shape (shapes only, no compile).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from bulbjax.learners import (
+    LEARNER_NAMES,
+    FrameLearner,
+    LearnerConfig,
+    check_finite,
+    make_learner,
+)
+
+RES = 32
+LATENT = 4
+STEPS = 40
+SMALL = {"conv_features": (8, 8, 16, 16), "hidden": 32, "lr": 2e-3}
+
+
+def squares(n: int, res: int, seed: int = 0) -> jnp.ndarray:
+    """uint8 frames [n, res, res, 3]: one coloured square per frame on black, random place."""
+    rng = np.random.default_rng(seed)
+    frames = np.zeros((n, res, res, 3), np.uint8)
+    side = res // 4
+    for i in range(n):
+        x, y = rng.integers(0, res - side, size=2)
+        frames[i, y : y + side, x : x + side] = rng.integers(60, 256, size=3)
+    return jnp.asarray(frames)
+
+
+FRAMES = squares(16, RES)
+
+
+def train(learner, steps: int = STEPS):
+    """Jitted key -> (state, per-step metrics, latents, reconstructions) of FRAMES.
+
+    Init, `steps` updates inside lax.scan, then encode/reconstruct, all in one compile.
+    """
+
+    def run(key):
+        k_init, k_steps = jax.random.split(key)
+        state = learner.init(k_init, (RES, RES, 3))
+        state, metrics = jax.lax.scan(
+            lambda s, k: learner.update(s, FRAMES, k), state, jax.random.split(k_steps, steps)
+        )
+        z = learner.encode(state.params, FRAMES)
+        return state, metrics, z, learner.reconstruct(state.params, FRAMES)
+
+    return jax.jit(run)
+
+
+# Every learner in float32, plus the VAE with bf16 compute.
+CASES = [(name, "float32") for name in LEARNER_NAMES] + [("vae", "bfloat16")]
+
+
+@pytest.fixture(scope="module", params=CASES, ids=[f"{n}-{d}" for n, d in CASES])
+def trained(request):
+    name, dtype = request.param
+    learner = make_learner(name, LATENT, {**SMALL, "compute_dtype": dtype})
+    run = train(learner)
+    return (learner, run, *run(jax.random.key(0)))
+
+
+def test_loss_falls(trained) -> None:
+    learner, _, state, metrics, _, _ = trained
+    check_finite(metrics, "test_loss_falls")
+    loss = np.asarray(metrics["loss"])
+    assert loss.shape == (STEPS,) and metrics["loss"].dtype == jnp.float32
+    assert int(state.step) == STEPS
+    # metrics[0] is the loss of the untrained net; the end must be far below it.
+    assert loss[-5:].mean() < 0.6 * loss[0], loss
+    np.testing.assert_allclose(
+        metrics["loss"], metrics["recon"] + learner.config.beta * metrics["kl"], rtol=1e-5
+    )
+
+
+def test_latents_and_reconstructions(trained) -> None:
+    _, _, _, _, z, rec = trained
+    assert z.shape == (16, LATENT) and z.dtype == jnp.float32
+    assert np.all(np.isfinite(z))
+    assert rec.shape == (16, RES, RES, 3) and rec.dtype == jnp.float32
+    assert float(rec.min()) >= 0.0 and float(rec.max()) <= 1.0
+
+
+def test_params_stay_float32(trained) -> None:
+    """Also under bf16 compute: params and Adam moments are float32."""
+    _, _, state, _, _, _ = trained
+    for leaf in jax.tree.leaves((state.params, state.opt_state)):
+        if jnp.issubdtype(leaf.dtype, jnp.floating):
+            assert leaf.dtype == jnp.float32, leaf.dtype
+
+
+def test_deterministic_under_fixed_key(trained) -> None:
+    _, run, state, metrics, z, _ = trained
+    state2, metrics2, z2, _ = run(jax.random.key(0))
+    jax.tree.map(np.testing.assert_array_equal, state.params, state2.params)
+    np.testing.assert_array_equal(metrics["loss"], metrics2["loss"])
+    np.testing.assert_array_equal(z, z2)
+    _, metrics3, _, _ = run(jax.random.key(1))
+    assert not np.array_equal(metrics["loss"], metrics3["loss"])
+
+
+def test_registry_presets() -> None:
+    vae, rpl, beta = (make_learner(n, LATENT) for n in ("vae", "vae_rpl", "beta_vae"))
+    assert (vae.retain_fraction, vae.config.beta) == (0.0, 1.0)
+    assert (rpl.retain_fraction, rpl.config.beta) == (0.5, 1.0)
+    assert (beta.retain_fraction, beta.config.beta) == (0.5, 5.0)
+    assert vae.config.lr == 1e-4 and vae.config.batch_size == 1024
+    for learner in (vae, rpl, beta):
+        assert isinstance(learner, FrameLearner)
+    # A LearnerConfig's non-default fields override; the name's presets stay otherwise.
+    custom = make_learner("vae_rpl", LATENT, LearnerConfig(lr=1e-3))
+    assert custom.config.lr == 1e-3 and custom.retain_fraction == 0.5
+    assert make_learner("beta_vae", LATENT, LearnerConfig(beta=20.0)).config.beta == 20.0
+    assert make_learner("beta_vae", LATENT, {"beta": 1.0}).config.beta == 1.0
+
+
+def test_unknown_name_raises() -> None:
+    with pytest.raises(ValueError, match="vae, vae_rpl, beta_vae"):
+        make_learner("svae_typo", LATENT)
+    with pytest.raises(ValueError, match="unknown config fields"):
+        make_learner("vae", LATENT, {"learning_rate": 1e-3})
+    with pytest.raises(ValueError, match="compute_dtype"):
+        LearnerConfig(compute_dtype="float16")
+
+
+def test_vmap_over_seeds() -> None:
+    """init/update/encode vmapped over 2 seeds (params with a leading seed axis) in one jit."""
+    learner = make_learner("vae", LATENT, SMALL)
+    init = functools.partial(learner.init, frame_shape=(RES, RES, 3))
+
+    @jax.jit
+    def run(keys):
+        states = jax.vmap(init)(keys)
+        new, metrics = jax.vmap(learner.update, in_axes=(0, None, 0))(states, FRAMES, keys)
+        z = jax.vmap(learner.encode, in_axes=(0, None))(new.params, FRAMES)
+        return states, new, metrics, z
+
+    states, new, metrics, z = run(jax.random.split(jax.random.key(3), 2))
+    kernel = states.params["encoder"]["conv0"]["kernel"]
+    assert kernel.shape == (2, 4, 4, 3, 8) and not np.allclose(kernel[0], kernel[1])
+    assert metrics["loss"].shape == (2,) and metrics["loss"][0] != metrics["loss"][1]
+    np.testing.assert_array_equal(new.step, [1, 1])
+    check_finite(metrics, "test_vmap_over_seeds")
+    assert z.shape == (2, 16, LATENT) and not np.allclose(z[0], z[1])
+
+
+def test_paper_sized_network_shapes() -> None:
+    """Default config (64,64,128,256 convs, FC 512) at 64x64 and 128x128, shapes only."""
+    learner = make_learner("vae", 8)
+    for res in (64, 128):
+        init = functools.partial(learner.init, frame_shape=(res, res, 3))
+        state = jax.eval_shape(init, jax.random.key(0))
+        enc = state.params["encoder"]
+        assert [enc[f"conv{i}"]["kernel"].shape[-1] for i in range(4)] == [64, 64, 128, 256]
+        assert enc["fc"]["kernel"].shape == ((res // 16) ** 2 * 256, 512)
+        frames = jax.ShapeDtypeStruct((2, res, res, 3), jnp.uint8)
+        assert jax.eval_shape(learner.encode, state.params, frames).shape == (2, 8)
+        assert jax.eval_shape(learner.reconstruct, state.params, frames).shape == (2, res, res, 3)
+
+
+def test_bad_frame_shape_raises() -> None:
+    learner = make_learner("vae", LATENT, SMALL)
+    key = jax.random.key(0)
+    for shape in [(30, 30, 3), (32, 48, 3), (32, 32, 1), (32, 32), (0, 0, 3)]:
+        with pytest.raises(ValueError, match="multiple of 16"):
+            learner.init(key, shape)
+    with pytest.raises(TypeError, match="static"):
+        jax.eval_shape(learner.init, key, (RES, RES, 3))  # frame_shape traced
+    state = jax.eval_shape(functools.partial(learner.init, frame_shape=(RES, RES, 3)), key)
+    with pytest.raises(ValueError, match="initialised for 32x32x3"):
+        learner.encode(state.params, jnp.zeros((2, 64, 64, 3), jnp.uint8))
+    with pytest.raises(ValueError, match="multiple of 16"):
+        learner.encode(state.params, jnp.zeros((2, 40, 40, 3), jnp.uint8))
+    with pytest.raises(TypeError, match="uint8"):
+        learner.encode(state.params, jnp.zeros((2, RES, RES, 3), jnp.float32))
+
+
+def test_check_finite() -> None:
+    check_finite({"loss": jnp.ones((2, 3))}, "ok")
+    with pytest.raises(FloatingPointError, match="lower the learning rate"):
+        check_finite({"loss": jnp.array([1.0, jnp.nan]), "kl": jnp.array(0.0)}, "epoch 3")
+
+
+def test_config_is_hashable_and_frozen() -> None:
+    config = LearnerConfig(conv_features=[8, 8, 16, 16])  # type: ignore[arg-type]
+    assert config.conv_features == (8, 8, 16, 16)
+    hash(make_learner("vae", LATENT, config))
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        config.lr = 1.0  # type: ignore[misc]
