@@ -1,0 +1,463 @@
+"""Throughput of bulbjax: environment steps and rendered frames per second, VAE updates per second.
+
+1. Environments (`--envs`, `--batch-sizes`): `--steps` calls of `env.step` inside one jitted
+   `jax.lax.scan` with random actions, physics only (render=False) and with 64x64 Warp frames
+   (render=True: physics step + render + low-dim state). Compile time (lower + compile), first
+   call and `--repeats` timed calls are reported separately; rates use the median call.
+2. Learner: `vae` updates per second at `--vae-batch` frames, fp32 and bf16 compute, one jitted
+   update (donated state) called `--vae-steps` times after warm-up; and, in a subprocess on the
+   same device, the PyTorch reference of `torch_vae_reference.py` (eager and torch.compile, fp32
+   and bf16 autocast), with the bulbjax/PyTorch ratios.
+
+Results are printed and written (after every measurement, so a run cut short keeps what it had)
+to `<out-dir>/throughput_<device>_<timestamp>.json` and `<out-dir>/throughput_<device>_latest.json`.
+
+GPU: python benchmarks/bench_throughput.py
+CPU smoke run: python benchmarks/bench_throughput.py --batch-sizes 8 --steps 10 --vae-batch 16 --vae-steps 3
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime as dt
+import gc
+import importlib.metadata
+import importlib.util
+import json
+import os
+import platform
+import re
+import shlex
+import socket
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from dataclasses import asdict, dataclass
+from typing import Any, Callable
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+REPO = os.path.dirname(HERE)
+# Use this working tree's bulbjax (and its mjcf_assets), not an installed copy.
+sys.path.insert(0, REPO)
+
+import jax  # noqa: E402
+import jax.numpy as jnp  # noqa: E402
+import numpy as np  # noqa: E402
+
+import bulbjax  # noqa: E402
+from bulbjax.learners import LearnerConfig, check_finite, make_learner  # noqa: E402
+
+MODES: tuple[str, ...] = ("physics", "rendered")
+PARTS: tuple[str, ...] = ("env", "learner", "torch")
+DTYPES: tuple[str, ...] = ("float32", "bfloat16")
+
+
+@dataclass(frozen=True)
+class BenchSettings:
+    """Everything one benchmark run measures (recorded in the JSON)."""
+
+    envs: tuple[str, ...] = ("CartPole", "InvertedPendulum")
+    batch_sizes: tuple[int, ...] = (1024, 4096)
+    steps: int = 100
+    repeats: int = 5
+    resolution: int = 64
+    vae_batch: int = 1024
+    vae_steps: int = 50
+    vae_warmup: int = 3
+    latent_dim: int = 32
+    dtypes: tuple[str, ...] = DTYPES
+    parts: tuple[str, ...] = PARTS
+    torch_compile: bool = True
+    torch_channels_last: bool = False
+    torch_timeout_s: float = 900.0
+    seed: int = 0
+    out_dir: str = os.path.join(HERE, "results")
+    verbose: bool = False
+
+    def __post_init__(self) -> None:
+        if not self.envs or not self.batch_sizes:
+            raise ValueError("give at least one environment and one batch size")
+        if any(b < 1 for b in self.batch_sizes):
+            raise ValueError(f"batch sizes must be positive, got {self.batch_sizes}")
+        for name, v in (("steps", self.steps), ("repeats", self.repeats), ("vae_batch", self.vae_batch),
+                        ("vae_steps", self.vae_steps), ("latent_dim", self.latent_dim)):
+            if v < 1:
+                raise ValueError(f"{name} must be >= 1, got {v}")
+        if self.vae_warmup < 0:
+            raise ValueError(f"vae_warmup must be >= 0, got {self.vae_warmup}")
+        if bad := set(self.dtypes) - set(DTYPES):
+            raise ValueError(f"unknown dtypes {sorted(bad)}; choose from {DTYPES}")
+        if bad := set(self.parts) - set(PARTS):
+            raise ValueError(f"unknown parts {sorted(bad)}; choose from {PARTS}")
+        if bad := set(self.envs) - set(bulbjax.env_names()):
+            raise ValueError(f"unknown envs {sorted(bad)}; available: {bulbjax.env_names()}")
+
+
+# ----------------------------------------------------------------------------- helpers
+
+
+def log(msg: str) -> None:
+    """Progress line on stderr, with wall-clock time."""
+    print(f"[{time.strftime('%H:%M:%S')}] {msg}", file=sys.stderr, flush=True)
+
+
+def timed(fn: Callable[[], Any]) -> tuple[Any, float]:
+    """Run `fn`, block on its result, return (result, seconds)."""
+    t0 = time.perf_counter()
+    out = jax.block_until_ready(fn())
+    return out, time.perf_counter() - t0
+
+
+def versions() -> dict[str, str | None]:
+    """Installed versions of the packages that matter for the figures."""
+    out: dict[str, str | None] = {"python": platform.python_version()}
+    for pkg in ("jax", "jaxlib", "jax-cuda12-plugin", "jax-cuda12-pjrt", "flax", "optax", "numpy",
+                "mujoco", "mujoco-mjx", "mujoco-warp", "warp-lang", "torch"):
+        try:
+            out[pkg] = importlib.metadata.version(pkg)
+        except importlib.metadata.PackageNotFoundError:
+            out[pkg] = None
+    try:
+        import warp
+
+        out["warp"] = warp.__version__
+    except Exception:  # noqa: BLE001 - informational only
+        out["warp"] = None
+    return out
+
+
+def git_commit() -> str | None:
+    """HEAD of the working tree, if it is a git checkout."""
+    try:
+        return subprocess.run(["git", "rev-parse", "HEAD"], cwd=REPO, capture_output=True, text=True,
+                              timeout=10, check=True).stdout.strip() or None
+    except Exception:  # noqa: BLE001 - no git on the device machine is fine
+        return None
+
+
+def quiet_warp() -> None:
+    """Silence Warp's one-line-per-kernel-module load messages (warnings still show)."""
+    try:
+        import warp
+
+        warp.config.log_level = warp.LOG_WARNING
+    except Exception:  # noqa: BLE001 - cosmetic only
+        pass
+
+
+def device_info() -> dict[str, Any]:
+    """JAX's first device and the host."""
+    d = jax.devices()[0]
+    return {"platform": d.platform, "device_kind": d.device_kind, "num_devices": jax.device_count(),
+            "host": socket.gethostname(), "cpu_count": os.cpu_count(),
+            "xla_flags": os.environ.get("XLA_FLAGS"), "jax_default_matmul_precision":
+            str(jax.config.jax_default_matmul_precision)}
+
+
+def device_slug(kind: str) -> str:
+    """File-name-safe device name, e.g. 'NVIDIA H100 80GB HBM3' -> 'nvidia_h100_80gb_hbm3'."""
+    return re.sub(r"[^a-z0-9]+", "_", kind.lower()).strip("_") or "unknown"
+
+
+def fmt_rate(x: float) -> str:
+    """1234567 -> '1.23 M'."""
+    for div, unit in ((1e9, "G"), (1e6, "M"), (1e3, "K")):
+        if x >= div:
+            return f"{x / div:.3g} {unit}"
+    return f"{x:.3g}"
+
+
+class ResultWriter:
+    """Holds the result dict and rewrites the timestamped and `latest` JSON files on demand."""
+
+    def __init__(self, out_dir: str, slug: str, stamp: str, results: dict[str, Any]):
+        os.makedirs(out_dir, exist_ok=True)
+        self.paths = [os.path.join(out_dir, f"throughput_{slug}_{stamp}.json"),
+                      os.path.join(out_dir, f"throughput_{slug}_latest.json")]
+        self.results = results
+
+    def write(self) -> None:
+        text = json.dumps(self.results, indent=2, default=str)
+        for path in self.paths:
+            tmp = path + ".tmp"
+            with open(tmp, "w") as f:
+                f.write(text + "\n")
+            os.replace(tmp, path)
+
+
+# ----------------------------------------------------------------------------- environments
+
+
+def random_actions(env: Any, key: jax.Array) -> jax.Array:
+    """Uniform random actions for all worlds (flat draws: cheaper to compile on XLA:CPU)."""
+    if env.discrete:
+        return jax.random.randint(key, (env.num_envs,), 0, env.num_actions, dtype=jnp.int32)
+    n = env.num_envs * env.action_size
+    return jax.random.uniform(key, (n,), minval=-1.0, maxval=1.0).reshape(env.num_envs, env.action_size)
+
+
+def make_rollout(env: Any, steps: int) -> Callable[[Any, jax.Array], tuple[Any, jax.Array]]:
+    """Jitted `(state, key) -> (state, key)`: `steps` env steps with random actions in one scan."""
+
+    def body(carry: tuple[Any, jax.Array], _: None) -> tuple[tuple[Any, jax.Array], None]:
+        state, key = carry
+        key, k_act = jax.random.split(key)
+        return (env.step(state, random_actions(env, k_act)), key), None
+
+    def rollout(state: Any, key: jax.Array) -> tuple[Any, jax.Array]:
+        return jax.lax.scan(body, (state, key), None, length=steps)[0]
+
+    return jax.jit(rollout)
+
+
+def bench_env(name: str, num_envs: int, mode: str, s: BenchSettings) -> dict[str, Any]:
+    """One (environment, batch size, mode) measurement."""
+    render = mode == "rendered"
+    key = jax.random.PRNGKey(s.seed)
+    t0 = time.perf_counter()
+    env = bulbjax.make(name, num_envs=num_envs, resolution=s.resolution, render=render)
+    make_s = time.perf_counter() - t0
+    state, reset_s = timed(lambda: jax.jit(env.reset)(key))
+    rollout = make_rollout(env, s.steps)
+    t0 = time.perf_counter()
+    compiled = rollout.lower(state, key).compile()
+    compile_s = time.perf_counter() - t0
+    (state, key), first_s = timed(lambda: compiled(state, key))
+    calls = []
+    for _ in range(s.repeats):
+        (state, key), t = timed(lambda: compiled(state, key))
+        calls.append(t)
+    med, best = statistics.median(calls), min(calls)
+    per_call = num_envs * s.steps
+    out = {"env": name, "mode": mode, "batch_size": num_envs, "steps": s.steps, "repeats": s.repeats,
+           "resolution": s.resolution if render else None,
+           "unit": "frames/s" if render else "env steps/s",
+           "make_s": make_s, "reset_with_compile_s": reset_s, "compile_s": compile_s, "first_call_s": first_s,
+           "call_s": calls, "median_call_s": med,
+           "per_s_median": per_call / med, "per_s_best": per_call / best}
+    if render:
+        px = np.asarray(state.pixels)
+        out["pixels_shape"] = list(px.shape)
+        out["pixels_mean"] = float(px.mean())  # sanity: not a blank frame
+    del env, rollout, compiled, state
+    gc.collect()
+    return out
+
+
+def run_envs(s: BenchSettings, w: ResultWriter) -> None:
+    rows: list[dict[str, Any]] = w.results.setdefault("env", [])
+    for name in s.envs:
+        for n in s.batch_sizes:
+            for mode in MODES:
+                log(f"env {name} N={n} {mode} ...")
+                try:
+                    r = bench_env(name, n, mode, s)
+                    log(f"  {fmt_rate(r['per_s_median'])} {r['unit']} (best {fmt_rate(r['per_s_best'])}); "
+                        f"compile {r['compile_s']:.1f} s, first call {r['first_call_s']:.2f} s")
+                except Exception as e:  # noqa: BLE001 - record and go on to the next case
+                    log(f"  FAILED: {type(e).__name__}: {e}")
+                    r = {"env": name, "mode": mode, "batch_size": n, "error": f"{type(e).__name__}: {e}"[:2000]}
+                rows.append(r)
+                w.write()
+
+
+# ----------------------------------------------------------------------------- learner
+
+
+def bench_vae(dtype: str, s: BenchSettings) -> dict[str, Any]:
+    """Updates per second of the `vae` learner at `s.vae_batch` frames, compute dtype `dtype`."""
+    learner = make_learner("vae", latent_dim=s.latent_dim,
+                           config=LearnerConfig(batch_size=s.vae_batch, compute_dtype=dtype))
+    shape = (s.resolution, s.resolution, 3)
+    key = jax.random.PRNGKey(s.seed)
+    k_init, k_steps = jax.random.split(key)
+    state, init_s = timed(lambda: jax.jit(learner.init, static_argnums=1)(k_init, shape))
+    rng = np.random.default_rng(s.seed)
+    frames = jax.device_put(rng.integers(0, 256, (s.vae_batch, *shape), dtype=np.uint8))
+    keys = list(jax.random.split(k_steps, s.vae_warmup + s.vae_steps))
+    update = jax.jit(learner.update, donate_argnums=0)
+    t0 = time.perf_counter()
+    compiled = update.lower(state, frames, keys[0]).compile()
+    compile_s = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    for k in keys[: s.vae_warmup]:
+        state, metrics = compiled(state, frames, k)
+    jax.block_until_ready(state)
+    warmup_s = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    for k in keys[s.vae_warmup:]:
+        state, metrics = compiled(state, frames, k)
+    jax.block_until_ready((state, metrics))
+    elapsed = time.perf_counter() - t0
+    check_finite(metrics, f"vae {dtype} benchmark")
+    return {"learner": "vae", "dtype": dtype, "batch": s.vae_batch, "resolution": s.resolution,
+            "latent_dim": s.latent_dim, "steps": s.vae_steps, "warmup_steps": s.vae_warmup,
+            "init_s": init_s, "compile_s": compile_s, "warmup_s": warmup_s, "elapsed_s": elapsed,
+            "updates_per_s": s.vae_steps / elapsed, "final_loss": float(metrics["loss"])}
+
+
+def run_learner(s: BenchSettings, w: ResultWriter) -> None:
+    rows: list[dict[str, Any]] = w.results.setdefault("learner", [])
+    for dtype in s.dtypes:
+        log(f"learner vae {dtype} batch={s.vae_batch} ...")
+        try:
+            r = bench_vae(dtype, s)
+            log(f"  {r['updates_per_s']:.2f} updates/s; compile {r['compile_s']:.1f} s")
+        except Exception as e:  # noqa: BLE001
+            log(f"  FAILED: {type(e).__name__}: {e}")
+            r = {"learner": "vae", "dtype": dtype, "error": f"{type(e).__name__}: {e}"[:2000]}
+        rows.append(r)
+        w.write()
+
+
+# ----------------------------------------------------------------------------- PyTorch reference
+
+
+def run_torch_reference(s: BenchSettings) -> dict[str, Any]:
+    """`torch_vae_reference.py` in a subprocess (torch and JAX never share a process or GPU memory)."""
+    if importlib.util.find_spec("torch") is None:
+        return {"available": False, "reason": "torch is not installed in this environment; reference skipped"}
+    with tempfile.TemporaryDirectory() as tmp:
+        out = os.path.join(tmp, "torch.json")
+        cmd = [sys.executable, os.path.join(HERE, "torch_vae_reference.py"), "--batch", str(s.vae_batch),
+               "--resolution", str(s.resolution), "--latent-dim", str(s.latent_dim),
+               "--steps", str(s.vae_steps), "--warmup", str(max(s.vae_warmup, 3)),
+               "--dtypes", ",".join(s.dtypes), "--json-out", out]
+        cmd += [] if s.torch_compile else ["--no-compile"]
+        cmd += ["--channels-last"] if s.torch_channels_last else []
+        log("torch reference: " + shlex.join(cmd))
+        try:
+            proc = subprocess.run(cmd, timeout=s.torch_timeout_s)
+        except subprocess.TimeoutExpired:
+            return {"available": False, "reason": f"torch reference timed out after {s.torch_timeout_s} s"}
+        if proc.returncode != 0 or not os.path.exists(out):
+            return {"available": False, "reason": f"torch reference exited with status {proc.returncode}"}
+        with open(out) as f:
+            return json.load(f)
+
+
+def ratios(learner_rows: list[dict[str, Any]], torch_info: dict[str, Any], platform_: str) -> dict[str, Any]:
+    """bulbjax updates/s divided by PyTorch's, per dtype, against eager, compiled and the faster."""
+    if not torch_info.get("available"):
+        return {"skipped": torch_info.get("reason", "no torch reference")}
+    same = {"gpu": "cuda", "cpu": "cpu"}.get(platform_) == torch_info.get("device")
+    if not same:
+        return {"skipped": f"torch ran on {torch_info.get('device')}, JAX on {platform_}: not comparable"}
+    out: dict[str, Any] = {}
+    for row in learner_rows:
+        if "updates_per_s" not in row:
+            continue
+        ref = {r["mode"]: r["updates_per_s"] for r in torch_info["results"]
+               if r.get("dtype") == row["dtype"] and "updates_per_s" in r}
+        d: dict[str, float] = {f"vs_torch_{m}": row["updates_per_s"] / v for m, v in ref.items()}
+        if ref:
+            d["vs_torch_best"] = row["updates_per_s"] / max(ref.values())
+        out[row["dtype"]] = d
+    return out
+
+
+# ----------------------------------------------------------------------------- main
+
+
+def parse_args(argv: list[str] | None = None) -> BenchSettings:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
+                                formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+    d = BenchSettings()
+    p.add_argument("--envs", default=",".join(d.envs), help="comma-separated environment names")
+    p.add_argument("--batch-sizes", default=",".join(map(str, d.batch_sizes)),
+                   help="comma-separated numbers of worlds (e.g. 8,32 on CPU)")
+    p.add_argument("--steps", type=int, default=d.steps, help="env steps per jitted scan")
+    p.add_argument("--repeats", type=int, default=d.repeats, help="timed scans per case")
+    p.add_argument("--resolution", type=int, default=d.resolution)
+    p.add_argument("--vae-batch", type=int, default=d.vae_batch)
+    p.add_argument("--vae-steps", type=int, default=d.vae_steps, help="timed updates")
+    p.add_argument("--vae-warmup", type=int, default=d.vae_warmup, help="untimed updates after compile")
+    p.add_argument("--latent-dim", type=int, default=d.latent_dim)
+    p.add_argument("--dtypes", default=",".join(d.dtypes), help="learner compute dtypes")
+    p.add_argument("--parts", default=",".join(d.parts), help=f"subset of {','.join(PARTS)}")
+    p.add_argument("--no-torch-compile", action="store_true", help="reference: eager only")
+    p.add_argument("--torch-channels-last", action="store_true", help="reference: channels_last layout")
+    p.add_argument("--torch-timeout", type=float, default=d.torch_timeout_s, help="seconds")
+    p.add_argument("--seed", type=int, default=d.seed)
+    p.add_argument("--out-dir", default=d.out_dir)
+    p.add_argument("--verbose", action="store_true", help="keep Warp's per-module load messages")
+    a = p.parse_args(argv)
+    split = lambda text: tuple(x.strip() for x in text.split(",") if x.strip())  # noqa: E731
+    return BenchSettings(
+        envs=split(a.envs), batch_sizes=tuple(int(x) for x in split(a.batch_sizes)), steps=a.steps,
+        repeats=a.repeats, resolution=a.resolution, vae_batch=a.vae_batch, vae_steps=a.vae_steps,
+        vae_warmup=a.vae_warmup, latent_dim=a.latent_dim, dtypes=split(a.dtypes), parts=split(a.parts),
+        torch_compile=not a.no_torch_compile, torch_channels_last=a.torch_channels_last,
+        torch_timeout_s=a.torch_timeout, seed=a.seed, out_dir=a.out_dir,
+        verbose=a.verbose)
+
+
+def print_summary(results: dict[str, Any]) -> None:
+    """Tables of the figures on stdout."""
+    dev = results["device"]
+    print(f"\n== bulbjax throughput on {dev['device_kind']} ({dev['platform']}) ==")
+    if results.get("env"):
+        print(f"{'env':18} {'N':>6} {'mode':9} {'median/s':>10} {'best/s':>10} {'compile s':>9} {'first s':>8}")
+        for r in results["env"]:
+            if "error" in r:
+                print(f"{r['env']:18} {r['batch_size']:>6} {r['mode']:9} ERROR {r['error'][:60]}")
+                continue
+            print(f"{r['env']:18} {r['batch_size']:>6} {r['mode']:9} {fmt_rate(r['per_s_median']):>10} "
+                  f"{fmt_rate(r['per_s_best']):>10} {r['compile_s']:>9.1f} {r['first_call_s']:>8.2f}")
+    if results.get("learner"):
+        print(f"\nvae updates/s at batch {results['settings']['vae_batch']}:")
+        for r in results["learner"]:
+            print(f"  bulbjax {r['dtype']:9} " + (f"{r['updates_per_s']:8.2f}  (compile {r['compile_s']:.1f} s)"
+                                                  if "updates_per_s" in r else f"ERROR {r['error'][:60]}"))
+    t = results.get("torch_reference")
+    if t is not None:
+        if not t.get("available"):
+            print(f"  torch reference skipped: {t.get('reason')}")
+        else:
+            for r in t["results"]:
+                label = f"torch {r['mode']:7} {r['dtype']:9}"
+                print(f"  {label} " + (f"{r['updates_per_s']:8.2f}  (warm-up {r['warmup_s']:.1f} s)"
+                                       if "updates_per_s" in r else f"ERROR {r['error'][:60]}"))
+        for dtype, d in (results.get("ratios") or {}).items():
+            if isinstance(d, dict):
+                print(f"  ratio bulbjax/torch {dtype}: " + ", ".join(f"{k} {v:.2f}" for k, v in d.items()))
+
+
+def main(argv: list[str] | None = None) -> dict[str, Any]:
+    s = parse_args(argv)
+    if not s.verbose:
+        quiet_warp()
+    stamp = dt.datetime.now().strftime("%Y%m%d_%H%M%S")
+    t_start = time.perf_counter()
+    results: dict[str, Any] = {
+        "command": shlex.join(["python", os.path.relpath(os.path.abspath(sys.argv[0]), REPO), *sys.argv[1:]])
+        if argv is None else shlex.join(["bench_throughput", *argv]),
+        "argv": sys.argv if argv is None else argv,
+        "timestamp": stamp, "settings": asdict(s), "git_commit": git_commit(), "versions": versions(),
+    }
+    # The PyTorch reference runs first, before JAX takes (and preallocates) the accelerator.
+    torch_info = run_torch_reference(s) if "torch" in s.parts else None
+    results["device"] = device_info()
+    w = ResultWriter(s.out_dir, device_slug(results["device"]["device_kind"]), stamp, results)
+    if torch_info is not None:
+        results["torch_reference"] = torch_info
+    w.write()
+    log(f"JAX device: {results['device']['device_kind']} ({results['device']['platform']}); "
+        f"writing {w.paths[0]}")
+    if "env" in s.parts:
+        run_envs(s, w)
+    if "learner" in s.parts:
+        run_learner(s, w)
+    if torch_info is not None and "learner" in s.parts:
+        results["ratios"] = ratios(results["learner"], torch_info, results["device"]["platform"])
+    results["total_s"] = time.perf_counter() - t_start
+    w.write()
+    print_summary(results)
+    print(f"\nwritten: {w.paths[0]}\n         {w.paths[1]}")
+    return results
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,202 @@
+"""PyTorch reference of bulbjax's `vae` learner, for update-throughput comparisons.
+
+The same network and loss as `bulbjax.learners` (VAE with `LearnerConfig` defaults):
+encoder of 4x4 stride-2 convs (64, 64, 128, 256 filters, ReLU), FC 512 (ReLU), linear
+mean and log-variance heads; decoder FC 512 -> FC (R/16)^2 * 256 -> 4x4 stride-2
+transposed convs (128, 64, 64, 3) with ReLU between; Bernoulli (sigmoid cross-entropy)
+likelihood summed over pixels and averaged over the batch, plus KL to N(0, I); Adam.
+The update takes uint8 frames and scales them to [0, 1] itself, like bulbjax's.
+
+Run as a script it times eager and `torch.compile` updates, fp32 and bf16 autocast, on
+CUDA when available (else CPU), and writes one JSON object (see `main`); it is what
+`bench_throughput.py` calls in a subprocess, so that torch and JAX never share a process.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+import traceback
+from dataclasses import asdict, dataclass
+from typing import Any
+
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+FEATURES: tuple[int, ...] = (64, 64, 128, 256)
+
+
+class TorchVAE(nn.Module):
+    """Conv VAE on NCHW frames in [0, 1]; `forward` returns (logits, mean, logvar)."""
+
+    def __init__(self, latent_dim: int, resolution: int = 64, features: tuple[int, ...] = FEATURES,
+                 hidden: int = 512, channels: int = 3):
+        super().__init__()
+        if resolution % 2 ** len(features):
+            raise ValueError(f"resolution must be a multiple of {2 ** len(features)}, got {resolution}")
+        self.start = resolution // 2 ** len(features)
+        self.last = features[-1]
+        convs: list[nn.Module] = []
+        c_in = channels
+        for f in features:
+            # k=4, s=2, p=1 halves the side exactly, like Flax's padding='SAME'.
+            convs += [nn.Conv2d(c_in, f, 4, stride=2, padding=1), nn.ReLU()]
+            c_in = f
+        flat = self.start * self.start * self.last
+        self.encoder = nn.Sequential(*convs, nn.Flatten(), nn.Linear(flat, hidden), nn.ReLU())
+        self.mean = nn.Linear(hidden, latent_dim)
+        self.logvar = nn.Linear(hidden, latent_dim)
+        self.dec_fc = nn.Sequential(nn.Linear(latent_dim, hidden), nn.ReLU(), nn.Linear(hidden, flat), nn.ReLU())
+        deconvs: list[nn.Module] = []
+        outs = (*reversed(features[:-1]), channels)
+        c_in = self.last
+        for i, f in enumerate(outs):
+            # k=4, s=2, p=1 doubles the side exactly, like Flax's ConvTranspose padding='SAME'.
+            deconvs.append(nn.ConvTranspose2d(c_in, f, 4, stride=2, padding=1))
+            if i < len(outs) - 1:
+                deconvs.append(nn.ReLU())
+            c_in = f
+        self.decoder = nn.Sequential(*deconvs)
+
+    def forward(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        h = self.encoder(x)
+        # Heads in fp32, like bulbjax's (autocast would otherwise run them in bf16).
+        with torch.autocast(x.device.type, enabled=False):
+            h = h.float()
+            mean, logvar = self.mean(h), self.logvar(h)
+        z = mean + torch.exp(0.5 * logvar) * torch.randn_like(mean)
+        h = self.dec_fc(z).view(-1, self.last, self.start, self.start)
+        return self.decoder(h).float(), mean, logvar
+
+
+def vae_loss(model: nn.Module, frames_u8: torch.Tensor, beta: float = 1.0) -> torch.Tensor:
+    """Negative ELBO of uint8 NCHW frames: summed sigmoid cross-entropy + beta * KL, batch mean."""
+    x = frames_u8.float() / 255.0
+    logits, mean, logvar = model(x)
+    recon = F.binary_cross_entropy_with_logits(logits, x, reduction="none").sum(dim=(1, 2, 3)).mean()
+    kl = (0.5 * (logvar.exp() + mean.square() - 1.0 - logvar)).sum(dim=-1).mean()
+    return recon + beta * kl
+
+
+@dataclass(frozen=True)
+class TorchBenchSettings:
+    """What one reference run measures."""
+
+    batch: int = 1024
+    resolution: int = 64
+    latent_dim: int = 32
+    steps: int = 50
+    warmup: int = 5
+    lr: float = 1e-4
+    compile: bool = True
+    channels_last: bool = False
+    dtypes: tuple[str, ...] = ("float32", "bfloat16")
+    seed: int = 0
+
+
+def _sync(device: torch.device) -> None:
+    if device.type == "cuda":
+        torch.cuda.synchronize(device)
+
+
+def time_updates(settings: TorchBenchSettings, device: torch.device, dtype: str, compiled: bool) -> dict[str, Any]:
+    """Time `settings.steps` Adam updates (after `settings.warmup`) of one fresh model."""
+    torch.manual_seed(settings.seed)
+    model = TorchVAE(settings.latent_dim, settings.resolution).to(device)
+    fmt = torch.channels_last if settings.channels_last else torch.contiguous_format
+    model = model.to(memory_format=fmt)
+    opt_kwargs: dict[str, Any] = {"fused": True} if device.type == "cuda" else {}
+    opt = torch.optim.Adam(model.parameters(), lr=settings.lr, **opt_kwargs)
+    frames = torch.randint(0, 256, (settings.batch, 3, settings.resolution, settings.resolution),
+                           dtype=torch.uint8, device=device).contiguous(memory_format=fmt)
+    loss_fn = torch.compile(vae_loss) if compiled else vae_loss
+    amp = dtype == "bfloat16"
+
+    def step() -> torch.Tensor:
+        opt.zero_grad(set_to_none=True)
+        with torch.autocast(device.type, dtype=torch.bfloat16, enabled=amp):
+            loss = loss_fn(model, frames)
+        loss.backward()
+        opt.step()
+        return loss.detach()
+
+    t0 = time.perf_counter()
+    for _ in range(settings.warmup):
+        loss = step()
+    _sync(device)
+    warmup_s = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    for _ in range(settings.steps):
+        loss = step()
+    _sync(device)
+    elapsed = time.perf_counter() - t0
+    final = float(loss)
+    return {"mode": "compile" if compiled else "eager", "dtype": dtype, "batch": settings.batch,
+            "steps": settings.steps, "warmup_steps": settings.warmup, "warmup_s": warmup_s,
+            "elapsed_s": elapsed, "updates_per_s": settings.steps / elapsed,
+            "final_loss": final, "finite": bool(torch.isfinite(torch.tensor(final)))}
+
+
+def run_reference(settings: TorchBenchSettings, device: torch.device) -> dict[str, Any]:
+    """All (mode, dtype) measurements; a failing one is recorded with its error and skipped."""
+    if device.type == "cuda":
+        torch.backends.cudnn.benchmark = True
+    results: list[dict[str, Any]] = []
+    modes = [False, True] if settings.compile else [False]
+    for compiled in modes:
+        for dtype in settings.dtypes:
+            label = f"{'compile' if compiled else 'eager'} {dtype}"
+            print(f"[torch] {label} ...", file=sys.stderr, flush=True)
+            try:
+                r = time_updates(settings, device, dtype, compiled)
+                print(f"[torch] {label}: {r['updates_per_s']:.2f} updates/s "
+                      f"(warm-up {r['warmup_s']:.1f} s)", file=sys.stderr, flush=True)
+            except Exception as e:  # noqa: BLE001 - a failed variant must not end the benchmark
+                traceback.print_exc(file=sys.stderr)
+                r = {"mode": "compile" if compiled else "eager", "dtype": dtype,
+                     "error": f"{type(e).__name__}: {e}"[:2000]}
+            results.append(r)
+            if device.type == "cuda":
+                torch.cuda.empty_cache()
+    info: dict[str, Any] = {"available": True, "torch_version": torch.__version__, "device": device.type,
+                            "settings": asdict(settings), "results": results,
+                            "cudnn_allow_tf32": torch.backends.cudnn.allow_tf32,
+                            "matmul_allow_tf32": torch.backends.cuda.matmul.allow_tf32}
+    if device.type == "cuda":
+        info["device_name"] = torch.cuda.get_device_name(device)
+        info["cuda_version"] = torch.version.cuda
+        info["cudnn_version"] = torch.backends.cudnn.version()
+    return info
+
+
+def main(argv: list[str] | None = None) -> None:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--batch", type=int, default=1024)
+    p.add_argument("--resolution", type=int, default=64)
+    p.add_argument("--latent-dim", type=int, default=32)
+    p.add_argument("--steps", type=int, default=50)
+    p.add_argument("--warmup", type=int, default=5)
+    p.add_argument("--no-compile", action="store_true", help="skip the torch.compile variants")
+    p.add_argument("--channels-last", action="store_true", help="channels_last memory format")
+    p.add_argument("--dtypes", default="float32,bfloat16")
+    p.add_argument("--device", default="auto", help="auto (cuda if available), cuda or cpu")
+    p.add_argument("--json-out", default="-", help="file for the JSON result, '-' for stdout")
+    a = p.parse_args(argv)
+    settings = TorchBenchSettings(batch=a.batch, resolution=a.resolution, latent_dim=a.latent_dim,
+                                  steps=a.steps, warmup=a.warmup, compile=not a.no_compile,
+                                  channels_last=a.channels_last, dtypes=tuple(a.dtypes.split(",")))
+    name = ("cuda" if torch.cuda.is_available() else "cpu") if a.device == "auto" else a.device
+    info = run_reference(settings, torch.device(name))
+    text = json.dumps(info, indent=2)
+    if a.json_out == "-":
+        print(text)
+    else:
+        with open(a.json_out, "w") as f:
+            f.write(text)
+
+
+if __name__ == "__main__":
+    main()
