@@ -458,12 +458,6 @@ def test_reset_frames_show_the_reset_state(cartpole: Bundle, inv_pend: Bundle) -
         np.testing.assert_array_equal(s.pixels, np.asarray(b.render(s.render_input)))
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "bulbjax/envs/base.py MjxPixelEnv.step renders data straight out of mjx.step, whose geom/camera "
-    "poses were computed before integration, so state.pixels show the previous step's configuration "
-    "while lowdim/qpos are the new one (forward is only re-run when some world ended). Fix: run "
-    "jax.vmap(mjx.forward) on the stepped data before _render whenever rendering is on "
-    "(mjx.kinematics alone is not enough: the camera pose comes from camlight)."))
 def test_step_frames_show_the_new_state(cartpole: Bundle, cp_push_right: list[EnvState]) -> None:
     """The frame reported with a step shows the same state as its lowdim (PyBullet renders after
     stepSimulation): state.pixels == render_frames(state.render_input) at every step."""
@@ -598,7 +592,8 @@ def test_cartpole_bad_action_raises(cartpole: Bundle, action: jax.Array, pattern
 
 
 @pytest.mark.parametrize("action", [jnp.ones(N, jnp.float32), jnp.ones((N, 2), jnp.float32),
-                                    jnp.ones((N + 1, 1), jnp.float32)])
+                                    jnp.ones((N + 1, 1), jnp.float32),
+                                    jnp.ones((N, 1), jnp.int32)])  # integers are not silently cast
 @pytest.mark.parametrize("fixture", ["cartpole_cont", "inv_pend"])
 def test_continuous_bad_action_shape_raises(fixture: str, action: jax.Array, request: pytest.FixtureRequest) -> None:
     b: Bundle = request.getfixturevalue(fixture)

@@ -71,7 +71,8 @@ class EnvConfig:
 
     num_envs: int = 64
     resolution: int = 64
-    render: bool = True
+    render: bool = True  # make a renderer; `render_frames` needs it
+    render_steps: bool = True  # put frames in every `reset`/`step` state (else pixels are [N,0,0,3])
     multicolour: bool = False
 
 
@@ -104,6 +105,7 @@ class MjxPixelEnv:
         self._data0 = mjx.make_data(self.mj_model, impl="warp", njmax=self.njmax,
                                     naconmax=self.naconmax_per_world * self.num_envs)
         self.renderer = Renderer(self.mj_model, self.num_envs, self.resolution) if config.render else None
+        self._renders_steps = config.render and config.render_steps
         self._base_rgba = jnp.asarray(self.mj_model.geom_rgba)
         roles = {self._geom_id(g): r for g, r in self.colour_roles.items()}
         ids, rgb = scheme_table(roles) if roles else (np.zeros(0, np.int32), np.zeros((NUM_SCHEMES, 0, 3)))
@@ -145,7 +147,7 @@ class MjxPixelEnv:
         zeros = jnp.zeros(self.num_envs)
         lowdim = jax.vmap(self._lowdim)(data)
         return EnvState(
-            data=data, obs=lowdim, lowdim=lowdim, pixels=self._render(data, scheme),
+            data=data, obs=lowdim, lowdim=lowdim, pixels=self._step_pixels(data, scheme),
             reward=zeros, done=zeros, truncated=zeros,
             step_count=jnp.zeros(self.num_envs, jnp.int32), episode_return=zeros, scheme=scheme,
             key=keys, info={"episode_return": zeros, "episode_length": jnp.zeros(self.num_envs, jnp.int32)})
@@ -166,16 +168,21 @@ class MjxPixelEnv:
         split = jax.vmap(jax.random.split)(state.key)
         fresh, fresh_scheme, _ = jax.vmap(self._reset_one, in_axes=(0, None))(split[:, 1], False)
         data = _where_tree(done, fresh, data)
-        # Positions of the worlds just reset must be recomputed (for frames and contacts); the
-        # Warp forward pass costs as much as a step, so it only runs when some episode ended.
-        data = jax.lax.cond(done.any(), lambda d: jax.vmap(mjx.forward, in_axes=(None, 0))(self.mx, d),
-                            lambda d: d, data)
+        # `mjx.step` computes positions before integrating, so geom and camera poses lag the new
+        # qpos by one step. A frame must show the new state: run the forward pass when frames are
+        # rendered; otherwise only the worlds just reset need it (for contacts and the next
+        # step), and the Warp forward pass costs as much as a step, so it runs only then.
+        forward = lambda d: jax.vmap(mjx.forward, in_axes=(None, 0))(self.mx, d)
+        if self._renders_steps:
+            data = forward(data)
+        else:
+            data = jax.lax.cond(done.any(), forward, lambda d: d, data)
         scheme = jnp.where(done, fresh_scheme, state.scheme)
         obs_lowdim = jnp.where(done[:, None], jax.vmap(self._lowdim)(data), lowdim)
         info = {"episode_return": jnp.where(done, ep_return, 0.0),
                 "episode_length": jnp.where(done, step_count, 0)}
         return EnvState(
-            data=data, obs=obs_lowdim, lowdim=obs_lowdim, pixels=self._render(data, scheme),
+            data=data, obs=obs_lowdim, lowdim=obs_lowdim, pixels=self._step_pixels(data, scheme),
             reward=reward, done=done.astype(jnp.float32), truncated=truncated.astype(jnp.float32),
             step_count=jnp.where(done, 0, step_count), episode_return=jnp.where(done, 0.0, ep_return),
             scheme=scheme, key=split[:, 0], info=info)
@@ -199,9 +206,12 @@ class MjxPixelEnv:
                   else jnp.zeros((), jnp.int32))
         return data, scheme.astype(jnp.int32), key
 
-    def _render(self, data: mjx.Data, scheme: jax.Array) -> jax.Array:
-        if self.renderer is None:
+    def _step_pixels(self, data: mjx.Data, scheme: jax.Array) -> jax.Array:
+        if not self._renders_steps:
             return jnp.zeros((self.num_envs, 0, 0, 3), jnp.uint8)
+        return self._render(data, scheme)
+
+    def _render(self, data: mjx.Data, scheme: jax.Array) -> jax.Array:
         mx = self.mx
         if self.config.multicolour and self._colour_ids.size:
             rgba = jnp.broadcast_to(self._base_rgba, (self.num_envs, *self._base_rgba.shape))
@@ -216,9 +226,9 @@ class MjxPixelEnv:
                 raise ValueError(f"{self.name} takes integer actions of shape ({self.num_envs},) in "
                                  f"[0, {self.num_actions}); got {action.dtype} {action.shape}")
             return action.astype(jnp.int32)
-        if action.shape != (self.num_envs, self.action_size):
+        if action.shape != (self.num_envs, self.action_size) or not jnp.issubdtype(action.dtype, jnp.floating):
             raise ValueError(f"{self.name} takes float actions of shape ({self.num_envs}, {self.action_size}) "
-                             f"in [-1, 1]; got shape {action.shape}")
+                             f"in [-1, 1]; got {action.dtype} {action.shape}")
         return action.astype(jnp.float32)
 
     def _geom_id(self, name: str) -> int:

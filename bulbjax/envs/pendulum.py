@@ -47,6 +47,7 @@ class CartPole(MjxPixelEnv):
         return jnp.stack([data.qpos[1], data.qvel[1], data.qpos[0], data.qvel[0]]).astype(jnp.float32)
 
     def _ctrl(self, action: jax.Array) -> jax.Array:
+        # As CartPoleBulletEnv: 1 pushes right, any other value pushes left.
         force = jnp.where(action == 1, self.force_mag, -self.force_mag)
         return jnp.reshape(force, (1,)).astype(jnp.float32)
 

@@ -19,15 +19,18 @@ def env_names(with_variants: bool = True) -> list[str]:
 
 
 def make(name: str, num_envs: int = 64, resolution: int = 64, render: bool = True,
-         multicolour: bool = False) -> MjxPixelEnv:
+         multicolour: bool = False, render_steps: bool = True) -> MjxPixelEnv:
     """A batched environment of `num_envs` worlds with `resolution`x`resolution` RGB frames.
 
     `name` is a registered domain (see `env_names()`); a `Multicolour` suffix, or
-    `multicolour=True`, draws one of bulb's four colour schemes per episode."""
+    `multicolour=True`, draws one of bulb's four colour schemes per episode. `render_steps=False`
+    keeps a renderer for `env.render_frames` but leaves frames out of `reset`/`step` (the
+    experiment renders only the steps it stores)."""
     base = name
     if name.endswith(MULTICOLOUR_SUFFIX):
         base, multicolour = name[: -len(MULTICOLOUR_SUFFIX)], True
     if base not in _REGISTRY:
         raise ValueError(f"unknown environment {name!r}; available: {', '.join(env_names())}")
-    cfg = EnvConfig(num_envs=num_envs, resolution=resolution, render=render, multicolour=multicolour)
+    cfg = EnvConfig(num_envs=num_envs, resolution=resolution, render=render,
+                    render_steps=render_steps, multicolour=multicolour)
     return _REGISTRY[base](cfg)

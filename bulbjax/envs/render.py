@@ -28,6 +28,13 @@ class Renderer:
             background_color=(*background, 1.0))
         self._pytree = self._context.pytree()
 
+    def __del__(self) -> None:
+        # Work still queued on this context would fail once it is released: wait for it first.
+        try:
+            jax.effects_barrier()
+        except Exception:  # interpreter shutdown: nothing left to wait for
+            pass
+
     def __call__(self, mx: mjx.Model, data: mjx.Data) -> jax.Array:
         """uint8 frames `[nworld, H, W, 3]` of `data` (batched over worlds, after kinematics).
 
