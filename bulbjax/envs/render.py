@@ -7,10 +7,26 @@ turns a batch of MJX Data (positions already computed) into uint8 RGB frames. It
 
 from __future__ import annotations
 
+import os
+
 import jax
 import jax.numpy as jnp
 import mujoco
 from mujoco import mjx
+
+
+def _quiet_warp() -> None:
+    """Warp prints one line per kernel module it loads; keep warnings only, unless
+    BULBJAX_WARP_VERBOSE=1."""
+    if os.environ.get("BULBJAX_WARP_VERBOSE") == "1":
+        return
+    import warp
+
+    warp.config.log_level = warp.LOG_WARNING
+    warp.config.quiet = True
+
+
+_quiet_warp()
 
 
 class Renderer:

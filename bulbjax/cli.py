@@ -1,0 +1,168 @@
+"""Command line: `bulbjax run | envs | render`."""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import os
+import sys
+import time
+from typing import Sequence
+
+
+def _parse_learners(text: str) -> tuple[str, ...]:
+    return tuple(x.strip() for x in text.split(",") if x.strip())
+
+
+def cmd_run(args: argparse.Namespace) -> int:
+    import jax
+    from tqdm import tqdm
+
+    from bulbjax.experiment import Experiment, ExperimentConfig, small_config
+    from bulbjax.experiment import report
+    from bulbjax.learners import check_finite
+
+    cfg = ExperimentConfig(env=args.env, learners=_parse_learners(args.learners), seeds=args.seeds,
+                           epochs=args.epochs, multicolour=args.multicolour)
+    if args.small:
+        cfg = small_config(cfg)
+    if args.ppo_updates:
+        cfg = cfg.replace(ppo_updates_per_epoch=args.ppo_updates)
+    if args.bf16:
+        cfg = cfg.replace(learner=dataclasses.replace(cfg.learner, compute_dtype="bfloat16"))
+    os.makedirs(args.out, exist_ok=True)
+    metrics_path = os.path.join(args.out, "metrics.jsonl")
+    if os.path.exists(metrics_path):
+        os.remove(metrics_path)
+    with open(os.path.join(args.out, "config.json"), "w") as f:
+        json.dump(dataclasses.asdict(cfg), f, indent=1)
+
+    t0 = time.time()
+    exp = Experiment(cfg)
+    rs = exp.init(jax.random.PRNGKey(args.seed))
+    jax.block_until_ready(rs)
+    t_init = time.time() - t0
+    records = []
+    key = jax.random.PRNGKey(args.seed + 1)
+    bar = tqdm(range(cfg.epochs), desc=f"{cfg.env} x{cfg.seeds} seeds", unit="epoch")
+    t_first = None
+    for epoch in bar:
+        if args.max_minutes and time.time() - t0 > 60 * args.max_minutes:
+            bar.write(f"stopping after {epoch} epochs: --max-minutes {args.max_minutes} reached")
+            break
+        key, k = jax.random.split(key)
+        rs, m = exp.epoch(rs, k)
+        m = jax.device_get(m)
+        if t_first is None:
+            t_first = time.time() - t0 - t_init
+        for name, lm in m["learners"].items():
+            check_finite(lm, where=f"learner {name} at epoch {epoch}")
+        recs = report.epoch_records(epoch, m, exp.spec)
+        report.write_jsonl(metrics_path, recs)
+        records += recs
+        bar.set_postfix(_postfix(recs))
+    wall = time.time() - t0
+    done_epochs = len(records) // cfg.seeds
+    title = f"{cfg.env}{' (multicolour)' if cfg.multicolour else ''}: {cfg.seeds} seeds, {done_epochs} epochs"
+    plot_path = os.path.join(args.out, "fig2.png")
+    report.plot(records, exp.spec, plot_path, title, solved_return=exp.env.solved_return)
+    tab = report.table(records, exp.spec, last=min(3, done_epochs))
+    timing = (f"wall time {wall:.1f} s (build+init {t_init:.1f} s, first epoch incl. compile "
+              f"{t_first:.1f} s) on {jax.devices()[0].device_kind}")
+    with open(os.path.join(args.out, "table.md"), "w") as f:
+        f.write(f"# {title}\n\n{tab}\n\n{timing}\n")
+    print(f"\n{tab}\n\n{timing}\nplot: {plot_path}\nmetrics: {metrics_path}")
+    return 0
+
+
+def _postfix(recs: list[dict]) -> dict[str, str]:
+    import numpy as np
+    out = {"return": f"{np.nanmean([r['rl_return'] for r in recs]):.1f}"}
+    for name in recs[0]["probes"]:
+        for stream in ("curr", "rand"):
+            v = np.nanmean([r["probes"][name][stream]["overall"]["mae_norm"] for r in recs])
+            out[f"{name}/{stream}"] = f"{v:.2f}"
+    return out
+
+
+def cmd_envs(args: argparse.Namespace) -> int:
+    from bulbjax.envs.registry import _REGISTRY, MULTICOLOUR_SUFFIX
+
+    for name, cls in _REGISTRY.items():
+        spec = ", ".join(f"{e.name}[{e.unit}]" for e in cls.state_spec)
+        act = f"discrete({cls.num_actions})" if cls.discrete else f"box({cls.action_size})"
+        print(f"{name:<20} (+{MULTICOLOUR_SUFFIX}) action {act}, episode {cls.episode_length}, "
+              f"solved {cls.solved_return:g}; state: {spec}")
+    return 0
+
+
+def cmd_render(args: argparse.Namespace) -> int:
+    import jax
+    import jax.numpy as jnp
+    import numpy as np
+
+    import bulbjax
+
+    env = bulbjax.make(args.env, num_envs=args.frames, resolution=args.resolution)
+    state = jax.jit(env.reset)(jax.random.PRNGKey(args.seed))
+    step = jax.jit(env.step)
+    key = jax.random.PRNGKey(args.seed + 1)
+    for _ in range(args.steps):
+        key, k = jax.random.split(key)
+        if env.discrete:
+            a = jax.random.randint(k, (env.num_envs,), 0, env.num_actions)
+        else:
+            a = jax.random.uniform(k, (env.num_envs, env.action_size), minval=-1, maxval=1)
+        state = step(state, a)
+    strip = np.concatenate(list(np.asarray(state.pixels)), axis=1)
+    _save_png(args.out, strip)
+    print(f"saved {env.num_envs} frames of {args.env} after {args.steps} random steps to {args.out}")
+    return 0
+
+
+def _save_png(path: str, image) -> None:
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
+    plt.imsave(path, image)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    p = argparse.ArgumentParser(prog="bulbjax", description=__doc__)
+    sub = p.add_subparsers(dest="cmd", required=True)
+    r = sub.add_parser("run", help="train PPO + unsupervised learners and probe their latents")
+    r.add_argument("--env", default="CartPole")
+    r.add_argument("--learners", default="vae,vae_rpl,beta_vae")
+    r.add_argument("--seeds", type=int, default=3)
+    r.add_argument("--epochs", type=int, default=50)
+    r.add_argument("--seed", type=int, default=0, help="base PRNG seed")
+    r.add_argument("--out", default="runs/latest")
+    r.add_argument("--multicolour", action="store_true", help="bulb's multicolour variant")
+    r.add_argument("--small", action="store_true", help="CPU-sized settings (not the paper's)")
+    r.add_argument("--bf16", action="store_true", help="bf16 compute in the learners (GPU)")
+    r.add_argument("--ppo-updates", type=int, default=None, help="PPO updates per epoch")
+    r.add_argument("--max-minutes", type=float, default=0.0,
+                   help="stop after this wall time and report the epochs done (0: no limit)")
+    r.set_defaults(fn=cmd_run)
+    e = sub.add_parser("envs", help="list the environments")
+    e.set_defaults(fn=cmd_envs)
+    d = sub.add_parser("render", help="save a strip of frames")
+    d.add_argument("--env", default="CartPole")
+    d.add_argument("--out", default="frames.png")
+    d.add_argument("--frames", type=int, default=8)
+    d.add_argument("--steps", type=int, default=10)
+    d.add_argument("--resolution", type=int, default=64)
+    d.add_argument("--seed", type=int, default=0)
+    d.set_defaults(fn=cmd_render)
+    args = p.parse_args(argv)
+    try:
+        return args.fn(args)
+    except (ValueError, FloatingPointError) as err:
+        print(f"bulbjax: error: {err}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())
