@@ -29,6 +29,8 @@ def cmd_run(args: argparse.Namespace) -> int:
         cfg = small_config(cfg)
     if args.ppo_updates:
         cfg = cfg.replace(ppo_updates_per_epoch=args.ppo_updates)
+    if args.lr is not None:
+        cfg = cfg.replace(learner=dataclasses.replace(cfg.learner, lr=args.lr))
     if args.bf16:
         cfg = cfg.replace(learner=dataclasses.replace(cfg.learner, compute_dtype="bfloat16"))
     os.makedirs(args.out, exist_ok=True)
@@ -143,6 +145,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     r.add_argument("--small", action="store_true", help="CPU-sized settings (not the paper's)")
     r.add_argument("--bf16", action="store_true", help="bf16 compute in the learners (GPU)")
     r.add_argument("--ppo-updates", type=int, default=None, help="PPO updates per epoch")
+    r.add_argument("--lr", type=float, default=None, help="learners' Adam learning rate (paper: 1e-4)")
     r.add_argument("--max-minutes", type=float, default=0.0,
                    help="stop after this wall time and report the epochs done (0: no limit)")
     r.set_defaults(fn=cmd_run)

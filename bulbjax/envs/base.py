@@ -146,8 +146,9 @@ class MjxPixelEnv:
         data, scheme, keys = jax.vmap(self._reset_one)(keys)
         zeros = jnp.zeros(self.num_envs)
         lowdim = jax.vmap(self._lowdim)(data)
+        pixels, data = self._step_pixels(data, scheme)
         return EnvState(
-            data=data, obs=lowdim, lowdim=lowdim, pixels=self._step_pixels(data, scheme),
+            data=data, obs=lowdim, lowdim=lowdim, pixels=pixels,
             reward=zeros, done=zeros, truncated=zeros,
             step_count=jnp.zeros(self.num_envs, jnp.int32), episode_return=zeros, scheme=scheme,
             key=keys, info={"episode_return": zeros, "episode_length": jnp.zeros(self.num_envs, jnp.int32)})
@@ -181,19 +182,33 @@ class MjxPixelEnv:
         obs_lowdim = jnp.where(done[:, None], jax.vmap(self._lowdim)(data), lowdim)
         info = {"episode_return": jnp.where(done, ep_return, 0.0),
                 "episode_length": jnp.where(done, step_count, 0)}
+        pixels, data = self._step_pixels(data, scheme)
         return EnvState(
-            data=data, obs=obs_lowdim, lowdim=obs_lowdim, pixels=self._step_pixels(data, scheme),
+            data=data, obs=obs_lowdim, lowdim=obs_lowdim, pixels=pixels,
             reward=reward, done=done.astype(jnp.float32), truncated=truncated.astype(jnp.float32),
             step_count=jnp.where(done, 0, step_count), episode_return=jnp.where(done, 0.0, ep_return),
             scheme=scheme, key=split[:, 0], info=info)
 
     def render_frames(self, render_input: RenderInput) -> jax.Array:
         """Frames `[num_envs, H, W, 3]` of stored joint positions (e.g. a subset of a rollout)."""
+        return self.render_sequence(jax.tree.map(lambda x: x[None], render_input))[0]
+
+    def render_sequence(self, render_inputs: RenderInput) -> jax.Array:
+        """Frames `[K, num_envs, H, W, 3]` of `K` stored steps (`render_inputs` with leading K).
+
+        The renders run in a scan that threads the renderer's output Data from one to the next,
+        which keeps them in order (see `Renderer.__call__`)."""
         if self.renderer is None:
             raise ValueError(f"{self.name} was made with render=False; make it with render=True to get frames")
-        data = jax.vmap(lambda q: self._data0.replace(qpos=q))(render_input.qpos)
-        data = jax.vmap(mjx.forward, in_axes=(None, 0))(self.mx, data)
-        return self._render(data, render_input.scheme)
+
+        def body(data: mjx.Data, ri: RenderInput):
+            data = data.replace(qpos=ri.qpos)
+            data = jax.vmap(mjx.forward, in_axes=(None, 0))(self.mx, data)
+            frames, data = self._render(data, ri.scheme)
+            return data, frames
+
+        data0 = jax.vmap(lambda q: self._data0.replace(qpos=q))(render_inputs.qpos[0])
+        return jax.lax.scan(body, data0, render_inputs)[1]
 
     # ----- internals -----
     def _reset_one(self, key: jax.Array, forward: bool = True) -> tuple[mjx.Data, jax.Array, jax.Array]:
@@ -206,12 +221,12 @@ class MjxPixelEnv:
                   else jnp.zeros((), jnp.int32))
         return data, scheme.astype(jnp.int32), key
 
-    def _step_pixels(self, data: mjx.Data, scheme: jax.Array) -> jax.Array:
+    def _step_pixels(self, data: mjx.Data, scheme: jax.Array) -> tuple[jax.Array, mjx.Data]:
         if not self._renders_steps:
-            return jnp.zeros((self.num_envs, 0, 0, 3), jnp.uint8)
+            return jnp.zeros((self.num_envs, 0, 0, 3), jnp.uint8), data
         return self._render(data, scheme)
 
-    def _render(self, data: mjx.Data, scheme: jax.Array) -> jax.Array:
+    def _render(self, data: mjx.Data, scheme: jax.Array) -> tuple[jax.Array, mjx.Data]:
         mx = self.mx
         if self.config.multicolour and self._colour_ids.size:
             rgba = jnp.broadcast_to(self._base_rgba, (self.num_envs, *self._base_rgba.shape))

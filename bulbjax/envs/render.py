@@ -51,13 +51,17 @@ class Renderer:
         except Exception:  # interpreter shutdown: nothing left to wait for
             pass
 
-    def __call__(self, mx: mjx.Model, data: mjx.Data) -> jax.Array:
-        """uint8 frames `[nworld, H, W, 3]` of `data` (batched over worlds, after kinematics).
+    def __call__(self, mx: mjx.Model, data: mjx.Data) -> tuple[jax.Array, mjx.Data]:
+        """uint8 frames `[nworld, H, W, 3]` of `data` (batched over worlds, after kinematics),
+        and the Data that comes out of the renderer.
 
+        The returned Data carries the Warp ordering token: several renders in one jitted function
+        must each start from the Data the previous one returned, else XLA may run them in any
+        order over the context's shared buffers and frames get mixed up (seen on the H100).
         `mx` may carry per-world `geom_rgba` of shape `[nworld, ngeom, 4]` (multicolour)."""
         if data.qpos.shape[0] != self.nworld:
             raise ValueError(f"renderer was made for {self.nworld} worlds, got a batch of {data.qpos.shape[0]}")
         data = mjx.refit_bvh(mx, data, self._pytree)
-        rgb, _, _ = mjx.render(mx, data, self._pytree)
+        rgb, _, data = mjx.render(mx, data, self._pytree)
         frames = mjx.get_rgb(self._pytree, self.cam_id, rgb)
-        return jnp.clip(jnp.round(frames * 255.0), 0, 255).astype(jnp.uint8)
+        return jnp.clip(jnp.round(frames * 255.0), 0, 255).astype(jnp.uint8), data

@@ -93,7 +93,7 @@ class Experiment:
 
     def _frames_of_steps(self, render_inputs: Any, lowdim: jax.Array) -> tuple[jax.Array, jax.Array]:
         """Render stored steps `[K, S*N]` -> per-seed frames `[S, K*N, H, W, 3]` and states."""
-        frames = jax.lax.map(self.env.render_frames, render_inputs)  # [K, S*N, H, W, 3]
+        frames = self.env.render_sequence(render_inputs)  # [K, S*N, H, W, 3]
         k = frames.shape[0]
         frames = frames.reshape((k, self.S, self.N) + frames.shape[2:]).swapaxes(0, 1)
         lowdim = lowdim.reshape((k, self.S, self.N, -1)).swapaxes(0, 1)
