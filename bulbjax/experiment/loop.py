@@ -113,8 +113,7 @@ class Experiment:
     def _init(self, key: jax.Array) -> RunState:
         c = self.config
         k_ppo, k_learn, k_env, k_fill, k_keep = jax.random.split(key, 5)
-        # lax.map, not vmap: a vmapped orthogonal (QR) initialiser hung XLA:CPU here (jax 0.10.2).
-        ppo_state = jax.lax.map(self.ppo.init, jax.random.split(k_ppo, self.S))
+        ppo_state = jax.vmap(self.ppo.init)(jax.random.split(k_ppo, self.S))
         learners = {}
         for i, (name, learner) in enumerate(self.learners.items()):
             keys = jax.random.split(jax.random.fold_in(k_learn, i), self.S)

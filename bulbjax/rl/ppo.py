@@ -16,6 +16,7 @@ treated as termination (the common, slightly biased, choice).
 from __future__ import annotations
 
 import dataclasses
+import math
 from typing import Any, Callable, Optional
 
 import flax.linen as nn
@@ -26,7 +27,7 @@ from flax import struct
 
 from bulbjax.rl.networks import DiscreteActorCritic, GaussianActorCritic
 
-_LOG_2PI = float(jnp.log(2.0 * jnp.pi))
+_LOG_2PI = math.log(2.0 * math.pi)
 
 
 @dataclasses.dataclass(frozen=True)
