@@ -137,16 +137,6 @@ def git_commit() -> str | None:
         return None
 
 
-def quiet_warp() -> None:
-    """Silence Warp's one-line-per-kernel-module load messages (warnings still show)."""
-    try:
-        import warp
-
-        warp.config.log_level = warp.LOG_WARNING
-    except Exception:  # noqa: BLE001 - cosmetic only
-        pass
-
-
 def device_info() -> dict[str, Any]:
     """JAX's first device and the host."""
     d = jax.devices()[0]
@@ -427,8 +417,10 @@ def print_summary(results: dict[str, Any]) -> None:
 
 def main(argv: list[str] | None = None) -> dict[str, Any]:
     s = parse_args(argv)
-    if not s.verbose:
-        quiet_warp()
+    if s.verbose:  # importing bulbjax.envs made Warp quiet; turn its module-load messages back on
+        import warp
+
+        warp.config.log_level, warp.config.quiet = warp.LOG_INFO, False
     stamp = dt.datetime.now().strftime("%Y%m%d_%H%M%S")
     t_start = time.perf_counter()
     results: dict[str, Any] = {
