@@ -600,3 +600,18 @@ def test_continuous_bad_action_shape_raises(fixture: str, action: jax.Array, req
     s = jax.block_until_ready(b.reset(jax.random.PRNGKey(0)))
     with pytest.raises(ValueError, match=r"float actions of shape \(4, 1\) in \[-1, 1\]"):
         b.step(s, action)
+
+
+def test_render_sequence_keeps_each_step_with_its_frames(cartpole: Bundle) -> None:
+    """Several renders in one jitted call (what the experiment does) must each show their own
+    stored step: frames of K tilted poles equal the one-at-a-time renders and differ between
+    steps (on the H100, unordered renders in one jit once mixed frames up)."""
+    s = jax.block_until_ready(cartpole.reset(jax.random.PRNGKey(3)))
+    tilts = (0.3, -0.3, 0.0)
+    ris = [RenderInput(qpos=s.render_input.qpos.at[:, 1].set(t), scheme=s.scheme) for t in tilts]
+    stacked = jax.tree.map(lambda *x: jnp.stack(x), *ris)
+    seq = np.asarray(jax.jit(cartpole.env.render_sequence)(stacked))
+    assert seq.shape == (len(tilts), N, RES, RES, 3)
+    for k, ri in enumerate(ris):
+        np.testing.assert_array_equal(seq[k], np.asarray(cartpole.render(ri)), err_msg=f"step {k}")
+    assert not np.array_equal(seq[0], seq[1]) and not np.array_equal(seq[1], seq[2])
