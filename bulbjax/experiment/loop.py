@@ -122,7 +122,9 @@ class Experiment:
         train_env, curr_env, rand_env = (self.env.reset(k) for k in ke)
         # Fill replay with frames of the random policy; retained learners keep a share of them.
         steps = -(-c.replay_capacity // self.N)
-        _, frames, states = self._collect(ppo_state, self.env.reset(k_fill), k_fill, steps, random=True)
+        k_fill_reset, k_fill_roll = jax.random.split(k_fill)
+        _, frames, states = self._collect(ppo_state, self.env.reset(k_fill_reset), k_fill_roll, steps,
+                                          random=True)
         frames, states = frames[:, : c.replay_capacity], states[:, : c.replay_capacity]
         rcfg = replay.ReplayConfig(capacity=c.replay_capacity)
         buffers = {}

@@ -60,26 +60,31 @@ def ci90(values: np.ndarray, axis: int = 0) -> tuple[np.ndarray, np.ndarray]:
     return mean, t * np.nanstd(values, axis=axis, ddof=1) / math.sqrt(n)
 
 
+def _seed_epoch_matrix(records: Sequence[dict[str, Any]],
+                       value: Any) -> tuple[np.ndarray, np.ndarray]:
+    """Epochs and a `[seeds, epochs]` matrix of `value(record)` (NaN where it gives None)."""
+    epochs = sorted({r["epoch"] for r in records})
+    seeds = sorted({r["seed"] for r in records})
+    v = np.full((len(seeds), len(epochs)), np.nan)
+    for r in records:
+        x = value(r)
+        if x is not None:
+            v[seeds.index(r["seed"]), epochs.index(r["epoch"])] = x
+    return np.array(epochs), v
+
+
 def curves(records: Sequence[dict[str, Any]], learner: str, stream: str, group: str,
            key: str = "mae_norm") -> tuple[np.ndarray, np.ndarray]:
     """Epochs and `[seeds, epochs]` values of a group's error (or `baseline_norm`)."""
-    epochs = sorted({r["epoch"] for r in records})
-    seeds = sorted({r["seed"] for r in records})
-    v = np.full((len(seeds), len(epochs)), np.nan)
-    for r in records:
+    def value(r: dict[str, Any]) -> Any:
         g = r["probes"][learner][stream]["groups"].get(group)
-        if g is not None:
-            v[seeds.index(r["seed"]), epochs.index(r["epoch"])] = g[key]
-    return np.array(epochs), v
+        return None if g is None else g[key]
+    return _seed_epoch_matrix(records, value)
 
 
 def rl_curve(records: Sequence[dict[str, Any]]) -> tuple[np.ndarray, np.ndarray]:
-    epochs = sorted({r["epoch"] for r in records})
-    seeds = sorted({r["seed"] for r in records})
-    v = np.full((len(seeds), len(epochs)), np.nan)
-    for r in records:
-        v[seeds.index(r["seed"]), epochs.index(r["epoch"])] = r["rl_return"]
-    return np.array(epochs), v
+    """Epochs and `[seeds, epochs]` PPO returns."""
+    return _seed_epoch_matrix(records, lambda r: r["rl_return"])
 
 
 def groups_of(spec: Sequence[StateEntry]) -> list[str]:
