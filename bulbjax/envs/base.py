@@ -91,6 +91,15 @@ class MjxPixelEnv:
     colour_roles: dict[str, str] = {}  # geom name -> colour role, for multicolour
     njmax: int = 8
     naconmax_per_world: int = 1
+    frame_skip: int = 1  # physics steps (of the model's timestep) per env step, action held
+    # `mjx.step` leaves body/geom poses one physics step behind qpos; domains whose state or
+    # reward reads poses (not only qpos/qvel) set this to recompute kinematics after stepping.
+    kinematics_after_step: bool = False
+    # PPOConfig fields this domain wants changed from PPO's defaults (`registry.ppo_config_for`)
+    ppo_overrides: dict[str, Any] = {}
+    # Physical-unit version of the state (`state.info["lowdim_raw"]`, `raw_state`); empty means
+    # the state is already in physical units and the raw state equals `lowdim`.
+    raw_state_spec_: tuple[StateEntry, ...] = ()
 
     def __init__(self, config: EnvConfig):
         _check_config(config)
@@ -121,10 +130,17 @@ class MjxPixelEnv:
     def _lowdim(self, data: mjx.Data) -> jax.Array:
         raise NotImplementedError
 
+    def _lowdim_raw(self, data: mjx.Data) -> jax.Array:
+        """State in physical units (override together with `raw_state_spec_`)."""
+        return self._lowdim(data)
+
     def _ctrl(self, action: jax.Array) -> jax.Array:
         raise NotImplementedError
 
-    def _reward_terminated(self, data: mjx.Data, lowdim: jax.Array, ctrl: jax.Array) -> tuple[jax.Array, jax.Array]:
+    def _reward_terminated(self, data: mjx.Data, lowdim: jax.Array, action: jax.Array,
+                           prev_data: mjx.Data) -> tuple[jax.Array, jax.Array]:
+        """Reward and termination of one world after a step from `prev_data` under `action`
+        (the validated env action, before `_ctrl`)."""
         raise NotImplementedError
 
     # ----- public API -----
@@ -135,6 +151,15 @@ class MjxPixelEnv:
     @property
     def obs_size(self) -> int:
         return self.state_dim
+
+    @property
+    def raw_state_spec(self) -> tuple[StateEntry, ...]:
+        """Spec of `state.info["lowdim_raw"]` (physical units; the state spec when unscaled)."""
+        return self.raw_state_spec_ or self.state_spec
+
+    def raw_state(self, data: mjx.Data) -> jax.Array:
+        """`[N, len(raw_state_spec)]` physical-unit state of batched `data` (after kinematics)."""
+        return jax.vmap(self._lowdim_raw)(data).astype(jnp.float32)
 
     @property
     def frame_shape(self) -> tuple[int, int, int]:
@@ -151,16 +176,23 @@ class MjxPixelEnv:
             data=data, obs=lowdim, lowdim=lowdim, pixels=pixels,
             reward=zeros, done=zeros, truncated=zeros,
             step_count=jnp.zeros(self.num_envs, jnp.int32), episode_return=zeros, scheme=scheme,
-            key=keys, info={"episode_return": zeros, "episode_length": jnp.zeros(self.num_envs, jnp.int32)})
+            key=keys, info={"episode_return": zeros, "episode_length": jnp.zeros(self.num_envs, jnp.int32),
+                            "lowdim_raw": self.raw_state(data)})
 
     def step(self, state: EnvState, action: jax.Array) -> EnvState:
         """Apply `action` to every world, step physics, reset worlds whose episode ended."""
         action = self._check_action(action)
         ctrl = jax.vmap(self._ctrl)(action)
         data = state.data.replace(ctrl=ctrl)
-        data = jax.vmap(mjx.step, in_axes=(None, 0))(self.mx, data)
+        physics = lambda d: jax.vmap(mjx.step, in_axes=(None, 0))(self.mx, d)
+        if self.frame_skip == 1:
+            data = physics(data)
+        else:
+            data = jax.lax.scan(lambda d, _: (physics(d), None), data, None, length=self.frame_skip)[0]
+        if self.kinematics_after_step:
+            data = jax.vmap(mjx.kinematics, in_axes=(None, 0))(self.mx, data)
         lowdim = jax.vmap(self._lowdim)(data)
-        reward, terminated = jax.vmap(self._reward_terminated)(data, lowdim, ctrl)
+        reward, terminated = jax.vmap(self._reward_terminated)(data, lowdim, action, state.data)
         step_count = state.step_count + 1
         truncated = (step_count >= self.episode_length) & ~terminated
         done = terminated | truncated
@@ -181,7 +213,8 @@ class MjxPixelEnv:
         scheme = jnp.where(done, fresh_scheme, state.scheme)
         obs_lowdim = jnp.where(done[:, None], jax.vmap(self._lowdim)(data), lowdim)
         info = {"episode_return": jnp.where(done, ep_return, 0.0),
-                "episode_length": jnp.where(done, step_count, 0)}
+                "episode_length": jnp.where(done, step_count, 0),
+                "lowdim_raw": self.raw_state(data)}
         pixels, data = self._step_pixels(data, scheme)
         return EnvState(
             data=data, obs=obs_lowdim, lowdim=obs_lowdim, pixels=pixels,

@@ -3,7 +3,10 @@
 PyBullet puts the eye at ``target + R_z(yaw) R_x(pitch) (0, -distance, 0)`` with z up and looks at
 the target, vertical field of view 60 degrees. We attach a MuJoCo camera with that offset and
 orientation to the body whose position is the target (the cart, the robot's base), so the camera
-follows it exactly as bulb re-aims at the base every frame.
+follows it as bulb re-aims at the base every frame. bulb keeps yaw and pitch fixed in the world
+whatever the base's orientation: for bodies that rotate (a walking robot's torso) the camera uses
+MuJoCo's "track" mode (world-fixed offset from the body position and world-fixed orientation,
+both taken at the model's reference pose) instead of being rigidly attached.
 """
 
 from __future__ import annotations
@@ -25,6 +28,17 @@ class CameraConfig:
     pitch: float
     body: str
     target_offset: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    # "fixed": rigidly attached to `body` (turns with it); "track": follows the body's position
+    # with a world-fixed offset and orientation, as bulb's re-aimed view (needs the body to be
+    # unrotated in the model's reference pose, so that the offset given here is a world offset)
+    mode: str = "fixed"
+
+    def __post_init__(self) -> None:
+        if self.mode not in CAMERA_MODES:
+            raise ValueError(f"camera mode must be one of {sorted(CAMERA_MODES)}, got {self.mode!r}")
+
+
+CAMERA_MODES = {"fixed": mujoco.mjtCamLight.mjCAMLIGHT_FIXED, "track": mujoco.mjtCamLight.mjCAMLIGHT_TRACK}
 
 
 def eye_offset(cfg: CameraConfig) -> np.ndarray:
@@ -52,3 +66,4 @@ def add_bulb_camera(spec: mujoco.MjSpec, cfg: CameraConfig, name: str = "bulb") 
     cam = body.add_camera(name=name, pos=eye_offset(cfg) + np.asarray(cfg.target_offset), fovy=FOVY_DEG)
     cam.alt.type = mujoco.mjtOrientation.mjORIENTATION_XYAXES
     cam.alt.xyaxes = np.concatenate([right, up])
+    cam.mode = CAMERA_MODES[cfg.mode]

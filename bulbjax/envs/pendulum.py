@@ -51,7 +51,7 @@ class CartPole(MjxPixelEnv):
         force = jnp.where(action == 1, self.force_mag, -self.force_mag)
         return jnp.reshape(force, (1,)).astype(jnp.float32)
 
-    def _reward_terminated(self, data, lowdim, ctrl):
+    def _reward_terminated(self, data, lowdim, action, prev_data):
         theta, x = lowdim[0], lowdim[2]
         terminated = (jnp.abs(x) > self.x_threshold) | (jnp.abs(theta) > self.theta_threshold)
         return jnp.float32(1.0), terminated
@@ -100,6 +100,6 @@ class InvertedPendulum(MjxPixelEnv):
     def _ctrl(self, action: jax.Array) -> jax.Array:
         return jnp.clip(action, -1.0, 1.0).reshape((1,))
 
-    def _reward_terminated(self, data, lowdim, ctrl):
+    def _reward_terminated(self, data, lowdim, action, prev_data):
         theta = data.qpos[1]
         return jnp.float32(1.0), jnp.abs(theta) > 0.2

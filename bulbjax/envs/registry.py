@@ -2,11 +2,15 @@
 
 from __future__ import annotations
 
+import dataclasses
+from typing import Any
+
 from bulbjax.envs.base import EnvConfig, MjxPixelEnv
+from bulbjax.envs.locomotion import Ant, HalfCheetah
 from bulbjax.envs.pendulum import CartPole, CartPoleContinuous, InvertedPendulum
 
 _REGISTRY: dict[str, type[MjxPixelEnv]] = {
-    cls.name: cls for cls in (CartPole, CartPoleContinuous, InvertedPendulum)
+    cls.name: cls for cls in (CartPole, CartPoleContinuous, InvertedPendulum, HalfCheetah, Ant)
 }
 MULTICOLOUR_SUFFIX = "Multicolour"
 ENV_NAMES: tuple[str, ...] = tuple(_REGISTRY)
@@ -34,3 +38,21 @@ def make(name: str, num_envs: int = 64, resolution: int = 64, render: bool = Tru
     cfg = EnvConfig(num_envs=num_envs, resolution=resolution, render=render,
                     render_steps=render_steps, multicolour=multicolour)
     return _REGISTRY[base](cfg)
+
+
+def env_class(name: str) -> type[MjxPixelEnv]:
+    """The domain class of a registered name (a `Multicolour` suffix is accepted)."""
+    base = name[: -len(MULTICOLOUR_SUFFIX)] if name.endswith(MULTICOLOUR_SUFFIX) else name
+    if base not in _REGISTRY:
+        raise ValueError(f"unknown environment {name!r}; available: {', '.join(env_names())}")
+    return _REGISTRY[base]
+
+
+def ppo_config_for(name: str, base: Any = None) -> Any:
+    """PPO settings for a domain: `base` (default `PPOConfig()`) with the domain's
+    `ppo_overrides` applied (locomotion needs longer rollouts and more epochs than the pendulums,
+    whose settings are PPO's defaults)."""
+    from bulbjax.rl.ppo import PPOConfig
+
+    base = PPOConfig() if base is None else base
+    return dataclasses.replace(base, **env_class(name).ppo_overrides)
