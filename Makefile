@@ -11,7 +11,7 @@ SHARED ?= $(abspath ../shared)
 $(STAMP): pyproject.toml
 	$(PY) -m venv $(VENV)
 	$(BIN)/pip install -q --upgrade pip
-	$(BIN)/pip install -q -e '.[test]'
+	$(BIN)/pip install -q -e '.[test,pybullet]'
 	touch $(STAMP)
 
 venv: $(STAMP)
