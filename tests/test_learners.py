@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 from bulbjax.learners import (
-    LEARNER_NAMES,
+    FRAME_LEARNER_NAMES,
     FrameLearner,
     LearnerConfig,
     check_finite,
@@ -62,7 +62,7 @@ def train(learner, steps: int = STEPS):
 
 
 # Every learner in float32, plus the VAE with bf16 compute.
-CASES = [(name, "float32") for name in LEARNER_NAMES] + [("vae", "bfloat16")]
+CASES = [(name, "float32") for name in FRAME_LEARNER_NAMES] + [("vae", "bfloat16")]
 
 
 @pytest.fixture(scope="module", params=CASES, ids=[f"{n}-{d}" for n, d in CASES])

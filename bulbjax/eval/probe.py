@@ -112,21 +112,36 @@ def predict(params: ProbeParams, latents: jax.Array) -> jax.Array:
     return model.apply(params.mlp, x) * params.y_std + params.y_mean
 
 
-def mae(pred: jax.Array, states: jax.Array) -> jax.Array:
-    """Per-entry mean absolute error ``[D]``."""
-    return jnp.mean(jnp.abs(pred - states), axis=0)
+def mae(pred: jax.Array, states: jax.Array, weights: jax.Array | None = None) -> jax.Array:
+    """Per-entry mean absolute error ``[D]``. ``weights [B]`` (e.g. the valid mask of sequence
+    windows, padded steps 0) makes it a weighted mean over the batch."""
+    err = jnp.abs(pred - states)
+    if weights is None:
+        return jnp.mean(err, axis=0)
+    w = weights.astype(jnp.float32)[:, None]
+    return jnp.sum(err * w, axis=0) / jnp.maximum(jnp.sum(w), 1e-12)
 
 
-def constant_baseline(train_states: jax.Array, test_states: jax.Array) -> jax.Array:
+def _median(states: jax.Array, weights: jax.Array | None) -> jax.Array:
+    """Per-entry median over the batch, over the rows with nonzero weight when given."""
+    if weights is None:
+        return jnp.median(states, axis=0)
+    return jnp.nanmedian(jnp.where(weights[:, None] > 0, states, jnp.nan), axis=0)
+
+
+def constant_baseline(
+    train_states: jax.Array, test_states: jax.Array, weights: jax.Array | None = None
+) -> jax.Array:
     """Per-entry test MAE ``[D]`` of always predicting the training median (the MAE-optimal
-    constant): the bar a probe has to clear for a latent to carry any information."""
-    return mae(jnp.median(train_states, axis=0), test_states)
+    constant): the bar a probe has to clear for a latent to carry any information. ``weights``
+    weigh the test rows (see `mae`)."""
+    return mae(jnp.median(train_states, axis=0), test_states, weights)
 
 
-def spread(states: jax.Array) -> jax.Array:
+def spread(states: jax.Array, weights: jax.Array | None = None) -> jax.Array:
     """Per-entry mean absolute deviation around the median ``[D]`` of held-out states; the unit
-    used to normalise errors (see module docstring)."""
-    return mae(jnp.median(states, axis=0), states)
+    used to normalise errors (see module docstring). ``weights`` select/weigh rows (see `mae`)."""
+    return mae(_median(states, weights), states, weights)
 
 
 def _aggregate(

@@ -1,9 +1,12 @@
-"""Frame learners and their registry.
+"""Learners and their registry.
 
-`make_learner(name, latent_dim, config)` builds one of:
+`make_learner(name, latent_dim, config, action_dim=1)` builds one of the frame learners
 - `vae`: VAE_v0, plain conv VAE (beta=1, no replay retention);
 - `vae_rpl`: the same model, asking replay to retain 50% of the initial frames;
-- `beta_vae`: beta-VAE with beta=5 (the paper's best) and the same 50% retention.
+- `beta_vae`: beta-VAE with beta=5 (the paper's best) and the same 50% retention;
+or one of the sequential learners (train on windows, one latent per step; sequential.py)
+- `svae`, `pred`, `dsa`: each with the 50% initial-replay retention, as the paper applied the
+  fix to every learner after VAE_v0.
 """
 
 from __future__ import annotations
@@ -12,12 +15,15 @@ import dataclasses
 from typing import Any, Mapping
 
 from bulbjax.learners.base import (
+    DSA_ENCODERS,
     FrameLearner,
     LearnerConfig,
     LearnerState,
+    SequenceLearner,
     check_finite,
 )
 from bulbjax.learners.networks import ConvEncoder, DeconvDecoder, check_frame_shape
+from bulbjax.learners.sequential import DSA, PRED, SEQUENTIAL_LEARNERS, SVAE, SequentialVAE
 from bulbjax.learners.vae import VAE
 
 # Per-name defaults, applied on top of LearnerConfig's defaults.
@@ -25,8 +31,13 @@ _PRESETS: dict[str, dict[str, Any]] = {
     "vae": {},
     "vae_rpl": {"retain_fraction": 0.5},
     "beta_vae": {"beta": 5.0, "retain_fraction": 0.5},
+    "svae": {"retain_fraction": 0.5},
+    "pred": {"retain_fraction": 0.5},
+    "dsa": {"retain_fraction": 0.5},
 }
 LEARNER_NAMES: tuple[str, ...] = tuple(_PRESETS)
+SEQUENCE_LEARNER_NAMES: tuple[str, ...] = tuple(SEQUENTIAL_LEARNERS)
+FRAME_LEARNER_NAMES: tuple[str, ...] = tuple(n for n in LEARNER_NAMES if n not in SEQUENTIAL_LEARNERS)
 
 
 def resolve_config(
@@ -63,14 +74,36 @@ def resolve_config(
 
 
 def make_learner(
-    name: str, latent_dim: int, config: LearnerConfig | Mapping[str, Any] | None = None
-) -> VAE:
-    """Build the frame learner `name` (one of LEARNER_NAMES); see `resolve_config`."""
-    return VAE(latent_dim=latent_dim, config=resolve_config(name, config))
+    name: str,
+    latent_dim: int,
+    config: LearnerConfig | Mapping[str, Any] | None = None,
+    action_dim: int = 1,
+) -> VAE | SequentialVAE:
+    """Build the learner `name` (one of LEARNER_NAMES); see `resolve_config`. `action_dim` is the
+    width of the actions the sequential learners condition on (one-hot size for discrete
+    actions); the frame learners ignore it."""
+    cfg = resolve_config(name, config)
+    if name in SEQUENTIAL_LEARNERS:
+        return SEQUENTIAL_LEARNERS[name](latent_dim=latent_dim, config=cfg, action_dim=action_dim)
+    return VAE(latent_dim=latent_dim, config=cfg)
+
+
+def is_sequential(learner: Any) -> bool:
+    """True for learners that train on windows (`SequenceLearner`), False for frame learners."""
+    return bool(getattr(learner, "sequential", False))
 
 
 __all__ = [
+    "DSA",
+    "DSA_ENCODERS",
+    "FRAME_LEARNER_NAMES",
     "LEARNER_NAMES",
+    "PRED",
+    "SEQUENCE_LEARNER_NAMES",
+    "SVAE",
+    "SequenceLearner",
+    "SequentialVAE",
+    "is_sequential",
     "ConvEncoder",
     "DeconvDecoder",
     "FrameLearner",

@@ -17,6 +17,8 @@ import jax.numpy as jnp
 import numpy as np
 
 COMPUTE_DTYPES: tuple[str, ...] = ("float32", "bfloat16")
+# DSA's encoder variants (the paper tried all of them); see networks.SequenceModel.
+DSA_ENCODERS: tuple[str, ...] = ("lstm", "bilstm", "gru", "rnn", "conv", "fc")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -28,6 +30,8 @@ class LearnerConfig:
     bf16 (XLA's fp32 transposed convs are slow on GPU) while params, optimiser state and the
     loss stay float32. `retain_fraction` is the share of the initial replay content the
     learner asks the caller to keep for the whole run (VAE_rpl's replay of early frames).
+    Sequential learners train on windows of `sequence_length` steps and take
+    `batch_size // sequence_length` windows per batch (the paper's equalised compute).
     """
 
     lr: float = 1e-4
@@ -37,6 +41,10 @@ class LearnerConfig:
     hidden: int = 512
     compute_dtype: str = "float32"
     retain_fraction: float = 0.0
+    # Sequential learners only (svae, pred, dsa); the frame learners ignore these.
+    sequence_length: int = 24  # steps per window (paper: 24 pendulums, 16 locomotion)
+    pred_horizon: int = 4  # PRED reconstructs sequence_length + pred_horizon frames
+    dsa_encoder: str = "bilstm"  # DSA's static/dynamic encoders: one of DSA_ENCODERS
 
     def __post_init__(self) -> None:
         # Accept lists for conv_features but store a tuple, so the config stays hashable.
@@ -57,6 +65,12 @@ class LearnerConfig:
             raise ValueError(
                 f"compute_dtype must be one of {COMPUTE_DTYPES}, got {self.compute_dtype!r}"
             )
+        if self.sequence_length < 2:
+            raise ValueError(f"sequence_length must be >= 2, got {self.sequence_length!r}")
+        if self.pred_horizon < 0:
+            raise ValueError(f"pred_horizon must be >= 0, got {self.pred_horizon!r}")
+        if self.dsa_encoder not in DSA_ENCODERS:
+            raise ValueError(f"dsa_encoder must be one of {DSA_ENCODERS}, got {self.dsa_encoder!r}")
         if not 0.0 <= self.retain_fraction < 1.0:
             raise ValueError(f"retain_fraction must be in [0, 1), got {self.retain_fraction!r}")
 
@@ -131,3 +145,37 @@ def check_finite(metrics: Mapping[str, Any], where: str) -> None:
             "compute_dtype='float32' if bf16 was used, and check that the input frames are "
             "valid uint8 images of the expected shape."
         )
+
+
+@runtime_checkable
+class SequenceLearner(Protocol):
+    """What the evaluation loop needs from a sequential learner (svae, pred, dsa).
+
+    Inputs are `Windows` (bulbjax.data.sequence) with at least `window_length` steps; longer
+    windows are cut to the first `window_length`. Latents are per step: `encode` gives one
+    latent per step of the first `sequence_length` steps, and the probe maps the latent at
+    step t to the true state at step t (padded steps are left out via `Windows.valid`).
+    """
+
+    latent_dim: int
+    config: LearnerConfig
+    action_dim: int
+    sequential: bool  # True
+
+    @property
+    def window_length(self) -> int:
+        """Steps a training window needs (PRED: sequence_length + pred_horizon)."""
+        ...
+
+    @property
+    def batch_size(self) -> int:
+        """Windows per batch: config.batch_size // sequence_length."""
+        ...
+
+    def init(self, key: jax.Array, frame_shape: tuple[int, int, int]) -> LearnerState: ...
+
+    def update(self, state: LearnerState, windows: Any, key: jax.Array) -> tuple[LearnerState, Metrics]: ...
+
+    def encode(self, params: Any, windows: Any) -> jax.Array:
+        """Per-step latents [B, sequence_length, latent_dim] float32."""
+        ...

@@ -65,6 +65,24 @@ def check_frame_shape(
     return shape[0]
 
 
+def conv_layers(x: jax.Array, features: tuple[int, ...], dtype: jnp.dtype) -> jax.Array:
+    """The shared conv stack, flattened: frames [B, R, R, 3] -> [B, (R/2^n)^2 * features[-1]].
+
+    Call it inside a module's `nn.compact` method: the layers become that module's
+    submodules `conv0..conv{n-1}` (so every learner's conv params are laid out alike).
+    """
+    check_frame_shape(x.shape[1:], len(features))
+    h = x.astype(dtype)
+    for i, f in enumerate(features):
+        h = nn.Conv(
+            f, (4, 4), strides=(2, 2), padding="SAME",
+            dtype=dtype, param_dtype=jnp.float32, kernel_init=lecun_normal_flat,
+            name=f"conv{i}",
+        )(h)
+        h = nn.relu(h)
+    return h.reshape((h.shape[0], -1))
+
+
 class ConvEncoder(nn.Module):
     """Frames [B, R, R, 3] in [0, 1] -> (mean, logvar), each [B, latent_dim] float32."""
 
@@ -75,16 +93,7 @@ class ConvEncoder(nn.Module):
 
     @nn.compact
     def __call__(self, x: jax.Array) -> tuple[jax.Array, jax.Array]:
-        check_frame_shape(x.shape[1:], len(self.features))
-        h = x.astype(self.dtype)
-        for i, f in enumerate(self.features):
-            h = nn.Conv(
-                f, (4, 4), strides=(2, 2), padding="SAME",
-                dtype=self.dtype, param_dtype=jnp.float32, kernel_init=lecun_normal_flat,
-                name=f"conv{i}",
-            )(h)
-            h = nn.relu(h)
-        h = h.reshape((h.shape[0], -1))
+        h = conv_layers(x, self.features, self.dtype)
         dense = dict(param_dtype=jnp.float32, kernel_init=lecun_normal_flat)
         h = nn.relu(nn.Dense(self.hidden, dtype=self.dtype, name="fc", **dense)(h))
         h = h.astype(jnp.float32)
@@ -123,3 +132,91 @@ class DeconvDecoder(nn.Module):
             if i < len(out_features) - 1:
                 h = nn.relu(h)
         return h.astype(jnp.float32)
+
+
+class FrameFeatures(nn.Module):
+    """Per-frame features of the sequential learners: frames [B, R, R, 3] in [0, 1] -> [B, F].
+
+    `hidden=0` returns the flattened conv stack output (SVAE feeds it straight to its LSTM,
+    as the paper says); otherwise an FC layer of `hidden` units with ReLU follows, as in
+    the frame VAEs' encoder. Output float32.
+    """
+
+    features: tuple[int, ...] = DEFAULT_FEATURES
+    hidden: int = 512
+    dtype: jnp.dtype = jnp.float32
+
+    @nn.compact
+    def __call__(self, x: jax.Array) -> jax.Array:
+        h = conv_layers(x, self.features, self.dtype)
+        if self.hidden:
+            dense = dict(dtype=self.dtype, param_dtype=jnp.float32, kernel_init=lecun_normal_flat)
+            h = nn.relu(nn.Dense(self.hidden, name="fc", **dense)(h))
+        return h.astype(jnp.float32)
+
+
+class GaussianHead(nn.Module):
+    """Features [..., F] -> (mean, logvar), each [..., latent_dim] float32 (two linear maps)."""
+
+    latent_dim: int
+
+    @nn.compact
+    def __call__(self, h: jax.Array) -> tuple[jax.Array, jax.Array]:
+        dense = dict(param_dtype=jnp.float32, kernel_init=lecun_normal_flat)
+        h = h.astype(jnp.float32)
+        return (nn.Dense(self.latent_dim, name="mean", **dense)(h),
+                nn.Dense(self.latent_dim, name="logvar", **dense)(h))
+
+
+# Temporal models a sequential learner can put over per-frame features (DSA's variants).
+SEQUENCE_MODELS: tuple[str, ...] = ("lstm", "bilstm", "gru", "rnn", "conv", "fc")
+
+
+class SequenceModel(nn.Module):
+    """Temporal layer over per-step features [B, L, F] -> [B, L, out] float32.
+
+    `kind`: `lstm`, `gru`, `rnn` (unidirectional, causal; out = hidden), `bilstm` (forward and
+    backward LSTMs concatenated; out = 2 * hidden), `conv` (two temporal convolutions of
+    width 3; out = hidden), `fc` (a per-step dense layer, no mixing over time; out = hidden).
+    Recurrent kernels use a scaled normal init, not the usual orthogonal one: QR inside a
+    vmapped init hung XLA:CPU (see the PPO module).
+    """
+
+    kind: str = "lstm"
+    hidden: int = 512
+
+    def _cell(self, kind: str) -> nn.RNNCellBase:
+        inits = dict(kernel_init=lecun_normal_flat, recurrent_kernel_init=lecun_normal_flat)
+        if kind in ("lstm", "bilstm"):
+            return nn.OptimizedLSTMCell(self.hidden, **inits)
+        if kind == "gru":
+            return nn.GRUCell(self.hidden, **inits)
+        return nn.SimpleCell(self.hidden, **inits)
+
+    @nn.compact
+    def __call__(self, x: jax.Array) -> jax.Array:
+        if self.kind not in SEQUENCE_MODELS:
+            raise ValueError(f"unknown sequence model {self.kind!r}; accepted: {', '.join(SEQUENCE_MODELS)}")
+        x = x.astype(jnp.float32)
+        if self.kind in ("lstm", "gru", "rnn"):
+            return nn.RNN(self._cell(self.kind), name="rnn")(x)
+        if self.kind == "bilstm":
+            fwd = nn.RNN(self._cell("lstm"), name="forward")
+            bwd = nn.RNN(self._cell("lstm"), name="backward")
+            return nn.Bidirectional(fwd, bwd, name="bi")(x)
+        if self.kind == "conv":
+            for i in range(2):
+                x = nn.relu(nn.Conv(self.hidden, (3,), padding="SAME", name=f"tconv{i}",
+                                    kernel_init=lecun_normal_flat)(x))
+            return x
+        return nn.relu(nn.Dense(self.hidden, name="fc", kernel_init=lecun_normal_flat)(x))
+
+    def summary(self, out: jax.Array) -> jax.Array:
+        """One vector per sequence [B, out] from `__call__`'s output: the last step's output for
+        causal RNNs, the forward last and backward first outputs for `bilstm`, the mean over
+        time for `conv`/`fc`. Pure function of `out` (no params)."""
+        if self.kind in ("lstm", "gru", "rnn"):
+            return out[:, -1]
+        if self.kind == "bilstm":
+            return jnp.concatenate([out[:, -1, : self.hidden], out[:, 0, self.hidden :]], axis=-1)
+        return out.mean(axis=1)

@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from typing import Any
+from typing import Any, ClassVar
 
 import jax
 import jax.numpy as jnp
@@ -44,6 +44,7 @@ class VAE:
 
     latent_dim: int
     config: LearnerConfig = LearnerConfig()
+    sequential: ClassVar[bool] = False  # trains on single frames (see SequenceLearner for windows)
 
     def __post_init__(self) -> None:
         if self.latent_dim < 1:
@@ -53,6 +54,11 @@ class VAE:
     def retain_fraction(self) -> float:
         """Share of the initial replay content to keep for the whole run."""
         return self.config.retain_fraction
+
+    @property
+    def batch_size(self) -> int:
+        """Frames per batch the caller should sample (config.batch_size; paper: 1,024)."""
+        return self.config.batch_size
 
     @property
     def encoder(self) -> ConvEncoder:

@@ -1,0 +1,165 @@
+"""Sequential learners (svae, pred, dsa): loss falls on a fixed batch of moving-square windows,
+per-step latent shapes, padding ignored, equalised batch sizes, input errors, DSA variants.
+
+Training uses a reduced network at 32x32; the paper-sized network is checked with
+jax.eval_shape (shapes only, no compile)."""
+
+from __future__ import annotations
+
+import functools
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from bulbjax.data.sequence import Windows
+from bulbjax.learners import (
+    DSA_ENCODERS,
+    LEARNER_NAMES,
+    SEQUENCE_LEARNER_NAMES,
+    SequenceLearner,
+    check_finite,
+    make_learner,
+)
+
+RES, B, L, K, LATENT, ACT = 32, 4, 6, 2, 4, 2
+STEPS = 50
+SMALL = {"conv_features": (8, 8, 16, 16), "hidden": 32, "lr": 2e-3, "sequence_length": L,
+         "pred_horizon": K}
+
+
+def moving_squares(b: int, t: int, seed: int = 0) -> Windows:
+    """Windows of a square moving at a constant random velocity; one-hot actions; the last
+    window ends early (valid False from step L-2 on, its frames there noise)."""
+    rng = np.random.default_rng(seed)
+    frames = np.zeros((b, t, RES, RES, 3), np.uint8)
+    states = np.zeros((b, t, 2), np.float32)
+    for i in range(b):
+        x, v = rng.integers(0, RES - 8), rng.integers(-2, 3)
+        for s in range(t):
+            xx = int(np.clip(x + v * s, 0, RES - 8))
+            frames[i, s, 12:20, xx:xx + 8] = (200, 120, 60)
+            states[i, s] = (xx, v)
+    valid = np.ones((b, t), bool)
+    valid[-1, L - 2:] = False
+    frames[-1, L - 2:] = rng.integers(0, 256, size=frames[-1, L - 2:].shape)
+    actions = np.eye(ACT, dtype=np.float32)[rng.integers(0, ACT, size=(b, t))] * valid[..., None]
+    return Windows(jnp.asarray(frames), jnp.asarray(actions), jnp.asarray(states), jnp.asarray(valid))
+
+
+WINDOWS = moving_squares(B, L + K)
+
+
+@pytest.fixture(scope="module", params=SEQUENCE_LEARNER_NAMES)
+def trained(request):
+    learner = make_learner(request.param, LATENT, SMALL, action_dim=ACT)
+
+    @jax.jit
+    def run(key):
+        k_init, k_steps = jax.random.split(key)
+        state = learner.init(k_init, (RES, RES, 3))
+        state, metrics = jax.lax.scan(lambda s, k: learner.update(s, WINDOWS, k), state,
+                                      jax.random.split(k_steps, STEPS))
+        return state, metrics, learner.encode(state.params, WINDOWS), learner.reconstruct(state.params, WINDOWS)
+
+    return (learner, *run(jax.random.key(0)))
+
+
+def test_loss_falls(trained) -> None:
+    learner, state, metrics, _, _ = trained
+    check_finite(metrics, f"{learner} test")
+    loss = np.asarray(metrics["loss"])
+    assert loss.shape == (STEPS,) and int(state.step) == STEPS
+    assert loss[-5:].mean() < 0.6 * loss[0], loss
+    np.testing.assert_allclose(metrics["loss"], metrics["recon"] + learner.config.beta * metrics["kl"], rtol=1e-5)
+    # the last window's padded steps (from L-2 on) are left out of the loss
+    expected = 1 - (learner.window_length - (L - 2)) / (B * learner.window_length)
+    np.testing.assert_allclose(metrics["valid_frac"], expected, rtol=1e-6)
+
+
+def test_per_step_latents(trained) -> None:
+    learner, _, _, z, rec = trained
+    assert isinstance(learner, SequenceLearner) and learner.sequential
+    assert z.shape == (B, L, LATENT) and z.dtype == jnp.float32 and np.all(np.isfinite(z))
+    assert not np.allclose(z[:, 0], z[:, -1])  # latents differ over time
+    assert rec.shape == (B, learner.window_length, RES, RES, 3)
+    assert float(rec.min()) >= 0 and float(rec.max()) <= 1
+
+
+def test_padding_does_not_change_the_loss(trained) -> None:
+    """Padded steps' reconstruction terms are masked out: their target frames never matter, and
+    for the causal svae their input frames do not either."""
+    learner, state, _, _, _ = trained
+    key = jax.random.key(5)
+    base = learner.loss(state.params, WINDOWS, key)[1]["loss"]
+    first = L if type(learner).__name__ == "PRED" else L - 2  # PRED's steps >= L are targets only
+    if type(learner).__name__ == "DSA":
+        first = L + K  # DSA's encoders see the whole window: nothing to change
+    other = WINDOWS.replace(frames=WINDOWS.frames.at[-1, first:].set(0))
+    np.testing.assert_allclose(learner.loss(state.params, other, key)[1]["loss"], base, rtol=1e-6)
+    # a valid frame does change it
+    changed = WINDOWS.replace(frames=WINDOWS.frames.at[0, 0].set(255))
+    assert learner.loss(state.params, changed, key)[1]["loss"] != base
+
+
+def test_registry_and_equalised_batches() -> None:
+    assert LEARNER_NAMES == ("vae", "vae_rpl", "beta_vae", "svae", "pred", "dsa")
+    for name in SEQUENCE_LEARNER_NAMES:
+        learner = make_learner(name, 8, {"sequence_length": 24}, action_dim=2)
+        assert learner.retain_fraction == 0.5 and learner.config.lr == 1e-4
+        assert learner.batch_size == 1024 // 24 == 42
+    assert make_learner("pred", 8, {"sequence_length": 16, "pred_horizon": 4}).window_length == 20
+    assert make_learner("svae", 8, {"sequence_length": 16}).batch_size == 64
+    assert make_learner("vae", 8).batch_size == 1024 and not make_learner("vae", 8).sequential
+    with pytest.raises(ValueError, match="svae, pred, dsa"):
+        make_learner("lstm_vae", 8)
+    with pytest.raises(ValueError, match="dsa_encoder"):
+        make_learner("dsa", 8, {"dsa_encoder": "transformer"})
+    with pytest.raises(ValueError, match="sequence_length"):
+        make_learner("svae", 8, {"sequence_length": 1})
+
+
+def test_input_errors(trained) -> None:
+    learner, state, _, _, _ = trained
+    short = WINDOWS.head(L - 1)
+    with pytest.raises(ValueError, match="wrong sequence length"):
+        learner.encode(state.params, short)
+    with pytest.raises(ValueError, match="action_dim"):
+        learner.encode(state.params, WINDOWS.replace(actions=WINDOWS.actions[..., :1]))
+    with pytest.raises(TypeError, match="uint8"):
+        learner.encode(state.params, WINDOWS.replace(frames=WINDOWS.frames.astype(jnp.float32)))
+    with pytest.raises(TypeError, match="Windows"):
+        learner.encode(state.params, WINDOWS.frames)
+
+
+@pytest.mark.parametrize("encoder", DSA_ENCODERS)
+def test_dsa_variants_build(encoder: str) -> None:
+    """Every DSA variant initialises and encodes to per-step latents (shapes only)."""
+    learner = make_learner("dsa", LATENT, {**SMALL, "dsa_encoder": encoder}, action_dim=ACT)
+    state = jax.eval_shape(functools.partial(learner.init, frame_shape=(RES, RES, 3)), jax.random.key(0))
+    assert jax.eval_shape(learner.encode, state.params, WINDOWS).shape == (B, L, LATENT)
+    new, m = jax.eval_shape(learner.update, state, WINDOWS, jax.random.key(1))
+    assert m["loss"].shape == () and jax.tree.structure(new.params) == jax.tree.structure(state.params)
+    assert learner.static_dim + learner.dynamic_dim == LATENT
+
+
+def test_paper_sized_shapes() -> None:
+    """64x64 frames, convs 64-64-128-256, FC/LSTM 512, L=24 (PRED k=4), shapes only."""
+    windows = jax.ShapeDtypeStruct((2, 28, 64, 64, 3), jnp.uint8)
+    w = Windows(windows, jax.ShapeDtypeStruct((2, 28, 2), jnp.float32),
+                jax.ShapeDtypeStruct((2, 28, 5), jnp.float32), jax.ShapeDtypeStruct((2, 28), bool))
+    for name in SEQUENCE_LEARNER_NAMES:
+        learner = make_learner(name, 10, {"sequence_length": 24}, action_dim=2)
+        state = jax.eval_shape(functools.partial(learner.init, frame_shape=(64, 64, 3)), jax.random.key(0))
+        assert jax.eval_shape(learner.encode, state.params, w).shape == (2, 24, 10)
+        assert state.params["conv"]["conv3"]["kernel"].shape == (4, 4, 128, 256)
+    svae = make_learner("svae", 10, {"sequence_length": 24}, action_dim=2)
+    state = jax.eval_shape(functools.partial(svae.init, frame_shape=(64, 64, 3)), jax.random.key(0))
+    lstm = jax.tree.leaves(state.params["rnn"])
+    assert any(x.shape == (4 * 4 * 256 + 2, 512) for x in lstm)  # conv output + action -> LSTM(512)
+
+
+def test_nan_loss_is_reported() -> None:
+    with pytest.raises(FloatingPointError, match="lower the learning rate"):
+        check_finite({"loss": jnp.array([1.0, jnp.nan])}, "svae update, epoch 3")
