@@ -1,0 +1,236 @@
+"""Rendered frames per second (64x64 RGB + true state): the PyBullet originals with N parallel
+processes on this machine's CPU cores, against bulbjax on its accelerator (or CPU), in one run.
+
+PyBullet: `pybullet_compat.ProcessVecEnv`, one env per process (N = CPU cores by default), random
+actions, auto-reset; every step renders bulb's frame with `getCameraImage` (ER_TINY_RENDERER) and
+returns the state; frames/s = N x steps / wall time over `--seconds` after a warm-up.
+bulbjax: `bulbjax.make(name, num_envs=W, render=True)`, `--steps` random-action steps in one
+jitted scan (physics + forward + 64x64 Warp render + state), median of `--repeats` calls after
+compiling; frames/s = W x steps / call time. Ratio = bulbjax's best batch size / PyBullet.
+
+    python benchmarks/bench_pybullet_vs_bulbjax.py --envs CartPole,InvertedPendulum,HalfCheetah,Ant \\
+        --worlds 1024,4096 --seconds 20
+
+Needs no network; gym is imported only by pybullet_envs' modules (never `gym.make`). Writes
+benchmarks/results/pybullet_vs_bulbjax_<device>_<stamp>.json (and ..._latest.json).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import statistics
+import sys
+import time
+from dataclasses import asdict, dataclass
+from typing import Any
+
+import numpy as np
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+sys.path.insert(0, os.path.dirname(HERE))  # run from a checkout without installing
+
+
+@dataclass(frozen=True)
+class Settings:
+    """What to measure."""
+
+    envs: tuple[str, ...]
+    procs: int
+    worlds: tuple[int, ...]
+    seconds: float
+    steps: int
+    repeats: int
+    resolution: int
+    out: str
+    skip_pybullet: bool
+    skip_bulbjax: bool
+    seed: int = 0
+
+
+def log(msg: str) -> None:
+    print(msg, flush=True)
+
+
+def bench_pybullet(name: str, s: Settings) -> dict[str, Any]:
+    """Frames/s of `s.procs` PyBullet processes stepping and rendering together."""
+    from pybullet_compat.envs import domain
+    from pybullet_compat.vector import ProcessVecEnv
+
+    spec = domain(name)
+    rng = np.random.default_rng(s.seed)
+
+    def actions() -> np.ndarray:
+        if spec.discrete:
+            return rng.integers(0, spec.num_actions, s.procs)
+        return rng.uniform(-1, 1, (s.procs, spec.action_size)).astype(np.float32)
+
+    t0 = time.perf_counter()
+    venv = ProcessVecEnv(name, s.procs, resolution=s.resolution, render=True)
+    start_s = time.perf_counter() - t0
+    try:
+        venv.reset(seeds=list(range(s.procs)))
+        for _ in range(20):  # warm-up
+            venv.step(actions())
+        steps, t0 = 0, time.perf_counter()
+        while time.perf_counter() - t0 < s.seconds:
+            frames, states, *_ = venv.step(actions())
+            steps += 1
+        wall = time.perf_counter() - t0
+    finally:
+        venv.close()
+    assert frames.shape == (s.procs, s.resolution, s.resolution, 3) and frames.dtype == np.uint8
+    return {"env": name, "processes": s.procs, "vector_steps": steps, "wall_s": wall, "start_s": start_s,
+            "frames_per_s": s.procs * steps / wall, "frames_per_s_per_process": steps / wall,
+            "state_dim": int(states.shape[1]), "pixels_mean": float(frames.mean())}
+
+
+def bench_bulbjax(name: str, worlds: int, s: Settings) -> dict[str, Any]:
+    """Frames/s of one bulbjax env of `worlds` worlds, `s.steps` rendered steps per jitted scan."""
+    import jax
+    import jax.numpy as jnp
+
+    import bulbjax
+
+    env = bulbjax.make(name, num_envs=worlds, resolution=s.resolution, render=True)
+
+    def act(key: jax.Array) -> jax.Array:
+        if env.discrete:
+            return jax.random.randint(key, (worlds,), 0, env.num_actions, dtype=jnp.int32)
+        return jax.random.uniform(key, (worlds * env.action_size,), minval=-1.0, maxval=1.0).reshape(
+            worlds, env.action_size)
+
+    @jax.jit
+    def rollout(state: Any, key: jax.Array) -> tuple[Any, jax.Array]:
+        def body(carry, _):
+            st, k = carry
+            k, ka = jax.random.split(k)
+            return (env.step(st, act(ka)), k), None
+        return jax.lax.scan(body, (state, key), None, length=s.steps)[0]
+
+    key = jax.random.PRNGKey(s.seed)
+    state = jax.jit(env.reset)(key)
+    t0 = time.perf_counter()
+    compiled = rollout.lower(state, key).compile()
+    compile_s = time.perf_counter() - t0
+    state, key = jax.block_until_ready(compiled(state, key))
+    calls = []
+    for _ in range(s.repeats):
+        t0 = time.perf_counter()
+        state, key = jax.block_until_ready(compiled(state, key))
+        calls.append(time.perf_counter() - t0)
+    med = statistics.median(calls)
+    px = np.asarray(state.pixels)
+    return {"env": name, "worlds": worlds, "steps": s.steps, "repeats": s.repeats, "compile_s": compile_s,
+            "call_s": calls, "median_call_s": med, "frames_per_s": worlds * s.steps / med,
+            "frames_per_s_best": worlds * s.steps / min(calls), "state_dim": int(state.lowdim.shape[1]),
+            "pixels_mean": float(px.mean())}
+
+
+def device_info() -> dict[str, Any]:
+    info: dict[str, Any] = {"cpu_count": os.cpu_count(), "python": platform.python_version(),
+                            "machine": platform.machine()}
+    try:
+        import jax
+        d = jax.devices()[0]
+        info.update(platform=d.platform, device=getattr(d, "device_kind", str(d)), jax=jax.__version__)
+    except Exception as err:  # pragma: no cover
+        info["jax_error"] = repr(err)
+    for pkg in ("pybullet", "gym", "mujoco", "mujoco-warp"):
+        try:
+            from importlib import metadata
+            info[pkg] = metadata.version(pkg)
+        except Exception:
+            info[pkg] = None
+    return info
+
+
+def parse_args(argv: list[str] | None = None) -> Settings:
+    p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    p.add_argument("--envs", default="CartPole,InvertedPendulum,HalfCheetah,Ant")
+    p.add_argument("--procs", type=int, default=os.cpu_count() or 1, help="PyBullet processes (default: CPU cores)")
+    p.add_argument("--worlds", default="1024,4096", help="bulbjax batch sizes, comma-separated")
+    p.add_argument("--seconds", type=float, default=20.0, help="PyBullet measurement time per env")
+    p.add_argument("--steps", type=int, default=100, help="bulbjax steps per jitted scan")
+    p.add_argument("--repeats", type=int, default=5, help="timed bulbjax scans")
+    p.add_argument("--resolution", type=int, default=64)
+    p.add_argument("--out", default=os.path.join(HERE, "results"))
+    p.add_argument("--skip-pybullet", action="store_true")
+    p.add_argument("--skip-bulbjax", action="store_true")
+    a = p.parse_args(argv)
+    return Settings(envs=tuple(a.envs.split(",")), procs=a.procs, worlds=tuple(int(w) for w in a.worlds.split(",")),
+                    seconds=a.seconds, steps=a.steps, repeats=a.repeats, resolution=a.resolution, out=a.out,
+                    skip_pybullet=a.skip_pybullet, skip_bulbjax=a.skip_bulbjax)
+
+
+def main(argv: list[str] | None = None) -> dict[str, Any]:
+    s = parse_args(argv)
+    info = device_info()
+    log(f"device: {info.get('device')} ({info.get('platform')}), {info['cpu_count']} CPU cores, python {info['python']}")
+    results: dict[str, Any] = {"settings": asdict(s), "device": info, "rows": []}
+    try:
+        import bulbjax
+        available = set(bulbjax.env_names(with_variants=False))
+    except Exception as err:
+        available, results["bulbjax_error"] = set(), repr(err)
+    for name in s.envs:
+        row: dict[str, Any] = {"env": name}
+        if not s.skip_pybullet:
+            try:
+                row["pybullet"] = bench_pybullet(name, s)
+                log(f"{name}: PyBullet {s.procs} processes: {row['pybullet']['frames_per_s']:,.0f} frames/s")
+            except Exception as err:
+                row["pybullet_error"] = repr(err)
+                log(f"{name}: PyBullet failed: {err!r}")
+        if not s.skip_bulbjax:
+            if name not in available:
+                row["bulbjax_error"] = f"{name} is not registered in this bulbjax"
+            else:
+                row["bulbjax"] = []
+                for w in s.worlds:
+                    try:
+                        r = bench_bulbjax(name, w, s)
+                        row["bulbjax"].append(r)
+                        log(f"{name}: bulbjax {w} worlds: {r['frames_per_s']:,.0f} frames/s (compile {r['compile_s']:.0f} s)")
+                    except Exception as err:
+                        row["bulbjax"].append({"worlds": w, "error": repr(err)})
+                        log(f"{name}: bulbjax {w} worlds failed: {err!r}")
+        ok = [r for r in row.get("bulbjax", []) if "frames_per_s" in r]
+        if ok and "pybullet" in row:
+            best = max(ok, key=lambda r: r["frames_per_s"])
+            row["ratio_best_bulbjax_to_pybullet"] = best["frames_per_s"] / row["pybullet"]["frames_per_s"]
+            row["best_worlds"] = best["worlds"]
+            log(f"{name}: ratio bulbjax/PyBullet = {row['ratio_best_bulbjax_to_pybullet']:.1f}x")
+        results["rows"].append(row)
+    print_table(results)
+    write(results, s.out)
+    return results
+
+
+def print_table(results: dict[str, Any]) -> None:
+    procs = results["settings"]["procs"]
+    print(f"\n| env | PyBullet, {procs} processes (frames/s) | bulbjax (worlds: frames/s) | ratio |")
+    print("|---|---|---|---|")
+    for row in results["rows"]:
+        pb = f"{row['pybullet']['frames_per_s']:,.0f}" if "pybullet" in row else row.get("pybullet_error", "-")
+        bj = ", ".join(f"{r['worlds']}: {r['frames_per_s']:,.0f}" for r in row.get("bulbjax", []) if "frames_per_s" in r)
+        ratio = row.get("ratio_best_bulbjax_to_pybullet")
+        print(f"| {row['env']} | {pb} | {bj or row.get('bulbjax_error', '-')} | {f'{ratio:.1f}x' if ratio else '-'} |")
+
+
+def write(results: dict[str, Any], out: str) -> None:
+    os.makedirs(out, exist_ok=True)
+    dev = str(results["device"].get("device", "cpu")).lower()
+    slug = "".join(c if c.isalnum() else "_" for c in dev).strip("_") or "cpu"
+    stamp = time.strftime("%Y%m%d_%H%M%S")
+    path = os.path.join(out, f"pybullet_vs_bulbjax_{slug}_{stamp}.json")
+    for p in (path, os.path.join(out, "pybullet_vs_bulbjax_latest.json")):
+        with open(p, "w") as f:
+            json.dump(results, f, indent=1)
+    log(f"wrote {path}")
+
+
+if __name__ == "__main__":
+    main()
