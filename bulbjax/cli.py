@@ -15,16 +15,34 @@ def _parse_learners(text: str) -> tuple[str, ...]:
     return tuple(x.strip() for x in text.split(",") if x.strip())
 
 
-def cmd_run(args: argparse.Namespace) -> int:
-    import jax
-    from tqdm import tqdm
+def _domain_ppo(cfg):
+    """Apply the domain's PPO settings (the locomotion envs ask for longer rollouts) when the
+    env registry offers them; an unknown env is left for `Experiment` to report."""
+    from bulbjax.envs import registry
 
-    from bulbjax.experiment import Experiment, ExperimentConfig, small_config
-    from bulbjax.experiment import report
-    from bulbjax.learners import check_finite
+    hook = getattr(registry, "ppo_config_for", None)
+    if hook is None:
+        return cfg
+    try:
+        return cfg.replace(ppo=hook(cfg.env, cfg.ppo))
+    except ValueError:
+        return cfg
 
-    cfg = ExperimentConfig(env=args.env, learners=_parse_learners(args.learners), seeds=args.seeds,
-                           epochs=args.epochs, multicolour=args.multicolour)
+
+def build_config(args: argparse.Namespace):
+    """The run's ExperimentConfig: a preset (or the defaults) with the flags that were given,
+    the domain's PPO settings, then --small, --lr and --bf16 on top."""
+    from bulbjax.experiment import ExperimentConfig, small_config
+    from bulbjax.experiment.config import preset
+
+    base = preset(args.preset) if args.preset else ExperimentConfig()
+    given = {k: v for k, v in (("env", args.env), ("seeds", args.seeds), ("epochs", args.epochs),
+                               ("sequence_length", args.sequence_length)) if v is not None}
+    if args.learners is not None:
+        given["learners"] = _parse_learners(args.learners)
+    if args.multicolour:
+        given["multicolour"] = True
+    cfg = _domain_ppo(base.replace(**given))
     if args.small:
         cfg = small_config(cfg)
     if args.ppo_updates:
@@ -33,6 +51,18 @@ def cmd_run(args: argparse.Namespace) -> int:
         cfg = cfg.replace(learner=dataclasses.replace(cfg.learner, lr=args.lr))
     if args.bf16:
         cfg = cfg.replace(learner=dataclasses.replace(cfg.learner, compute_dtype="bfloat16"))
+    return cfg
+
+
+def cmd_run(args: argparse.Namespace) -> int:
+    import jax
+    from tqdm import tqdm
+
+    from bulbjax.experiment import Experiment
+    from bulbjax.experiment import report
+    from bulbjax.learners import check_finite
+
+    cfg = build_config(args)
     os.makedirs(args.out, exist_ok=True)
     metrics_path = os.path.join(args.out, "metrics.jsonl")
     if os.path.exists(metrics_path):
@@ -135,10 +165,16 @@ def main(argv: Sequence[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="bulbjax", description=__doc__)
     sub = p.add_subparsers(dest="cmd", required=True)
     r = sub.add_parser("run", help="train PPO + unsupervised learners and probe their latents")
-    r.add_argument("--env", default="CartPole")
-    r.add_argument("--learners", default="vae,vae_rpl,beta_vae")
-    r.add_argument("--seeds", type=int, default=3)
-    r.add_argument("--epochs", type=int, default=50)
+    r.add_argument("--preset", default=None,
+                   help="named settings (fig2-cartpole, fig2-invpend, fig2-halfcheetah, fig2-ant); "
+                        "the flags below override it")
+    r.add_argument("--env", default=None, help="environment (default CartPole)")
+    r.add_argument("--learners", default=None,
+                   help="comma-separated: vae,vae_rpl,beta_vae,svae,pred,dsa (default the first three)")
+    r.add_argument("--seeds", type=int, default=None, help="seeds run side by side (default 3)")
+    r.add_argument("--epochs", type=int, default=None, help="epochs (default 50)")
+    r.add_argument("--sequence-length", type=int, default=None,
+                   help="window length of the sequential learners (default 24 pendulums, 16 locomotion)")
     r.add_argument("--seed", type=int, default=0, help="base PRNG seed")
     r.add_argument("--out", default="runs/latest")
     r.add_argument("--multicolour", action="store_true", help="bulb's multicolour variant")

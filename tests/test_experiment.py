@@ -113,3 +113,72 @@ def test_ci90_matches_student_t():
     mean, half = report.ci90(v)
     assert mean[0] == pytest.approx(2.0)
     assert half[0] == pytest.approx(2.920 * 1.0 / np.sqrt(3))
+
+
+# ---------------------------------------------------------------- all six learners, presets
+ALL = ("vae", "vae_rpl", "beta_vae", "svae", "pred", "dsa")
+
+
+def tiny_six_config() -> ExperimentConfig:
+    """All six learners side by side; one batch per epoch and DSA's single LSTM keep the CPU
+    compile short (the bilstm default is covered in test_sequential_learners)."""
+    return dataclasses.replace(
+        tiny_config(), learners=ALL, learner_batches=1, sequence_length=4,
+        learner=LearnerConfig(batch_size=8, conv_features=(8, 8, 8, 8), hidden=16, lr=1e-3,
+                              pred_horizon=2, dsa_encoder="lstm"))
+
+
+@pytest.fixture(scope="module")
+def six():
+    exp = Experiment(tiny_six_config())
+    rs0 = exp.init(jax.random.PRNGKey(0))
+    before = jax.device_get(rs0.windows[buffer_key(0.5)])
+    rs, m = exp.epoch(rs0, jax.random.PRNGKey(1))
+    return exp, before, jax.device_get(rs), jax.device_get(m)
+
+
+def test_six_learners_in_one_epoch(six):
+    exp, before, rs, m = six
+    d = exp.env.state_dim
+    assert set(m["learners"]) == set(ALL) and set(m["probes"]) == set(ALL)
+    for name in ALL:
+        assert np.all(np.isfinite(m["learners"][name]["loss"])), name
+        for stream in ("curr", "rand"):
+            p = m["probes"][name][stream]
+            assert p["mae"].shape == (SEEDS, d) and np.all(np.isfinite(p["mae"])), (name, stream)
+    # equalised compute: 8 frames per batch, 8 // 4 = 2 windows of 4 steps
+    assert exp.learners["vae"].batch_size == 8 and exp.learners["svae"].batch_size == 2
+    # one window buffer (all sequential learners retain 0.5), windows of L + k = 6 steps
+    assert set(rs.windows) == {buffer_key(0.5)} and exp.window_length == 6
+    w = rs.windows[buffer_key(0.5)]
+    assert w.windows.frames.shape == (SEEDS, 32 // 6, 6, 32, 32, 3)
+    assert np.all(w.retained.sum(1) == round(0.5 * (32 // 6)))
+    np.testing.assert_array_equal(w.windows.frames[before.retained], before.windows.frames[before.retained])
+    assert np.all(w.windows.actions.sum(-1)[w.windows.valid] == 1)  # CartPole: one-hot actions
+    # every learner is probed on the same held-out pairs: the same constant-predictor spread
+    for stream in ("curr", "rand"):
+        np.testing.assert_allclose(m["probes"]["svae"][stream]["spread"], m["probes"]["vae"][stream]["spread"])
+    assert all(np.all(v == 0) for v in m["replay_dropped"].values())
+
+
+def test_presets_and_cli_overrides():
+    from bulbjax.cli import build_config, main
+    from bulbjax.experiment.config import PRESETS, preset
+
+    cart = preset("fig2-cartpole")
+    assert cart.learners == ALL and cart.seeds == 6 and cart.multicolour
+    assert (cart.learner_batches, cart.learner.lr, cart.seq_len, cart.learner.batch_size) == (10, 1e-4, 24, 1024)
+    assert preset("fig2-invpend").env == "InvertedPendulum"
+    loco = preset("fig2-halfcheetah")
+    assert (loco.learner_batches, loco.seq_len, loco.learner.sequence_length) == (50, 16, 16)
+    assert preset("fig2-ant").window_length == 16 + loco.learner.pred_horizon
+    assert set(PRESETS) == {"fig2-cartpole", "fig2-invpend", "fig2-halfcheetah", "fig2-ant"}
+    with pytest.raises(ValueError, match="fig2-cartpole"):
+        preset("fig3")
+    import argparse
+    ns = dict(preset="fig2-cartpole", env=None, learners=None, seeds=2, epochs=3, sequence_length=None,
+              multicolour=False, small=True, ppo_updates=None, lr=None, bf16=True)
+    cfg = build_config(argparse.Namespace(**ns))
+    assert (cfg.seeds, cfg.epochs, cfg.learners, cfg.learner.compute_dtype) == (2, 3, ALL, "bfloat16")
+    assert cfg.num_envs == 16 and cfg.seq_len == 8 and cfg.learner.sequence_length == 8
+    assert main(["run", "--preset", "nope", "--out", "/tmp/bulbjax_nope"]) == 2

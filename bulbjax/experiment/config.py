@@ -6,8 +6,19 @@ import dataclasses
 from dataclasses import dataclass, field
 
 from bulbjax.eval.probe import ProbeConfig
-from bulbjax.learners import LEARNER_NAMES, LearnerConfig
+from bulbjax.learners import LEARNER_NAMES, SEQUENCE_LEARNER_NAMES, LearnerConfig
 from bulbjax.rl.ppo import PPOConfig
+
+# Default window length of the sequential learners per domain (paper Sec. IV.A).
+SEQUENCE_LENGTHS: dict[str, int] = {"CartPole": 24, "InvertedPendulum": 24, "HalfCheetah": 16, "Ant": 16}
+
+
+def default_sequence_length(env: str) -> int:
+    """24 for the pendulums, 16 for locomotion (matched on the name's prefix); 24 otherwise."""
+    for prefix, length in SEQUENCE_LENGTHS.items():
+        if env.startswith(prefix):
+            return length
+    return 24
 
 
 @dataclass(frozen=True)
@@ -36,6 +47,22 @@ class ExperimentConfig:
     eval_frames: int = 512  # held-out frames per stream (pi_curr, pi_rand), per seed
     probe_train_frames: int = 2048
     probe: ProbeConfig = field(default_factory=ProbeConfig)
+    # Window length of the sequential learners; 0 picks the domain's default (24 pendulums,
+    # 16 locomotion). It overrides `learner.sequence_length`.
+    sequence_length: int = 0
+
+    @property
+    def seq_len(self) -> int:
+        """The window length the sequential learners use."""
+        return self.sequence_length or default_sequence_length(self.env)
+
+    @property
+    def window_length(self) -> int:
+        """Steps per stored window: the longest any chosen sequential learner needs (PRED needs
+        seq_len + pred_horizon); 0 without sequential learners."""
+        if not any(n in SEQUENCE_LEARNER_NAMES for n in self.learners):
+            return 0
+        return self.seq_len + (self.learner.pred_horizon if "pred" in self.learners else 0)
 
     def __post_init__(self) -> None:
         unknown = [n for n in self.learners if n not in LEARNER_NAMES]
@@ -55,6 +82,18 @@ class ExperimentConfig:
                              f"{self.frames_per_epoch // self.num_envs} rollout steps, the epoch has {steps}")
         if self.frames_per_epoch > self.replay_capacity:
             raise ValueError("frames_per_epoch must not exceed replay_capacity")
+        if self.sequence_length and self.sequence_length < 2:
+            raise ValueError(f"sequence_length must be >= 2 (or 0 for the domain default), got {self.sequence_length}")
+        if self.learner.sequence_length != self.seq_len:
+            object.__setattr__(self, "learner", dataclasses.replace(self.learner, sequence_length=self.seq_len))
+        lw = self.window_length
+        if lw:
+            if lw > steps:
+                raise ValueError(f"sequence windows of {lw} steps need at least {lw} rollout steps per "
+                                 f"epoch, the epoch has {steps} (raise ppo_updates_per_epoch or ppo.num_steps)")
+            if self.replay_capacity // lw < max(1, self.frames_per_epoch // lw):
+                raise ValueError(f"replay_capacity={self.replay_capacity} frames holds fewer windows of "
+                                 f"{lw} steps than an epoch brings")
         if self.ppo.num_envs != self.num_envs:
             object.__setattr__(self, "ppo", dataclasses.replace(self.ppo, num_envs=self.num_envs))
 
@@ -75,6 +114,38 @@ def small_config(base: ExperimentConfig) -> ExperimentConfig:
                                     hidden=128, lr=1e-3),
         learner_batches=4,
         eval_frames=128,
+        sequence_length=min(base.seq_len, 8),
         probe_train_frames=512,
         probe=dataclasses.replace(base.probe, steps=300, hidden=(128, 128)),
     )
+
+
+# ---------------------------------------------------------------------------- presets
+_FIG2_LEARNERS = ("vae", "vae_rpl", "beta_vae", "svae", "pred", "dsa")
+
+
+def _fig2(env: str, learner_batches: int) -> ExperimentConfig:
+    """The paper's Fig. 2 setting for one domain: multicolour frames, 64 worlds per seed, 6
+    seeds, 5,000-frame replay, all six learners with lr 1e-4 and beta=5 for beta_vae, 1,024
+    frames per batch (sequential learners: 1,024 // L windows of L steps), `learner_batches`
+    batches per epoch (10 pendulums, 50 locomotion). `epochs` is an upper bound: the paper ran
+    far longer than one GPU session allows, so runs are usually cut with --max-minutes.
+    Two PPO updates per epoch (128 steps of 64 worlds), as in the README's H100 runs."""
+    return ExperimentConfig(env=env, multicolour=True, learners=_FIG2_LEARNERS, seeds=6, epochs=1000,
+                            ppo_updates_per_epoch=2, learner=LearnerConfig(lr=1e-4),
+                            learner_batches=learner_batches)
+
+
+PRESETS: dict[str, ExperimentConfig] = {
+    "fig2-cartpole": _fig2("CartPole", 10),
+    "fig2-invpend": _fig2("InvertedPendulum", 10),
+    "fig2-halfcheetah": _fig2("HalfCheetah", 50),
+    "fig2-ant": _fig2("Ant", 50),
+}
+
+
+def preset(name: str) -> ExperimentConfig:
+    """A named preset config (see PRESETS); unknown names list the valid ones."""
+    if name not in PRESETS:
+        raise ValueError(f"unknown preset {name!r}; available: {', '.join(PRESETS)}")
+    return PRESETS[name]

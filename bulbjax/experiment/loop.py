@@ -4,10 +4,17 @@ Layout of the run state: everything a seed owns (PPO, learners, replay buffers) 
 seed axis `[S, ...]` and is updated with `jax.vmap`; the simulators of all seeds are one batch of
 `S * num_envs` worlds (one Warp physics launch and one render context for all seeds, which is
 what makes the GPU fast), reshaped to `[S, num_envs]` wherever a per-seed function needs them.
+
+Frame learners (vae, vae_rpl, beta_vae) train on frame replay buffers, sequential learners (svae,
+pred, dsa) on window buffers (`bulbjax.data.sequence`) cut from the same rollouts; learners with
+the same retention share a buffer. Held-out evaluation streams are windows of L steps (L = 1
+without sequential learners), so every learner is probed on the very same (frame, state) pairs:
+frame learners encode each frame, sequential learners each window, one latent per step.
 """
 
 from __future__ import annotations
 
+import math
 from typing import Any
 
 import jax
@@ -15,11 +22,12 @@ import jax.numpy as jnp
 from flax import struct
 
 import bulbjax
-from bulbjax.data import replay
+from bulbjax.data import replay, sequence
+from bulbjax.data.sequence import Windows
 from bulbjax.envs.base import EnvState, MjxPixelEnv
 from bulbjax.eval import probe
 from bulbjax.experiment.config import ExperimentConfig
-from bulbjax.learners import make_learner
+from bulbjax.learners import is_sequential, make_learner
 from bulbjax.rl.ppo import PPO, PPOState, Transition
 
 
@@ -29,7 +37,8 @@ class RunState:
 
     ppo: PPOState  # [S]
     learners: dict[str, Any]  # name -> LearnerState [S]
-    buffers: dict[str, replay.ReplayBuffer]  # retention key -> buffer [S]
+    buffers: dict[str, replay.ReplayBuffer]  # retention key -> frame buffer [S]
+    windows: dict[str, sequence.WindowBuffer]  # retention key -> window buffer [S] (sequential learners)
     train_env: EnvState  # [S*N] worlds driven by PPO; frames for replay come from here
     curr_env: EnvState  # [S*N] held-out worlds under the current policy (never in replay)
     rand_env: EnvState  # [S*N] held-out worlds under the random policy (never in replay)
@@ -52,14 +61,26 @@ class Experiment:
 
     def __init__(self, config: ExperimentConfig):
         self.config = c = config
-        self.env: MjxPixelEnv = bulbjax.make(c.env, num_envs=c.seeds * c.num_envs,
-                                             resolution=c.resolution, render=True,
-                                             render_steps=False, multicolour=c.multicolour)
+        try:
+            self.env: MjxPixelEnv = bulbjax.make(c.env, num_envs=c.seeds * c.num_envs,
+                                                 resolution=c.resolution, render=True,
+                                                 render_steps=False, multicolour=c.multicolour)
+        except ValueError as err:
+            if c.env.startswith(("HalfCheetah", "Ant")):
+                raise ValueError(f"{err}. HalfCheetah and Ant come with the locomotion environments "
+                                 "(issue 3); the fig2-halfcheetah / fig2-ant presets run once they are "
+                                 "registered (check with `bulbjax envs`)") from err
+            raise
         self.spec = self.env.state_spec
         self.ppo = PPO.for_env(c.ppo, self.env)
         latent = c.latent_factor * self.env.state_dim
-        self.learners = {n: make_learner(n, latent, c.learner) for n in c.learners}
+        # Actions as the sequential learners see them: one-hot for discrete, the clipped vector else.
+        self.action_dim = self.env.num_actions if self.env.discrete else self.env.action_size
+        self.learners = {n: make_learner(n, latent, c.learner, self.action_dim) for n in c.learners}
         self.retention = {n: l.retain_fraction for n, l in self.learners.items()}
+        self.sequential = {n: is_sequential(l) for n, l in self.learners.items()}
+        self.window_length = c.window_length  # stored windows (0 without sequential learners)
+        self.eval_length = c.seq_len if self.window_length else 1  # held-out window length
         self.init = jax.jit(self._init)
         self.epoch = jax.jit(self._epoch, donate_argnums=0)
 
@@ -100,14 +121,43 @@ class Experiment:
         return (frames.reshape((self.S, k * self.N) + frames.shape[3:]),
                 lowdim.reshape((self.S, k * self.N, -1)))
 
-    def _collect(self, ppo_state: PPOState, es: EnvState, key: jax.Array, steps: int, random: bool):
-        """Run `steps` steps and render every one of them (held-out evaluation and initial frames)."""
+    def _action_features(self, action: jax.Array) -> jax.Array:
+        """Per-seed policy actions `[S, N(, A)]` -> float features `[S*N, A]` (one-hot if discrete)."""
+        if self.env.discrete:
+            return self._flat(jax.nn.one_hot(action, self.action_dim, dtype=jnp.float32))
+        return self._flat(self.ppo.env_action(action).astype(jnp.float32))
+
+    def _rollout(self, ppo_state: PPOState, es: EnvState, key: jax.Array, steps: int, random: bool):
+        """Run `steps` steps, storing (render inputs, true states, action features, dones), each
+        `[steps, S*N, ...]`, unrendered."""
         def body(es, k):
-            nes = self._policy_step(ppo_state, es, k, random)[0]
-            return nes, (nes.render_input, nes.lowdim)
-        es, (ri, low) = jax.lax.scan(body, es, jax.random.split(key, steps))
+            nes, _, action, _, _ = self._policy_step(ppo_state, es, k, random)
+            return nes, (nes.render_input, nes.lowdim, self._action_features(action), nes.done)
+        return jax.lax.scan(body, es, jax.random.split(key, steps))
+
+    def _collect(self, ppo_state: PPOState, es: EnvState, key: jax.Array, steps: int, random: bool):
+        """Run `steps` steps and render every one of them (initial replay frames)."""
+        es, (ri, low, _, _) = self._rollout(ppo_state, es, key, steps, random)
         frames, states = self._frames_of_steps(ri, low)
         return es, frames, states
+
+    def _windows(self, steps: tuple, starts: jax.Array, length: int) -> Windows:
+        """Render windows of `length` steps from stored steps `[T, S*N]`, one per world and round
+        (`starts [R, S*N]`), cut at episode boundaries -> per-seed `Windows [S, R*N, length]`."""
+        ri, low, act, done = steps
+        r = starts.shape[0]
+        src, valid = jax.vmap(lambda st: sequence.window_indices(done, st, length))(starts)
+        src, valid = src.reshape((r * length, -1)), valid.reshape((r * length, -1))
+        frames = self.env.render_sequence(jax.tree.map(lambda x: sequence.gather_steps(x, src), ri))
+        act = sequence.gather_steps(act, src) * valid[..., None]
+
+        def per_seed(x: jax.Array) -> jax.Array:  # [R*L, S*N, ...] -> [S, R*N, L, ...]
+            x = x.reshape((r, length, self.S, self.N) + x.shape[2:])
+            x = jnp.moveaxis(x, (2, 0, 3, 1), (0, 1, 2, 3))
+            return x.reshape((self.S, r * self.N, length) + x.shape[4:])
+
+        return Windows(frames=per_seed(frames), actions=per_seed(act),
+                       states=per_seed(sequence.gather_steps(low, src)), valid=per_seed(valid))
 
     # ------------------------------------------------------------------ init
     def _init(self, key: jax.Array) -> RunState:
@@ -134,14 +184,39 @@ class Experiment:
                 buf = replay.insert(buf, k, f, s)
                 return replay.retain_initial(buf, k, frac) if frac > 0 else buf
             buffers[buffer_key(frac)] = jax.vmap(fill)(frames, states, jax.random.split(k_keep, self.S))
-        return RunState(ppo=ppo_state, learners=learners, buffers=buffers, train_env=train_env,
-                        curr_env=curr_env, rand_env=rand_env, epoch=jnp.zeros((), jnp.int32))
+        # Keys of the window buffers are folded in, so frame-only runs keep their random streams.
+        windows = self._init_windows(ppo_state, jax.random.fold_in(key, 1)) if self.window_length else {}
+        return RunState(ppo=ppo_state, learners=learners, buffers=buffers, windows=windows,
+                        train_env=train_env, curr_env=curr_env, rand_env=rand_env,
+                        epoch=jnp.zeros((), jnp.int32))
+
+    def _init_windows(self, ppo_state: PPOState, key: jax.Array) -> dict[str, sequence.WindowBuffer]:
+        """Fill the window buffers with windows of a random-policy rollout (consecutive,
+        non-overlapping windows per world), then retain a share of them for the sequential
+        learners that ask for it (all of them by default: the paper's fix applied to all)."""
+        c, lw = self.config, self.window_length
+        cap = sequence.capacity_in_windows(c.replay_capacity, lw)
+        rounds = -(-cap // self.N)
+        k_reset, k_roll, k_keep = jax.random.split(key, 3)
+        _, st = self._rollout(ppo_state, self.env.reset(k_reset), k_roll, rounds * lw, random=True)
+        starts = jnp.broadcast_to((jnp.arange(rounds) * lw)[:, None], (rounds, self.S * self.N))
+        w = jax.tree.map(lambda x: x[:, :cap], self._windows(st, starts, lw))
+        out = {}
+        fracs = {self.retention[n] for n, seq in self.sequential.items() if seq}
+        for frac in sorted(fracs):
+            def fill(w, k, frac=frac):
+                buf = sequence.init(cap, lw, self.env.frame_shape, self.env.state_dim, self.action_dim)
+                buf = sequence.insert(buf, k, w)
+                return sequence.retain_initial(buf, k, frac) if frac > 0 else buf
+            out[buffer_key(frac)] = jax.vmap(fill)(w, jax.random.split(k_keep, self.S))
+        return out
 
     # ------------------------------------------------------------------ epoch phases
     def rl_phase(self, ppo_state: PPOState, env_state: EnvState, key: jax.Array):
         """PPO on the true state: rollouts of all seeds' worlds at once, per-seed updates.
         Returns the new PPO state, env state, update metrics, per-seed finished-episode return
-        sum and count, and the stored steps (render inputs, true states) `[U*T, S*N]`."""
+        sum and count, and the stored steps (render inputs, true states, action features, dones)
+        `[U*T, S*N, ...]`."""
         c = self.config
 
         def rl_update(carry, k):
@@ -154,75 +229,128 @@ class Experiment:
                                 self._per_seed(nes.truncated), logp, value)
                 ep = (self._per_seed(nes.info["episode_return"] * nes.done).sum(1),
                       self._per_seed(nes.done).sum(1))
-                return nes, (tr, ep, nes.render_input, nes.lowdim)
+                return nes, (tr, ep, (nes.render_input, nes.lowdim, self._action_features(action), nes.done))
 
-            es, (traj, ep, ri, low) = jax.lax.scan(step, es, jax.random.split(k_roll, c.ppo.num_steps))
+            es, (traj, ep, stored) = jax.lax.scan(step, es, jax.random.split(k_roll, c.ppo.num_steps))
             traj = jax.tree.map(lambda x: x.swapaxes(0, 1), traj)  # [S, T, N, ...]
             ppo_state, m = jax.vmap(self.ppo.update)(ppo_state, traj, self._per_seed(es.obs),
                                                     jax.random.split(k_upd, self.S))
-            return (ppo_state, es), (m, ep, ri, low)
+            return (ppo_state, es), (m, ep, stored)
 
-        (ppo_state, env_state), (m, ep, ri, low) = jax.lax.scan(
+        (ppo_state, env_state), (m, ep, stored) = jax.lax.scan(
             rl_update, (ppo_state, env_state), jax.random.split(key, c.ppo_updates_per_epoch))
         total = c.ppo_updates_per_epoch * c.ppo.num_steps
-        flat = lambda x: x.reshape((total,) + x.shape[2:])
-        steps = (jax.tree.map(flat, ri), flat(low))
+        steps = jax.tree.map(lambda x: x.reshape((total,) + x.shape[2:]), stored)
         return ppo_state, env_state, jax.tree.map(lambda x: x.mean(0), m), ep[0].sum((0, 1)), ep[1].sum((0, 1)), steps
 
     def replay_phase(self, buffers: dict, steps: tuple, key: jax.Array) -> dict:
         """Render a random subset of the epoch's stored steps (all worlds of each chosen step)
         and write those frames of the current policy into every replay buffer."""
         c = self.config
-        ri, low = steps
+        ri, low = steps[:2]
         k_pick, k_ins = jax.random.split(key)
         pick = jax.random.choice(k_pick, low.shape[0], (c.frames_per_epoch // self.N,), replace=False)
         frames, states = self._frames_of_steps(jax.tree.map(lambda x: x[pick], ri), low[pick])
         keys = jax.random.split(k_ins, self.S)
         return {k: jax.vmap(replay.insert)(b, keys, frames, states) for k, b in buffers.items()}
 
-    def learn_phase(self, learners: dict, buffers: dict, key: jax.Array) -> tuple[dict, dict]:
-        """`learner_batches` updates of every learner on batches sampled from its replay buffer."""
+    def window_phase(self, windows: dict, steps: tuple, key: jax.Array) -> dict:
+        """Cut windows of the epoch's stored steps at random starts (one per world and round, cut
+        at episode boundaries), render them, and write `frames_per_epoch // window_length` of them
+        per seed (a random subset) into every window buffer: the frame buffers' frame budget."""
+        if not windows:
+            return windows
+        c, lw = self.config, self.window_length
+        per_epoch = max(1, c.frames_per_epoch // lw)
+        rounds = -(-per_epoch // self.N)
+        k_start, k_pick, k_ins = jax.random.split(key, 3)
+        total = steps[1].shape[0]
+        starts = jax.random.randint(k_start, (rounds, self.S * self.N), 0, total - lw + 1)
+        w = self._windows(steps, starts, lw)
+        picks = jax.vmap(lambda k: jax.random.permutation(k, rounds * self.N)[:per_epoch])(
+            jax.random.split(k_pick, self.S))
+        w = jax.vmap(lambda ws, p: jax.tree.map(lambda x: x[p], ws))(w, picks)
+        keys = jax.random.split(k_ins, self.S)
+        return {k: jax.vmap(sequence.insert)(b, keys, w) for k, b in windows.items()}
+
+    def learn_phase(self, learners: dict, buffers: dict, key: jax.Array,
+                    windows: dict | None = None) -> tuple[dict, dict]:
+        """`learner_batches` updates of every learner on batches sampled from its replay buffer:
+        `learner.batch_size` frames (frame learners) or windows (sequential learners: the frame
+        batch divided by the sequence length, the paper's equalised compute)."""
         c = self.config
         out, metrics = {}, {}
         for i, (name, learner) in enumerate(self.learners.items()):
-            def train_seed(state, b, k, learner=learner):
+            seq = self.sequential[name]
+
+            def train_seed(state, b, k, learner=learner, seq=seq):
                 def one(state, kk):
                     k_s, k_u = jax.random.split(kk)
-                    frames, _ = replay.sample(b, k_s, c.learner.batch_size)
-                    return learner.update(state, frames, k_u)
+                    if seq:
+                        batch = sequence.sample(b, k_s, learner.batch_size)
+                    else:
+                        batch, _ = replay.sample(b, k_s, learner.batch_size)
+                    return learner.update(state, batch, k_u)
                 return jax.lax.scan(one, state, jax.random.split(k, c.learner_batches),
                                     unroll=learner_unroll())
 
             keys = jax.random.split(jax.random.fold_in(key, i), self.S)
-            buf = buffers[buffer_key(self.retention[name])]
+            buf = (windows if seq else buffers)[buffer_key(self.retention[name])]
             out[name], m = jax.vmap(train_seed)(learners[name], buf, keys)
             metrics[name] = jax.tree.map(lambda x: x.mean(-1), m)
         return out, metrics
 
     def eval_phase(self, ppo_state: PPOState, curr_env: EnvState, rand_env: EnvState, key: jax.Array):
-        """Held-out frames (never in replay) from the current and from a random policy."""
-        steps = self.config.eval_frames // self.N
+        """Held-out windows (never in replay) from the current and from a random policy: each
+        world's rollout of `ceil(eval_frames / N)` steps, rounded up to whole windows of
+        `eval_length` steps, cut into consecutive windows (and at episode boundaries)."""
+        le = self.eval_length
+        rounds = -(-self.config.eval_frames // (self.N * le))
+        starts = jnp.broadcast_to((jnp.arange(rounds) * le)[:, None], (rounds, self.S * self.N))
         k_curr, k_rand = jax.random.split(key)
-        curr_env, cf, cs = self._collect(ppo_state, curr_env, k_curr, steps, random=False)
-        rand_env, rf, rsx = self._collect(ppo_state, rand_env, k_rand, steps, random=True)
-        return curr_env, rand_env, {"curr": (cf, cs), "rand": (rf, rsx)}
+        curr_env, cst = self._rollout(ppo_state, curr_env, k_curr, rounds * le, random=False)
+        rand_env, rst = self._rollout(ppo_state, rand_env, k_rand, rounds * le, random=True)
+        return curr_env, rand_env, {"curr": self._windows(cst, starts, le),
+                                    "rand": self._windows(rst, starts, le)}
 
-    def probe_phase(self, learners: dict, buffers: dict, held_out: dict, key: jax.Array) -> dict:
-        """Alignment probes: fit latents -> true state on replay frames, evaluate on held-out ones."""
+    def probe_phase(self, learners: dict, buffers: dict, held_out: dict, key: jax.Array,
+                    windows: dict | None = None) -> dict:
+        """Alignment probes: fit latents -> true state on replay data, evaluate on the held-out
+        windows' valid steps. Frame learners: one latent per frame. Sequential learners: the
+        per-step latents of replay windows (probe_train_frames valid steps drawn from them) and
+        of the held-out windows; the latent at step t is matched with the state at step t."""
         c = self.config
         out = {}
         for i, (name, learner) in enumerate(self.learners.items()):
-            def probe_seed(lstate, b, held, k, learner=learner):
-                k_s, k_f = jax.random.split(k)
-                tf, ts = replay.sample(b, k_s, c.probe_train_frames)
-                enc = lambda f: learner.encode(lstate.params, f)
-                p = probe.fit(k_f, enc(tf), ts, c.probe)
-                return {stream: {"mae": probe.mae(probe.predict(p, enc(f)), s),
-                                 "baseline": probe.constant_baseline(ts, s),
-                                 "spread": probe.spread(s)} for stream, (f, s) in held.items()}
+            seq = self.sequential[name]
+
+            def probe_seed(lstate, b, held, k, learner=learner, seq=seq):
+                k_s, k_f, k_c = jax.random.split(k, 3)
+                if seq:
+                    l = learner.sequence_length
+                    tw = sequence.sample(b, k_s, -(-c.probe_train_frames // l))
+                    z = learner.encode(lstate.params, tw)
+                    z, s = z.reshape((-1, z.shape[-1])), tw.states[:, :l].reshape((-1, tw.states.shape[-1]))
+                    v = tw.valid[:, :l].reshape(-1).astype(jnp.float32)
+                    pick = jax.random.choice(k_c, v.shape[0], (c.probe_train_frames,), p=v / v.sum())
+                    tz, ts = z[pick], s[pick]
+                    enc = lambda w: learner.encode(lstate.params, w)
+                else:
+                    tf, ts = replay.sample(b, k_s, c.probe_train_frames)
+                    tz = learner.encode(lstate.params, tf)
+                    enc = lambda w: learner.encode(lstate.params, w.frames.reshape((-1,) + w.frames.shape[2:]))
+                p = probe.fit(k_f, tz, ts, c.probe)
+                res = {}
+                for stream, w in held.items():
+                    z = enc(w).reshape((-1, tz.shape[-1]))
+                    s, v = w.states.reshape((-1, ts.shape[-1])), w.valid.reshape(-1)
+                    res[stream] = {"mae": probe.mae(probe.predict(p, z), s, v),
+                                   "baseline": probe.constant_baseline(ts, s, v),
+                                   "spread": probe.spread(s, v)}
+                return res
 
             keys = jax.random.split(jax.random.fold_in(key, i), self.S)
-            buf = buffers[buffer_key(self.retention[name])]
+            buf = (windows if seq else buffers)[buffer_key(self.retention[name])]
             out[name] = jax.vmap(probe_seed)(learners[name], buf, held_out, keys)
         return out
 
@@ -230,17 +358,20 @@ class Experiment:
         k_rl, k_rep, k_learn, k_eval, k_probe = jax.random.split(key, 5)
         ppo_state, train_env, ppo_m, ret_sum, count, steps = self.rl_phase(rs.ppo, rs.train_env, k_rl)
         buffers = self.replay_phase(rs.buffers, steps, k_rep)
-        learners, learn_m = self.learn_phase(rs.learners, buffers, k_learn)
+        windows = self.window_phase(rs.windows, steps, jax.random.fold_in(k_rep, 1))
+        learners, learn_m = self.learn_phase(rs.learners, buffers, k_learn, windows)
         curr_env, rand_env, held_out = self.eval_phase(ppo_state, rs.curr_env, rs.rand_env, k_eval)
-        probes = self.probe_phase(learners, buffers, held_out, k_probe)
+        probes = self.probe_phase(learners, buffers, held_out, k_probe, windows)
         metrics = {
             "rl_return": jnp.where(count > 0, ret_sum / jnp.maximum(count, 1), jnp.nan),
             "rl_episodes": count,
             "ppo": ppo_m,
             "learners": learn_m,
             "probes": probes,
-            "replay_dropped": {k: b.num_dropped for k, b in buffers.items()},
+            "replay_dropped": {**{k: b.num_dropped for k, b in buffers.items()},
+                               **{f"windows_{k}": b.num_dropped for k, b in windows.items()}},
         }
-        new = RunState(ppo=ppo_state, learners=learners, buffers=buffers, train_env=train_env,
+        new = RunState(ppo=ppo_state, learners=learners, buffers=buffers, windows=windows,
+                       train_env=train_env,
                        curr_env=curr_env, rand_env=rand_env, epoch=rs.epoch + 1)
         return new, metrics
