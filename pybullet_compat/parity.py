@@ -61,6 +61,25 @@ def pybullet_starts(name: str, n: int, seed: int = 0) -> tuple[np.ndarray, np.nd
     return np.stack(qs), np.stack(vs)
 
 
+def clip_to_joint_ranges(mirror: Any, qpos: np.ndarray, frac: float = 0.9) -> np.ndarray:
+    """Joint positions moved inside `frac` of each limited hinge's range (the mirror's model).
+
+    PyBullet's walker reset draws every joint in +-0.1 rad, outside the range of HalfCheetah's
+    ffoot and Ant's ankles; there MuJoCo's limit constraint kicks the joint back into range in one
+    step (~7 rad/s) while Bullet leaves it, so locomotion trajectories start from in-range states."""
+    import mujoco
+
+    m = mirror.env.mj_model
+    qpos = qpos.copy()
+    for j in range(m.njnt):
+        if m.jnt_type[j] == mujoco.mjtJoint.mjJNT_HINGE and m.jnt_limited[j]:
+            lo, hi = m.jnt_range[j]
+            mid, half = 0.5 * (lo + hi), 0.5 * (hi - lo)
+            a = m.jnt_qposadr[j]
+            qpos[:, a] = np.clip(qpos[:, a], mid - frac * half, mid + frac * half)
+    return qpos
+
+
 def action_sequence(name: str, kind: str, steps: int, n: int, seed: int = 0) -> np.ndarray:
     """[steps, n, ...] actions: 'zero' (no force; CartPole, which has only +-10 N, alternates
     left/right so the mean force is zero) or 'random' (uniform, same draws for both simulators)."""
@@ -271,7 +290,9 @@ def run_domain(name: str, cfg: ParityConfig, log: Callable[[str], None] = print)
     if tuple(mirror.state_names) != DOMAINS[name].state_names:
         raise AssertionError(f"{name}: state layouts differ: {mirror.state_names} vs {DOMAINS[name].state_names}")
     qpos, qvel = pybullet_starts(name, cfg.starts, cfg.seed)
-    out: dict[str, Any] = {"dt": mirror.dt, "starts": cfg.starts, "seconds": cfg.seconds,
+    if name in LOCOMOTION:
+        qpos = clip_to_joint_ranges(mirror, qpos)
+    out: dict[str, Any] = {"dt": mirror.dt, "in_range_starts": name in LOCOMOTION, "starts": cfg.starts, "seconds": cfg.seconds,
                            "model": model_comparison(name, mirror.env.mj_model), "sequences": {}}
     policy = None
     if name in PENDULUMS and "policy" in cfg.sequences:

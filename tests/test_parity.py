@@ -19,7 +19,7 @@ pytest.importorskip("pybullet", reason="needs the pybullet extra: pip install -e
 import bulbjax  # noqa: E402
 from pybullet_compat import DOMAINS, BulletPixelEnv  # noqa: E402
 from pybullet_compat.parity import (  # noqa: E402
-    ParityConfig, action_sequence, locomotion_available, patch_mirror, pybullet_dynamics, pybullet_play,
+    action_sequence, clip_to_joint_ranges, locomotion_available, patch_mirror, pybullet_dynamics, pybullet_play,
     pybullet_starts)
 from pybullet_compat.vector import ProcessVecEnv, SerialVecEnv  # noqa: E402
 
@@ -210,15 +210,17 @@ def test_pendulum_mirror_as_committed_agrees(name: str, pendulum_mirrors) -> Non
 @needs_locomotion
 @pytest.mark.parametrize("name", ["HalfCheetah", "Ant"])
 def test_locomotion_same_start_same_first_step(name: str) -> None:
-    """From the same state and zero torque, the first 0.1 s agree within 0.05 in every state entry
-    except the foot-contact flags (PyBullet's lag one step)."""
+    """From the same in-range state and zero torque, the first 0.1 s (falling onto the floor; no
+    contact yet) agree within 0.01 in every state entry: this checks the state mapping (height,
+    scaled velocities, roll/pitch, scaled joints) and free-flight physics. Measured: 0.004
+    (HalfCheetah), 0.001 (Ant). Contacts make them drift apart later (docs/parity)."""
     from pybullet_compat.mirror import MjxMirror
-    qpos, qvel = pybullet_starts(name, 2, seed=0)
     mirror = MjxMirror(name, 2)
+    qpos, qvel = pybullet_starts(name, 2, seed=0)
+    qpos = clip_to_joint_ranges(mirror, qpos)
     steps = 6
     acts = action_sequence(name, "zero", steps, 2)
     pb = pybullet_play(name, qpos, qvel, steps, actions=acts)["state"]
     mj = mirror.play(qpos, qvel, acts)["state"]
-    keep = [i for i, n in enumerate(DOMAINS[name].state_names) if not n.endswith("_contact")]
-    err = np.abs(pb[..., keep] - mj[..., keep]).max()
-    assert err < 0.05, f"{name}: max error {err:.3f} over the first {steps} steps"
+    err = np.abs(pb - mj).max()
+    assert err < 0.01, f"{name}: max error {err:.4f} over the first {steps} steps"
