@@ -159,7 +159,7 @@ def get_policy(name: str, trained_in: str, cfg: TransferConfig, retrain: bool = 
     ppo = make_ppo(name, cfg.num_envs, cfg.num_steps)
     path = policy_path(name, trained_in)
     if os.path.exists(path) and not retrain:
-        return ppo, load_policy(path, ppo), {"cached": path}
+        return ppo, load_policy(path, ppo), {"cached": _rel(path)}
     t0 = time.time()
     log(f"training PPO on {name} in {trained_in} ({cfg.updates} updates of {cfg.num_envs}x{cfg.num_steps} steps)")
     if trained_in == "bulbjax":
@@ -168,7 +168,12 @@ def get_policy(name: str, trained_in: str, cfg: TransferConfig, retrain: bool = 
         state, curve = train_in_pybullet(name, cfg, log)
     save_policy(path, state)
     return ppo, state, {"trained_seconds": round(time.time() - t0, 1), "updates": cfg.updates,
-                        "final_training_return": float(curve[-1]), "path": path}
+                        "final_training_return": float(curve[-1]), "path": _rel(path)}
+
+
+def _rel(path: str) -> str:
+    """Path relative to the repository root (for reports)."""
+    return os.path.relpath(path, os.path.dirname(os.path.dirname(POLICY_DIR)))
 
 
 TRANSFER_UPDATES = {"InvertedPendulum": 30, "CartPole": 100}
