@@ -2,7 +2,7 @@
 
 `pybullet_envs/__init__.py` (pybullet 3.2.7) registers its envs through
 `gym.envs.registration.registry.env_specs`, which exists up to gym 0.23 (the version the
-`pybullet` extra pins). With a newer gym that package import fails, but the env modules
+`pybullet` extra pins below Python 3.12; gym 0.23 imports distutils, so 3.12 gets gym 0.26). With a newer gym that package import fails, but the env modules
 themselves only need `gym.Env`, `gym.spaces` and `gym.utils.seeding`, which every gym has. So
 we import the env modules directly (never `gym.make`) and, when the package's `__init__` fails,
 load the package without it. `pkg_resources` (for `parse_version` only) is shimmed where a
@@ -19,7 +19,7 @@ import sys
 import types
 from typing import Any, Iterator
 
-INSTALL_HINT = "pip install -e '.[pybullet]'  (pybullet==3.2.7 and gym==0.23.1)"
+INSTALL_HINT = "pip install -e '.[pybullet]'  (pybullet==3.2.7; gym 0.23.1, or 0.26.2 on Python >= 3.12)"
 
 
 def _require(module: str) -> Any:
