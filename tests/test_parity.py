@@ -4,9 +4,8 @@ Layouts (state names, order, dims) must be identical; frames are bulb's 64x64 RG
 in view; the process vector reproduces the serial one; full states round-trip; and pendulum
 trajectories from the same states under the same actions agree within bounds measured on this
 code (docs/parity/README.md): the bounds hold with PyBullet's own masses, inertias and joint
-damping in the MJX model, fail for a perturbed model (pole mass x1.2, timestep x1.1), and fail
-for the mirrors as committed (strict xfail: the pendulum models differ from what PyBullet
-simulates; fixing them must flip these tests).
+damping patched into the MJX model, fail for a perturbed model (pole mass x1.2, timestep x1.1),
+and hold for the mirrors as committed (whose model files carry PyBullet's inertias and damping).
 """
 
 from __future__ import annotations
@@ -194,11 +193,6 @@ def test_pendulum_trajectories_agree_with_pybullet_dynamics(name: str, pendulum_
         m.body_mass[:], m.body_inertia[:], m.dof_damping[:] = saved[3], saved[4], saved[5]
 
 
-@pytest.mark.xfail(strict=True, raises=AssertionError, reason=(
-    "the committed pendulum mirrors differ from what PyBullet simulates: CartPole keeps the URDF's unit "
-    "pole inertia (PyBullet computes 0.00835 kg m^2 from the collision box), InvertedPendulum has joint "
-    "damping 1 (PyBullet's MJCF import applies 0) and MuJoCo's capsule inertia (PyBullet: margin-inflated "
-    "box, pole 0.266 vs 0.189 kg m^2); see docs/parity/README.md"))
 @pytest.mark.parametrize("name", ["InvertedPendulum", "CartPole"])
 def test_pendulum_mirror_as_committed_agrees(name: str, pendulum_mirrors) -> None:
     mirror, qpos, qvel = pendulum_mirrors[name]
