@@ -124,6 +124,7 @@ class Walker(MjxPixelEnv):
     frame_skip = 4
     kinematics_after_step = True  # the state reads body and geom poses
     power: float = 1.0
+    power_coef: tuple[float, ...] = ()  # per joint; torque = power * power_coef * clip(a, -1, 1)
     joints: tuple[str, ...] = ()  # PyBullet's ordered_joints (also the actuator order)
     feet: tuple[str, ...] = ()  # geom of each foot link in foot_list order
     initial_z: float = 0.0  # torso z at spawn (PyBullet's initial_z)
@@ -148,6 +149,11 @@ class Walker(MjxPixelEnv):
         super().__init__(config)
         m = self.mj_model
         jids = [self._named(mujoco.mjtObj.mjOBJ_JOINT, j) for j in self.joints]
+        # the model's motors must be PyBullet's: one per joint in this order, gear = power * coef
+        if list(m.actuator_trnid[:, 0]) != jids or not np.allclose(
+                m.actuator_gear[:, 0], self.power * np.asarray(self.power_coef)):
+            raise ValueError(f"{self.xml_file}: motors must drive {self.joints} in order with gears "
+                             f"{self.power} * {self.power_coef}")
         self._qadr = jnp.asarray(m.jnt_qposadr[jids])
         self._dadr = jnp.asarray(m.jnt_dofadr[jids])
         lo, hi = m.jnt_range[jids, 0], m.jnt_range[jids, 1]
@@ -278,6 +284,7 @@ class HalfCheetah(Walker):
     action_size = 6
     solved_return = 3000.0  # gym registry reward_threshold of HalfCheetahBulletEnv-v0
     power = 0.9
+    power_coef = (120.0, 90.0, 60.0, 140.0, 60.0, 30.0)  # robot_specific_reset's values
     joints = ("bthigh", "bshin", "bfoot", "fthigh", "fshin", "ffoot")
     feet = ("ffoot", "fshin", "fthigh", "bfoot", "bshin", "bthigh")
     initial_z = 0.7
@@ -315,6 +322,7 @@ class Ant(Walker):
     action_size = 8
     solved_return = 2500.0  # gym registry reward_threshold of AntBulletEnv-v0
     power = 2.5
+    power_coef = (100.0,) * 8  # XmlBasedRobot's default, not changed for the Ant
     joints = ("hip_1", "ankle_1", "hip_2", "ankle_2", "hip_3", "ankle_3", "hip_4", "ankle_4")
     feet = ("left_ankle_geom", "right_ankle_geom", "third_ankle_geom", "fourth_ankle_geom")
     initial_z = 0.75
