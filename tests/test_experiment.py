@@ -33,16 +33,20 @@ def tiny_config() -> ExperimentConfig:
 
 @pytest.fixture(scope="module")
 def run():
-    exp = Experiment(tiny_config())
+    """Two epochs of all six learners side by side (one compile serves every test here: the
+    frame-learner tests read vae/vae_rpl, the sequential ones the window buffer)."""
+    exp = Experiment(tiny_six_config())
     rs0 = exp.init(jax.random.PRNGKey(0))
     retained0 = jax.device_get(rs0.buffers[buffer_key(0.5)])
-    rs, m1 = exp.epoch(rs0, jax.random.PRNGKey(1))
-    rs, m2 = exp.epoch(rs, jax.random.PRNGKey(2))
-    return exp, retained0, jax.device_get(rs), jax.device_get(m1), jax.device_get(m2)
+    windows0 = jax.device_get(rs0.windows[buffer_key(0.5)])
+    rs1, m1 = exp.epoch(rs0, jax.random.PRNGKey(1))
+    rs1 = jax.device_get(rs1)
+    rs, m2 = exp.epoch(rs1, jax.random.PRNGKey(2))
+    return exp, retained0, jax.device_get(rs), jax.device_get(m1), jax.device_get(m2), windows0, rs1
 
 
 def test_epoch_shapes_over_seeds(run):
-    exp, _, rs, m1, _ = run
+    exp, _, rs, m1, *_ = run
     d = exp.env.state_dim
     assert int(rs.epoch) == 2
     assert m1["rl_return"].shape == (SEEDS,)
@@ -59,7 +63,7 @@ def test_epoch_shapes_over_seeds(run):
 
 
 def test_replay_retention_and_sharing(run):
-    exp, before, rs, m1, _ = run
+    exp, before, rs, m1, *_ = run
     # vae keeps nothing, vae_rpl keeps half of the initial random-policy frames: two buffers
     assert set(rs.buffers) == {buffer_key(0.0), buffer_key(0.5)}
     kept = rs.buffers[buffer_key(0.5)]
@@ -73,7 +77,7 @@ def test_replay_retention_and_sharing(run):
 
 
 def test_epoch_is_deterministic_under_a_key(run):
-    exp, _, _, m1, _ = run
+    exp, _, _, m1, *_ = run
     rs = exp.init(jax.random.PRNGKey(0))
     _, again = exp.epoch(rs, jax.random.PRNGKey(1))
     again = jax.device_get(again)
@@ -92,7 +96,7 @@ def test_config_rejects_bad_settings():
 
 
 def test_reports(run, tmp_path):
-    exp, _, _, m1, m2 = run
+    exp, _, _, m1, m2, *_ = run
     recs = report.epoch_records(0, m1, exp.spec) + report.epoch_records(1, m2, exp.spec)
     path = tmp_path / "metrics.jsonl"
     report.write_jsonl(str(path), recs)
@@ -128,17 +132,8 @@ def tiny_six_config() -> ExperimentConfig:
                               pred_horizon=2, dsa_encoder="lstm"))
 
 
-@pytest.fixture(scope="module")
-def six():
-    exp = Experiment(tiny_six_config())
-    rs0 = exp.init(jax.random.PRNGKey(0))
-    before = jax.device_get(rs0.windows[buffer_key(0.5)])
-    rs, m = exp.epoch(rs0, jax.random.PRNGKey(1))
-    return exp, before, jax.device_get(rs), jax.device_get(m)
-
-
-def test_six_learners_in_one_epoch(six):
-    exp, before, rs, m = six
+def test_six_learners_in_one_epoch(run):
+    exp, _, _, m, _, before, rs = run
     d = exp.env.state_dim
     assert set(m["learners"]) == set(ALL) and set(m["probes"]) == set(ALL)
     for name in ALL:
