@@ -32,7 +32,10 @@ under zero torque PyBullet's Ant lies down on its torso and dies after ~20 steps
 limits pull the ankles into range and the Ant stands (torso at ~0.64 m). Likewise HalfCheetah's
 ffoot starts ~0.3 rad past its limit. MuJoCo's default soft limits are kept: a velocity-only limit
 reproduces the Ant's collapse but lets joints creep through their limits under steady torque
-(checked: bthigh past 1.1 rad under full torque), which policies would exploit. Contacts are
+(checked: bthigh past 1.1 rad under full torque), which policies would exploit. Ant's ankle
+axes in the file are not unit vectors and Bullet uses them unnormalised in the dynamics, which
+doubles the ankles' joint-space inertia; ant.xml adds that inertia as armature (see there).
+Contacts are
 MuJoCo's soft contacts, not Bullet's. Contact flags are those of the state reached by the step
 (PyBullet updates `feet_contact` after `calc_state`, so its observation and HalfCheetah's alive
 test read the previous step's flags); we keep flags, frame and state of one instant. A foot counts as
