@@ -9,8 +9,8 @@ policy's, closed loop in each simulator on its own state) and report
 - for every sequence, per-entry mean and spread of the visited states in each simulator and
   two-sample statistics (Kolmogorov-Smirnov, energy distance), the right measure for
   locomotion, where contacts make single trajectories diverge;
-- the masses and inertias each simulator actually uses, and (pendulums) the same comparison with
-  PyBullet's inertias patched into the MJX model, which isolates the cause of a gap.
+- the masses, inertias and joint damping each simulator actually uses (`model_comparison`;
+  `patch_mirror` edits the MJX model to test a suspected cause of a gap).
 
 `python -m pybullet_compat.parity [--domains ...] [--json docs/parity/parity_report.json]`.
 """
@@ -314,15 +314,6 @@ def run_domain(name: str, cfg: ParityConfig, log: Callable[[str], None] = print)
         res.pop("_")
         out["sequences"][kind] = res
         log(f"  {name} {kind}: {summary_line(res)}")
-    if name in PENDULUMS:  # same comparison with PyBullet's inertias and damping in the MJX model
-        inertias, damping = pybullet_dynamics(name)
-        patch_mirror(mirror, inertias=inertias, damping=damping)
-        out["with_pybullet_inertia"] = {}
-        for kind in [k for k in cfg.sequences if k != "policy"]:
-            res = compare_sequence(name, mirror, qpos, qvel, kind, cfg)
-            res.pop("_")
-            out["with_pybullet_inertia"][kind] = res
-            log(f"  {name} {kind} (PyBullet inertia+damping in MJX): {summary_line(res)}")
     out["seconds_taken"] = round(time.time() - t0, 1)
     return out
 
@@ -346,15 +337,14 @@ def print_table(report: dict[str, Any]) -> None:
         if "error" in dom:
             print(f"| {name} | - | {dom['error']} |")
             continue
-        for label, group in (("", dom["sequences"]), (" (PyBullet inertia+damping)", dom.get("with_pybullet_inertia", {}))):
-            for kind, r in group.items():
-                at = r["error_at"]
-                cells = [f"{at[k]['max_entry']:.3g}" if k in at else "-" for k in ("0.5s", "1s", "2s")]
-                dist = r["distribution"]
-                print(f"| {name} | {kind}{label} | {' | '.join(cells)} | {r['divergence_time_s']['median']:.2f} s | "
-                      f"{r['termination']['same_step']:.2f} | {r['return']['pybullet_mean']:.1f} | "
-                      f"{r['return']['mjx_mean']:.1f} | {dist['median_ks']:.2f} | "
-                      f"{dist['worst_entry']} ({dist['max_ks']:.2f}) |")
+        for kind, r in dom["sequences"].items():
+            at = r["error_at"]
+            cells = [f"{at[k]['max_entry']:.3g}" if k in at else "-" for k in ("0.5s", "1s", "2s")]
+            dist = r["distribution"]
+            print(f"| {name} | {kind} | {' | '.join(cells)} | {r['divergence_time_s']['median']:.2f} s | "
+                  f"{r['termination']['same_step']:.2f} | {r['return']['pybullet_mean']:.1f} | "
+                  f"{r['return']['mjx_mean']:.1f} | {dist['median_ks']:.2f} | "
+                  f"{dist['worst_entry']} ({dist['max_ks']:.2f}) |")
 
 
 def locomotion_available() -> tuple[bool, str]:

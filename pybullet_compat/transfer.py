@@ -173,7 +173,7 @@ def get_policy(name: str, trained_in: str, cfg: TransferConfig, retrain: bool = 
 
 def _rel(path: str) -> str:
     """Path relative to the repository root (for reports)."""
-    return os.path.relpath(path, os.path.dirname(os.path.dirname(POLICY_DIR)))
+    return os.path.relpath(path, os.path.dirname(os.path.dirname(os.path.dirname(POLICY_DIR))))
 
 
 TRANSFER_UPDATES = {"InvertedPendulum": 30, "CartPole": 100}
