@@ -120,9 +120,12 @@ def plot(records: Sequence[dict[str, Any]], spec: Sequence[StateEntry], path: st
             ax.set_ylim(bottom=0)
     ep, r = rl_curve(records)
     mean, half = ci90(r)
+    # epochs in which no episode ended (long locomotion episodes) have no return: join the others
+    ok = np.isfinite(mean)
+    ep, mean, half = np.asarray(ep)[ok], mean[ok], np.nan_to_num(half[ok])
     for col in range(len(groups)):
         ax = axes[2, col]
-        ax.plot(ep, mean, color="tab:green", label="PPO return")
+        ax.plot(ep, mean, color="tab:green", marker=".", label="PPO return")
         ax.fill_between(ep, mean - half, mean + half, color="tab:green", alpha=0.2)
         if solved_return is not None:
             ax.axhline(solved_return, color="k", ls="--", lw=0.8, label="solved")
