@@ -207,14 +207,21 @@ class SequentialVAE:
     def _init_parts(self, key: jax.Array, resolution: int) -> dict[str, Any]:
         raise NotImplementedError
 
+    def _posterior(self, params: Any, x: jax.Array, a_prev: jax.Array) -> tuple[jax.Array, jax.Array]:
+        """Gaussian posterior (mean, log-variance) per step [B, T', latent_dim]."""
+        raise NotImplementedError
+
     def _loss_parts(self, params: Any, x: jax.Array, a_prev: jax.Array, key: jax.Array
                     ) -> tuple[jax.Array, jax.Array, jax.Array]:
-        """(logits [B, T, R, R, 3], KL per step [B, T], KL per sequence [B]) with sampled latents."""
-        raise NotImplementedError
+        """(logits [B, T, R, R, 3], KL per step [B, T], KL per sequence [B]) with sampled latents.
+        Default (SVAE, PRED): reparameterised sample of `_posterior`, N(0, I) prior per step."""
+        mean, logvar = self._posterior(params, x, a_prev)
+        z = mean + jnp.exp(0.5 * logvar) * _normal(key, mean)
+        return self._decode_logits(params, z), _kl_std_normal(mean, logvar), jnp.zeros(x.shape[:1])
 
     def _means(self, params: Any, x: jax.Array, a_prev: jax.Array) -> jax.Array:
         """Decoder-input latent means per step [B, T', latent_dim]."""
-        raise NotImplementedError
+        return self._posterior(params, x, a_prev)[0]
 
 
 def _conv_out(config: LearnerConfig, resolution: int) -> int:
@@ -252,14 +259,6 @@ class SVAE(SequentialVAE):
         h = self._features(self._conv, params["conv"], x)
         o = self._rnn.apply({"params": params["rnn"]}, jnp.concatenate([h, a_prev], -1))
         return GaussianHead(self.latent_dim).apply({"params": params["head"]}, o)
-
-    def _loss_parts(self, params, x, a_prev, key):
-        mean, logvar = self._posterior(params, x, a_prev)
-        z = mean + jnp.exp(0.5 * logvar) * _normal(key, mean)
-        return self._decode_logits(params, z), _kl_std_normal(mean, logvar), jnp.zeros(x.shape[:1])
-
-    def _means(self, params, x, a_prev):
-        return self._posterior(params, x, a_prev)[0]
 
 
 class _PredictiveHead(nn.Module):
@@ -308,14 +307,6 @@ class PRED(SequentialVAE):
         h = self._features(self._conv, params["conv"], x[:, :l])
         agg = jnp.concatenate([h, a_prev[:, :l]], -1).reshape((x.shape[0], -1))
         return self._head.apply({"params": params["head"]}, agg)
-
-    def _loss_parts(self, params, x, a_prev, key):
-        mean, logvar = self._posterior(params, x, a_prev)
-        z = mean + jnp.exp(0.5 * logvar) * _normal(key, mean)
-        return self._decode_logits(params, z), _kl_std_normal(mean, logvar), jnp.zeros(x.shape[:1])
-
-    def _means(self, params, x, a_prev):
-        return self._posterior(params, x, a_prev)[0]
 
 
 @dataclasses.dataclass(frozen=True)
