@@ -73,13 +73,8 @@ class MjxMirror:
         return self._start(self.env.mx, self._state0, qpos, qvel)
 
     def _physics(self, data: Any, action: jax.Array) -> tuple[Any, jax.Array]:
-        env = self.env
-        data = data.replace(ctrl=jax.vmap(env._ctrl)(action))
-        for _ in range(self.frame_skip):
-            data = jax.vmap(mjx.step, in_axes=(None, 0))(env.mx, data)
-        if getattr(env, "kinematics_after_step", False):  # state reads poses (locomotion)
-            data = jax.vmap(mjx.kinematics, in_axes=(None, 0))(env.mx, data)
-        return data, jax.vmap(env._lowdim)(data)
+        data = self.env.physics(data, action)
+        return data, jax.vmap(self.env._lowdim)(data)
 
     def _run(self, mx: Any, state: Any, xs: Any, steps: int, policy: Policy | None) -> dict[str, jax.Array]:
         def body(carry, x):

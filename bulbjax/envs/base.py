@@ -182,15 +182,7 @@ class MjxPixelEnv:
     def step(self, state: EnvState, action: jax.Array) -> EnvState:
         """Apply `action` to every world, step physics, reset worlds whose episode ended."""
         action = self._check_action(action)
-        ctrl = jax.vmap(self._ctrl)(action)
-        data = state.data.replace(ctrl=ctrl)
-        physics = lambda d: jax.vmap(mjx.step, in_axes=(None, 0))(self.mx, d)
-        if self.frame_skip == 1:
-            data = physics(data)
-        else:
-            data = jax.lax.scan(lambda d, _: (physics(d), None), data, None, length=self.frame_skip)[0]
-        if self.kinematics_after_step:
-            data = jax.vmap(mjx.kinematics, in_axes=(None, 0))(self.mx, data)
+        data = self.physics(state.data, action)
         lowdim = jax.vmap(self._lowdim)(data)
         reward, terminated = jax.vmap(self._reward_terminated)(data, lowdim, action, state.data)
         step_count = state.step_count + 1
@@ -221,6 +213,21 @@ class MjxPixelEnv:
             reward=reward, done=done.astype(jnp.float32), truncated=truncated.astype(jnp.float32),
             step_count=jnp.where(done, 0, step_count), episode_return=jnp.where(done, 0.0, ep_return),
             scheme=scheme, key=split[:, 0], info=info)
+
+    def physics(self, data: mjx.Data, action: jax.Array) -> mjx.Data:
+        """One env step of physics for every world, without rewards, resets or frames: the
+        action's control held for `frame_skip` substeps, then (where the state reads body poses)
+        a kinematics pass. `step` is this plus the episode bookkeeping; the parity mirror calls
+        it alone to keep stepping past an episode's end."""
+        data = data.replace(ctrl=jax.vmap(self._ctrl)(action))
+        substep = lambda d: jax.vmap(mjx.step, in_axes=(None, 0))(self.mx, d)
+        if self.frame_skip == 1:
+            data = substep(data)
+        else:
+            data = jax.lax.scan(lambda d, _: (substep(d), None), data, None, length=self.frame_skip)[0]
+        if self.kinematics_after_step:
+            data = jax.vmap(mjx.kinematics, in_axes=(None, 0))(self.mx, data)
+        return data
 
     def render_frames(self, render_input: RenderInput) -> jax.Array:
         """Frames `[num_envs, H, W, 3]` of stored joint positions (e.g. a subset of a rollout)."""
