@@ -26,12 +26,17 @@ def _mjcf():
     return mjcf
 
 
-def ycb_mjcf(asset: YcbAsset, name: str):
-    """A `dm_control.mjcf.RootElement` named `name` holding one body (`name`) at the mesh origin:
+def ycb_mjcf(asset: YcbAsset, name: str, origin: str = "mesh"):
+    """A `dm_control.mjcf.RootElement` named `name` holding one body (`name`) at the mesh origin
+    (`origin="mesh"`) or at the centre of mass (`origin="com"`: the meshes shifted by -com; YCB
+    origins lie up to ~0.1 m from the object):
     the visual mesh (no contacts, group 1, textured where the asset has a texture, else its flat
     rgba), the convex hull as collision geom (group 3, rgba alpha 0), and the asset's mass,
     centre of mass and full inertia as an explicit `inertial`. Add a joint on the attachment
     frame (`frame.add('freejoint')`) to make it move."""
+    if origin not in ("mesh", "com"):
+        raise ValueError(f"origin must be 'mesh' or 'com', got {origin!r}")
+    shift = -np.asarray(asset.com) if origin == "com" else np.zeros(3)
     mjcf = _mjcf()
     root = mjcf.RootElement(model=name)
     vis = root.asset.add("mesh", name="visual",
@@ -47,11 +52,11 @@ def ycb_mjcf(asset: YcbAsset, name: str):
     else:
         vis_colour = {"rgba": asset.rgba}
     body = root.worldbody.add("body", name=name)
-    body.add("inertial", pos=asset.com, mass=asset.mass, fullinertia=fullinertia(asset))
+    body.add("inertial", pos=np.asarray(asset.com) + shift, mass=asset.mass, fullinertia=fullinertia(asset))
     body.add("geom", name="visual", type="mesh", mesh=vis, contype=0, conaffinity=0,
-             group=VISUAL_GROUP, mass=0, **vis_colour)
+             group=VISUAL_GROUP, mass=0, pos=shift, **vis_colour)
     body.add("geom", name="collision", type="mesh", mesh=col, group=COLLISION_GROUP,
-             rgba=(0.5, 0.5, 0.5, 0.0), mass=0)
+             rgba=(0.5, 0.5, 0.5, 0.0), mass=0, pos=shift)
     return root
 
 

@@ -19,9 +19,9 @@ import numpy as np
 from flax import struct
 from mujoco import mjx
 
-from bulbjax.envs.camera import CameraConfig, add_bulb_camera
+from bulbjax.envs.camera import PAN_CAMERAS, CameraConfig, add_bulb_camera, pan_cameras
 from bulbjax.envs.colours import NUM_SCHEMES, scheme_table
-from bulbjax.envs.render import Renderer
+from bulbjax.envs.render import PointCloudRenderer, Renderer, exclude_from_pointcloud
 from bulbjax.eval.spec import StateEntry
 
 ASSET_DIR_ENV = "BULBJAX_MJCF_DIR"
@@ -37,10 +37,13 @@ def asset_dir() -> str:
 
 @struct.dataclass
 class RenderInput:
-    """What is needed to render a stored step later: joint positions and colour scheme."""
+    """What is needed to render a stored step later: joint positions, colour scheme and the
+    poses of mocap bodies (scenery posed per world, e.g. the incline; `[N, 0, ...]` if none)."""
 
     qpos: jax.Array  # [N, nq]
     scheme: jax.Array  # [N] int32
+    mocap_pos: jax.Array | None = None  # [N, nmocap, 3]
+    mocap_quat: jax.Array | None = None  # [N, nmocap, 4]
 
 
 @struct.dataclass
@@ -59,10 +62,15 @@ class EnvState:
     scheme: jax.Array  # [N] int32 colour scheme of the current episode
     key: jax.Array  # [N, 2] per-world PRNG keys
     info: dict[str, jax.Array]  # episode_return / episode_length of the episode that just ended
+    # Per-world physical parameters drawn at each reset (e.g. mass, friction); {} if none.
+    params: dict[str, jax.Array] = struct.field(default_factory=dict)
+    depth: jax.Array | None = None  # [N, H, W] float32 metres (observation "depth"), else None
+    points: jax.Array | None = None  # [N, P, 3] float32 world points (observation "pointcloud")
 
     @property
     def render_input(self) -> RenderInput:
-        return RenderInput(qpos=self.data.qpos, scheme=self.scheme)
+        return RenderInput(qpos=self.data.qpos, scheme=self.scheme,
+                           mocap_pos=self.data.mocap_pos, mocap_quat=self.data.mocap_quat)
 
 
 @dataclass(frozen=True)
@@ -74,6 +82,14 @@ class EnvConfig:
     render: bool = True  # make a renderer; `render_frames` needs it
     render_steps: bool = True  # put frames in every `reset`/`step` state (else pixels are [N,0,0,3])
     multicolour: bool = False
+    # What `reset`/`step` observe besides the state: "rgb" (uint8 frames in `pixels`), "depth"
+    # (float32 metres in `depth`, with the frames) or "pointcloud" (`points`, bulb's PT mode).
+    observation: str = "rgb"
+    num_points: int = 1024  # points per cloud ("pointcloud")
+    # Multi-object domains: the object version (an int, or "random" to draw one per world and
+    # episode) and the folder of the YCB models (default: $BULBJAX_YCB_DIR).
+    version: int | str = 0
+    ycb_dir: str | None = None
 
 
 class MjxPixelEnv:
@@ -100,29 +116,60 @@ class MjxPixelEnv:
     # Physical-unit version of the state (`state.info["lowdim_raw"]`, `raw_state`); empty means
     # the state is already in physical units and the raw state equals `lowdim`.
     raw_state_spec_: tuple[StateEntry, ...] = ()
+    # Point clouds: the cameras (bulb's pan cameras around the domain camera's target), the cube
+    # half-size that points are clipped to, and the geoms left out (scenery such as the floor).
+    pointcloud_box: float = 1.3
+    pointcloud_exclude: tuple[str, ...] = ()
+    supports_multicolour: bool = True  # a `<Name>Multicolour` variant exists
 
     def __init__(self, config: EnvConfig):
         _check_config(config)
         self.config = config
         self.num_envs = config.num_envs
         self.resolution = config.resolution
-        spec = mujoco.MjSpec.from_file(os.path.join(asset_dir(), self.xml_file))
+        spec = self._build_spec()
         self._edit_spec(spec)
         add_bulb_camera(spec, self.camera)
+        pan = config.observation == "pointcloud"
+        if pan:
+            exclude_from_pointcloud(spec, self.pointcloud_exclude)
+            for i, cam in enumerate(pan_cameras(self.camera)):
+                add_bulb_camera(spec, cam, name=f"pan{i}")
         self.mj_model = spec.compile()
-        self.mx = mjx.put_model(self.mj_model, impl="warp")
+        self.mx = self._post_put(mjx.put_model(self.mj_model, impl="warp"))
         self._data0 = mjx.make_data(self.mj_model, impl="warp", njmax=self.njmax,
                                     naconmax=self.naconmax_per_world * self.num_envs)
-        self.renderer = Renderer(self.mj_model, self.num_envs, self.resolution) if config.render else None
+        self.renderer = None
+        if config.render:
+            self.renderer = Renderer(self.mj_model, self.num_envs, self.resolution,
+                                     depth=config.observation == "depth")
+        self.point_renderer = PointCloudRenderer(
+            self.mj_model, self.num_envs, [f"pan{i}" for i in range(len(PAN_CAMERAS))],
+            config.num_points, self.pointcloud_box) if pan else None
         self._renders_steps = config.render and config.render_steps
         self._base_rgba = jnp.asarray(self.mj_model.geom_rgba)
-        roles = {self._geom_id(g): r for g, r in self.colour_roles.items()}
-        ids, rgb = scheme_table(roles) if roles else (np.zeros(0, np.int32), np.zeros((NUM_SCHEMES, 0, 3)))
-        self._colour_ids, self._scheme_rgb = jnp.asarray(ids), jnp.asarray(rgb, jnp.float32)
+        ids, rgb = self._scheme_colours()
+        self._colour_ids, self._scheme_rgb = jnp.asarray(ids, jnp.int32), jnp.asarray(rgb, jnp.float32)
+        self._recolour = bool(self._colour_ids.size) and (config.multicolour or self.always_recolour)
 
     # ----- to be provided by domains -----
+    always_recolour: bool = False  # apply `_scheme_colours` even without multicolour
+
+    def _build_spec(self) -> mujoco.MjSpec:
+        """The model before edits: `xml_file` from the asset folder (domains may compose one)."""
+        return mujoco.MjSpec.from_file(os.path.join(asset_dir(), self.xml_file))
+
     def _edit_spec(self, spec: mujoco.MjSpec) -> None:
         """Hook to edit the model before compiling (e.g. add a floor)."""
+
+    def _post_put(self, mx: mjx.Model) -> mjx.Model:
+        """Hook to adjust the device model (e.g. solver warnings)."""
+        return mx
+
+    def _scheme_colours(self) -> tuple[np.ndarray, np.ndarray]:
+        """Geom ids `[G]` and their RGB under each colour scheme `[S, G, 3]` (multicolour roles)."""
+        roles = {self._geom_id(g): r for g, r in self.colour_roles.items()}
+        return scheme_table(roles) if roles else (np.zeros(0, np.int32), np.zeros((NUM_SCHEMES, 0, 3)))
 
     def _reset_qpos_qvel(self, key: jax.Array) -> tuple[jax.Array, jax.Array]:
         raise NotImplementedError
@@ -143,6 +190,15 @@ class MjxPixelEnv:
         (the validated env action, before `_ctrl`)."""
         raise NotImplementedError
 
+    def _world_model(self, params: dict[str, jax.Array]) -> mjx.Model:
+        """The device model with this batch's per-world parameters (fields with a leading world
+        axis, which the Warp kernels index per world); the shared model when there are none."""
+        return self.mx
+
+    def _apply_action(self, data: mjx.Data, action: jax.Array) -> mjx.Data:
+        """Put the action into one world's Data before each physics substep (default: controls)."""
+        return data.replace(ctrl=self._ctrl(action))
+
     # ----- public API -----
     @property
     def state_dim(self) -> int:
@@ -157,8 +213,9 @@ class MjxPixelEnv:
         """Spec of `state.info["lowdim_raw"]` (physical units; the state spec when unscaled)."""
         return self.raw_state_spec_ or self.state_spec
 
-    def raw_state(self, data: mjx.Data) -> jax.Array:
-        """`[N, len(raw_state_spec)]` physical-unit state of batched `data` (after kinematics)."""
+    def raw_state(self, data: mjx.Data, params: dict[str, jax.Array] | None = None) -> jax.Array:
+        """`[N, len(raw_state_spec)]` physical-unit state of batched `data` (after kinematics);
+        `params` are the worlds' per-episode parameters (`state.params`) where the domain has any."""
         return jax.vmap(self._lowdim_raw)(data).astype(jnp.float32)
 
     @property
@@ -168,65 +225,74 @@ class MjxPixelEnv:
     def reset(self, key: jax.Array) -> EnvState:
         """Start `num_envs` episodes; `key` is one PRNG key."""
         keys = jax.random.split(key, self.num_envs)
-        data, scheme, keys = jax.vmap(self._reset_one)(keys)
+        data, scheme, params, keys = self._reset_batch(keys, jnp.ones(self.num_envs, bool))
         zeros = jnp.zeros(self.num_envs)
-        lowdim = jax.vmap(self._lowdim)(data)
-        pixels, data = self._step_pixels(data, scheme)
+        lowdim = self._lowdim_batch(data, params)
+        obs, data = self._observe(data, scheme, keys)
         return EnvState(
-            data=data, obs=lowdim, lowdim=lowdim, pixels=pixels,
+            data=data, obs=lowdim, lowdim=lowdim, pixels=obs["pixels"],
             reward=zeros, done=zeros, truncated=zeros,
             step_count=jnp.zeros(self.num_envs, jnp.int32), episode_return=zeros, scheme=scheme,
             key=keys, info={"episode_return": zeros, "episode_length": jnp.zeros(self.num_envs, jnp.int32),
-                            "lowdim_raw": self.raw_state(data)})
+                            "lowdim_raw": self.raw_state(data, params)},
+            params=params, depth=obs.get("depth"), points=obs.get("points"))
 
     def step(self, state: EnvState, action: jax.Array) -> EnvState:
         """Apply `action` to every world, step physics, reset worlds whose episode ended."""
         action = self._check_action(action)
-        data = self.physics(state.data, action)
-        lowdim = jax.vmap(self._lowdim)(data)
-        reward, terminated = jax.vmap(self._reward_terminated)(data, lowdim, action, state.data)
+        data = self.physics(state.data, action, state.params)
+        lowdim = self._lowdim_batch(data, state.params)
+        reward, terminated = self._reward_terminated_batch(data, lowdim, action, state.data, state.params)
         step_count = state.step_count + 1
         truncated = (step_count >= self.episode_length) & ~terminated
         done = terminated | truncated
         ep_return = state.episode_return + reward
 
         split = jax.vmap(jax.random.split)(state.key)
-        fresh, fresh_scheme, _ = jax.vmap(self._reset_one, in_axes=(0, None))(split[:, 1], False)
+        fresh, fresh_scheme, fresh_params, _ = self._reset_batch(split[:, 1], done, forward=False)
         data = _where_tree(done, fresh, data)
+        params = _where_tree(done, fresh_params, state.params)
         # `mjx.step` computes positions before integrating, so geom and camera poses lag the new
         # qpos by one step. A frame must show the new state: run the forward pass when frames are
         # rendered; otherwise only the worlds just reset need it (for contacts and the next
         # step), and the Warp forward pass costs as much as a step, so it runs only then.
-        forward = lambda d: jax.vmap(mjx.forward, in_axes=(None, 0))(self.mx, d)
-        if self._renders_steps:
+        mx = self._world_model(params)
+        forward = lambda d: jax.vmap(mjx.forward, in_axes=(None, 0))(mx, d)
+        if self._renders_steps or self.point_renderer is not None:
             data = forward(data)
         else:
             data = jax.lax.cond(done.any(), forward, lambda d: d, data)
         scheme = jnp.where(done, fresh_scheme, state.scheme)
-        obs_lowdim = jnp.where(done[:, None], jax.vmap(self._lowdim)(data), lowdim)
+        obs_lowdim = jnp.where(done[:, None], self._lowdim_batch(data, params), lowdim)
         info = {"episode_return": jnp.where(done, ep_return, 0.0),
                 "episode_length": jnp.where(done, step_count, 0),
-                "lowdim_raw": self.raw_state(data)}
-        pixels, data = self._step_pixels(data, scheme)
+                "lowdim_raw": self.raw_state(data, params)}
+        obs, data = self._observe(data, scheme, split[:, 0])
         return EnvState(
-            data=data, obs=obs_lowdim, lowdim=obs_lowdim, pixels=pixels,
+            data=data, obs=obs_lowdim, lowdim=obs_lowdim, pixels=obs["pixels"],
             reward=reward, done=done.astype(jnp.float32), truncated=truncated.astype(jnp.float32),
             step_count=jnp.where(done, 0, step_count), episode_return=jnp.where(done, 0.0, ep_return),
-            scheme=scheme, key=split[:, 0], info=info)
+            scheme=scheme, key=split[:, 0], info=info, params=params,
+            depth=obs.get("depth"), points=obs.get("points"))
 
-    def physics(self, data: mjx.Data, action: jax.Array) -> mjx.Data:
+    def physics(self, data: mjx.Data, action: jax.Array, params: dict[str, jax.Array] | None = None) -> mjx.Data:
         """One env step of physics for every world, without rewards, resets or frames: the
-        action's control held for `frame_skip` substeps, then (where the state reads body poses)
-        a kinematics pass. `step` is this plus the episode bookkeeping; the parity mirror calls
+        action applied at every one of `frame_skip` substeps, then (where the state reads body
+        poses) a kinematics pass. `params` are the worlds' per-episode physical parameters
+        (`state.params`). `step` is this plus the episode bookkeeping; the parity mirror calls
         it alone to keep stepping past an episode's end."""
-        data = data.replace(ctrl=jax.vmap(self._ctrl)(action))
-        substep = lambda d: jax.vmap(mjx.step, in_axes=(None, 0))(self.mx, d)
+        mx = self._world_model(params or {})
+
+        def substep(d: mjx.Data) -> mjx.Data:
+            d = jax.vmap(self._apply_action)(d, action)
+            return jax.vmap(mjx.step, in_axes=(None, 0))(mx, d)
+
         if self.frame_skip == 1:
             data = substep(data)
         else:
             data = jax.lax.scan(lambda d, _: (substep(d), None), data, None, length=self.frame_skip)[0]
         if self.kinematics_after_step:
-            data = jax.vmap(mjx.kinematics, in_axes=(None, 0))(self.mx, data)
+            data = jax.vmap(mjx.kinematics, in_axes=(None, 0))(mx, data)
         return data
 
     def render_frames(self, render_input: RenderInput) -> jax.Array:
@@ -243,14 +309,34 @@ class MjxPixelEnv:
 
         def body(data: mjx.Data, ri: RenderInput):
             data = data.replace(qpos=ri.qpos)
+            if ri.mocap_pos is not None:
+                data = data.replace(mocap_pos=ri.mocap_pos, mocap_quat=ri.mocap_quat)
             data = jax.vmap(mjx.forward, in_axes=(None, 0))(self.mx, data)
-            frames, data = self._render(data, ri.scheme)
+            frames, _, data = self._render(data, ri.scheme)
             return data, frames
 
         data0 = jax.vmap(lambda q: self._data0.replace(qpos=q))(render_inputs.qpos[0])
         return jax.lax.scan(body, data0, render_inputs)[1]
 
     # ----- internals -----
+    def _reward_terminated_batch(self, data: mjx.Data, lowdim: jax.Array, action: jax.Array,
+                                 prev_data: mjx.Data, params: dict[str, jax.Array]) -> tuple[jax.Array, jax.Array]:
+        """`_reward_terminated` of every world (domains whose reward needs `params` override this)."""
+        return jax.vmap(self._reward_terminated)(data, lowdim, action, prev_data)
+
+    def _lowdim_batch(self, data: mjx.Data, params: dict[str, jax.Array]) -> jax.Array:
+        """`[N, D]` state of batched Data (domains whose state holds per-world parameters
+        override this)."""
+        return jax.vmap(self._lowdim)(data)
+
+    def _reset_batch(self, keys: jax.Array, done: jax.Array, forward: bool = True
+                     ) -> tuple[mjx.Data, jax.Array, dict[str, jax.Array], jax.Array]:
+        """Fresh episodes for every world (`done` says which will be used: domains whose reset
+        simulates, e.g. an initial fall, skip the work when none is): Data, colour scheme,
+        per-world parameters and the advanced keys."""
+        data, scheme, keys = jax.vmap(self._reset_one, in_axes=(0, None))(keys, forward)
+        return data, scheme, {}, keys
+
     def _reset_one(self, key: jax.Array, forward: bool = True) -> tuple[mjx.Data, jax.Array, jax.Array]:
         key, k_state, k_colour = jax.random.split(key, 3)
         qpos, qvel = self._reset_qpos_qvel(k_state)
@@ -261,14 +347,21 @@ class MjxPixelEnv:
                   else jnp.zeros((), jnp.int32))
         return data, scheme.astype(jnp.int32), key
 
-    def _step_pixels(self, data: mjx.Data, scheme: jax.Array) -> tuple[jax.Array, mjx.Data]:
-        if not self._renders_steps:
-            return jnp.zeros((self.num_envs, 0, 0, 3), jnp.uint8), data
-        return self._render(data, scheme)
+    def _observe(self, data: mjx.Data, scheme: jax.Array, keys: jax.Array) -> tuple[dict[str, jax.Array], mjx.Data]:
+        """What `reset`/`step` report besides the state: frames (and depth) when rendering
+        steps, a point cloud in "pointcloud" mode."""
+        out: dict[str, jax.Array] = {"pixels": jnp.zeros((self.num_envs, 0, 0, 3), jnp.uint8)}
+        if self._renders_steps:
+            out["pixels"], depth, data = self._render(data, scheme)
+            if depth is not None:
+                out["depth"] = depth
+        if self.point_renderer is not None:
+            out["points"], data = self.point_renderer(self.mx, data, keys)
+        return out, data
 
-    def _render(self, data: mjx.Data, scheme: jax.Array) -> tuple[jax.Array, mjx.Data]:
+    def _render(self, data: mjx.Data, scheme: jax.Array) -> tuple[jax.Array, jax.Array | None, mjx.Data]:
         mx = self.mx
-        if self.config.multicolour and self._colour_ids.size:
+        if self._recolour:
             rgba = jnp.broadcast_to(self._base_rgba, (self.num_envs, *self._base_rgba.shape))
             rgba = rgba.at[:, self._colour_ids, :3].set(self._scheme_rgb[scheme])
             mx = mx.tree_replace({"geom_rgba": rgba})
@@ -289,7 +382,7 @@ class MjxPixelEnv:
     def _geom_id(self, name: str) -> int:
         gid = mujoco.mj_name2id(self.mj_model, mujoco.mjtObj.mjOBJ_GEOM, name)
         if gid < 0:
-            raise ValueError(f"geom {name!r} not in {self.xml_file}")
+            raise ValueError(f"geom {name!r} not in {self.xml_file or self.name}")
         return gid
 
 
@@ -304,7 +397,16 @@ def _where_tree(mask: jax.Array, a: Any, b: Any) -> Any:
     return jax.tree.map(sel, a, b)
 
 
+OBSERVATIONS = ("rgb", "depth", "pointcloud")
+
+
 def _check_config(config: EnvConfig) -> None:
+    if config.observation not in OBSERVATIONS:
+        raise ValueError(f"observation must be one of {OBSERVATIONS}, got {config.observation!r}")
+    if config.observation == "depth" and not config.render:
+        raise ValueError('observation "depth" needs render=True (depth comes from the frame renderer)')
+    if not isinstance(config.num_points, (int, np.integer)) or config.num_points < 1:
+        raise ValueError(f"num_points must be a positive integer, got {config.num_points!r}")
     if not isinstance(config.num_envs, (int, np.integer)) or config.num_envs < 1:
         raise ValueError(f"num_envs must be a positive integer, got {config.num_envs!r}")
     res = config.resolution

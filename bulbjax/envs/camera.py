@@ -11,6 +11,7 @@ both taken at the model's reference pose) instead of being rigidly attached.
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 import mujoco
@@ -32,6 +33,7 @@ class CameraConfig:
     # with a world-fixed offset and orientation, as bulb's re-aimed view (needs the body to be
     # unrotated in the model's reference pose, so that the offset given here is a world offset)
     mode: str = "fixed"
+    fovy: float = FOVY_DEG  # vertical field of view (degrees); bulb's multi-object domains use 90
 
     def __post_init__(self) -> None:
         if self.mode not in CAMERA_MODES:
@@ -58,12 +60,26 @@ def camera_axes(cfg: CameraConfig) -> tuple[np.ndarray, np.ndarray]:
 
 
 def add_bulb_camera(spec: mujoco.MjSpec, cfg: CameraConfig, name: str = "bulb") -> None:
-    """Add the bulb camera to `spec`, attached to `cfg.body` so that it tracks that body."""
-    body = spec.body(cfg.body)
+    """Add the bulb camera to `spec`, attached to `cfg.body` so that it tracks that body
+    (`body="world"`: a fixed camera aimed at `target_offset` in world coordinates)."""
+    body = spec.worldbody if cfg.body == "world" else spec.body(cfg.body)
     if body is None:
         raise ValueError(f"camera body {cfg.body!r} not found in the model")
     right, up = camera_axes(cfg)
-    cam = body.add_camera(name=name, pos=eye_offset(cfg) + np.asarray(cfg.target_offset), fovy=FOVY_DEG)
+    cam = body.add_camera(name=name, pos=eye_offset(cfg) + np.asarray(cfg.target_offset), fovy=cfg.fovy)
     cam.alt.type = mujoco.mjtOrientation.mjORIENTATION_XYAXES
     cam.alt.xyaxes = np.concatenate([right, up])
     cam.mode = CAMERA_MODES[cfg.mode]
+
+
+# bulb's point-cloud cameras (`ptcloud_utils.PanCamera`): seven views around the domain camera's
+# target at its distance, as (yaw, pitch) in degrees, vertical field of view 90 degrees.
+PAN_CAMERAS: tuple[tuple[float, float], ...] = (
+    (-30.0, -70.0), (10.0, -10.0), (50.0, -65.0), (90.0, -40.0), (130.0, -10.0), (170.0, -25.0),
+    (210.0, -60.0))
+PAN_FOVY_DEG = 90.0
+
+
+def pan_cameras(cfg: CameraConfig) -> list[CameraConfig]:
+    """The point-cloud cameras of a domain: bulb's pan views around `cfg`'s target."""
+    return [dataclasses.replace(cfg, yaw=yaw, pitch=pitch, fovy=PAN_FOVY_DEG) for yaw, pitch in PAN_CAMERAS]

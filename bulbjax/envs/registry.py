@@ -6,11 +6,15 @@ import dataclasses
 from typing import Any
 
 from bulbjax.envs.base import EnvConfig, MjxPixelEnv
+from bulbjax.envs.incline import (GeomOnIncline, GeomOnInclineMd, GeomOnInclineSm, YcbOnIncline,
+                                  YcbOnInclineMd, YcbOnInclineSm)
 from bulbjax.envs.locomotion import Ant, HalfCheetah
 from bulbjax.envs.pendulum import CartPole, CartPoleContinuous, InvertedPendulum
 
 _REGISTRY: dict[str, type[MjxPixelEnv]] = {
-    cls.name: cls for cls in (CartPole, CartPoleContinuous, InvertedPendulum, HalfCheetah, Ant)
+    cls.name: cls for cls in (CartPole, CartPoleContinuous, InvertedPendulum, HalfCheetah, Ant,
+                              GeomOnIncline, GeomOnInclineMd, GeomOnInclineSm, YcbOnIncline,
+                              YcbOnInclineMd, YcbOnInclineSm)
 }
 MULTICOLOUR_SUFFIX = "Multicolour"
 ENV_NAMES: tuple[str, ...] = tuple(_REGISTRY)
@@ -19,24 +23,36 @@ ENV_NAMES: tuple[str, ...] = tuple(_REGISTRY)
 def env_names(with_variants: bool = True) -> list[str]:
     """Registered names; with the multicolour variants (`<Name>Multicolour`) when asked."""
     names = list(_REGISTRY)
-    return names + [n + MULTICOLOUR_SUFFIX for n in names] if with_variants else names
+    colour = [n + MULTICOLOUR_SUFFIX for n, c in _REGISTRY.items() if c.supports_multicolour]
+    return names + colour if with_variants else names
 
 
-def make(name: str, num_envs: int = 64, resolution: int = 64, render: bool = True,
-         multicolour: bool = False, render_steps: bool = True) -> MjxPixelEnv:
+def make(name: str, num_envs: int = 64, resolution: int = 64, render: bool | str = True,
+         multicolour: bool = False, render_steps: bool = True, version: int | str = 0,
+         ycb_dir: str | None = None, num_points: int = 1024) -> MjxPixelEnv:
     """A batched environment of `num_envs` worlds with `resolution`x`resolution` RGB frames.
 
     `name` is a registered domain (see `env_names()`); a `Multicolour` suffix, or
-    `multicolour=True`, draws one of bulb's four colour schemes per episode. `render_steps=False`
-    keeps a renderer for `env.render_frames` but leaves frames out of `reset`/`step` (the
-    experiment renders only the steps it stores)."""
+    `multicolour=True`, draws one of bulb's four colour schemes per episode. `render` is True
+    (RGB frames), False (no renderer), or the observation: "rgb", "depth" (frames and float32
+    depth in metres, `state.depth`) or "pointcloud" (`state.points`, `[N, num_points, 3]` world
+    points of the scene's objects, bulb's PT mode; frames stay available through
+    `render_frames`). `render_steps=False` keeps a renderer for `env.render_frames` but leaves
+    frames out of `reset`/`step` (the experiment renders only the steps it stores).
+    Multi-object domains take `version` (an int, or "random": one drawn per world and episode)
+    and `ycb_dir` (the YCB models; default `$BULBJAX_YCB_DIR`)."""
     base = name
     if name.endswith(MULTICOLOUR_SUFFIX):
         base, multicolour = name[: -len(MULTICOLOUR_SUFFIX)], True
-    if base not in _REGISTRY:
+    if base not in _REGISTRY or (multicolour and not _REGISTRY[base].supports_multicolour):
         raise ValueError(f"unknown environment {name!r}; available: {', '.join(env_names())}")
-    cfg = EnvConfig(num_envs=num_envs, resolution=resolution, render=render,
-                    render_steps=render_steps, multicolour=multicolour)
+    if isinstance(render, str):
+        observation, render = render, True
+    else:
+        observation = "rgb"
+    cfg = EnvConfig(num_envs=num_envs, resolution=resolution, render=bool(render),
+                    render_steps=render_steps and observation != "pointcloud", multicolour=multicolour,
+                    observation=observation, num_points=num_points, version=version, ycb_dir=ycb_dir)
     return _REGISTRY[base](cfg)
 
 

@@ -1,0 +1,427 @@
+"""GeomOnIncline and YcbOnIncline: one object slides down an incline, pushed along its own axis,
+mirroring bulb's `BlockOnInclineEnv` (facts: `../shared/reference/bulb-multiobject.md`).
+
+The scene is composed with `dm_control.mjcf`: a plane, the incline (a mocap box, so that its pitch
+is per world Data), and the object(s) attached as sub-models with free joints (`bulbjax.assets`).
+What is mirrored:
+- episode 50 steps; an env step is 4 of bulb's `stepSimulation` calls (dt 0.01 s, 2 solver
+  substeps each), so MuJoCo steps 0.005 s, 8 per env step; the push force is applied at every one.
+- action a in [-1, 1] (clipped): a force of 2a N (bulb's action space [-2, 2]) along the
+  object's own z axis, at its centre of mass.
+- reset: mass U[0.05, 0.5] kg, lateral friction U[0.1, 0.5] (object and incline), pitch
+  U[0.25, 0.5] rad, texture id in 0..5, per world; the object placed at (-0.05, 0, 0.7) with
+  roll pi/2, pitch and yaw pi/2 + e (one e in +-pi/16, as bulb uses the same draw twice); then
+  bulb's initial fall: single `stepSimulation`s until x passes U[0.05, 0.15] (at most 50).
+- done when x >= 1, x <= 0 or |y| >= 0.1; reward 1 - |x - 0.5|.
+- state (bulb's order, scaled to [0, 1] by bulb's ranges and clipped as bulb clips): texture id,
+  version, (friction,) pitch, distance from the start position (0 while x < 0), speed.
+
+Parameters per world: mass (body mass and inertia scaled together, as PyBullet's
+`changeDynamics(mass=...)` does), friction and gravity compensation (to park the objects of the
+other versions when `version="random"`) are model fields with a leading world axis, which the
+Warp kernels index per world; the pitch is the incline's mocap pose in Data.
+
+Known differences from bulb: bulb's `incline.urdf` and the `cylinder`/`cylinder_short` URDFs are
+not in the stored repository: the incline is a 2.4 x 0.6 x 0.04 m box (long enough that the slide
+range 0 <= x <= 1 lies on it at every pitch), `cylinder` has radius 0.06 and half-height 0.06 (the
+reference's numbers), `cylinder_short` radius 0.06 and half-height 0.03 (assumed). Bullet
+multiplies the friction coefficients of a contact (0.1-0.5 each -> 0.01-0.25) while MuJoCo takes
+the larger one, so both geoms get friction^2 here. Contacts are MuJoCo's soft contacts; Bullet's
+restitution (0.1 block; 1.0 cylinder_large, times the incline's 0) and rolling friction (0.001)
+are left out. The plane's and incline's textures are drawn as their mean colours. bulb loads
+its own processed `textured_ok.obj` meshes (not in the stored repository) with the body frame at
+the mesh origin; the YCB files' origins lie up to 0.11 m (tomato soup can) from the objects, so
+here each YCB object's body frame is its centre of mass (the state's position is the COM).
+"""
+
+from __future__ import annotations
+
+import math
+import os
+
+import jax
+import jax.numpy as jnp
+import mujoco
+import numpy as np
+from mujoco import mjx
+
+from bulbjax.envs.base import EnvConfig, MjxPixelEnv, _where_tree
+from bulbjax.envs.camera import CameraConfig
+from bulbjax.envs.locomotion import _quiet_solver_limits
+from bulbjax.eval.spec import StateEntry
+
+os.environ.setdefault("MUJOCO_GL", "disable")  # dm_control needs no GL context to build models
+from dm_control import mjcf  # noqa: E402
+
+NUM_VERSIONS = 6
+NUM_TEXTURES = 6
+EPISODE_STEPS = 50
+BULLET_DT = 0.01  # one stepSimulation
+BULLET_SUBSTEPS = 2  # numSubSteps
+STEPS_PER_ACTION = 4  # bulb's _nskip
+MAX_FORCE = 2.0  # N, bulb's action space [-2, 2]
+INCLINE_POS = (0.0, 0.0, 0.55)
+INCLINE_HALF = (1.2, 0.3, 0.02)
+START_POS = (-0.05, 0.0, 0.7)
+START_EPS = math.pi / 16  # orientation noise half-range
+START_X = (0.05, 0.15)  # the initial fall ends once x passes U[START_X]
+FALL_STEPS = 50
+TARGET_X, MIN_X, MAX_X, MAX_Y = 0.5, 0.0, 1.0, 0.1
+MASS = (0.05, 0.5)
+FRICTION = (0.1, 0.5)
+PITCH = (0.25, 0.5)
+CLIP_DIST, CLIP_SPEED = 1.27, 3.10
+SCALES = {"": 2.5, "Md": 1.5, "Sm": 1.0}
+PARK_HEIGHT = 50.0  # objects of unused versions float here, out of every camera's view
+
+YCB_OBJECTS = ("004_sugar_box", "008_pudding_box", "009_gelatin_box", "005_tomato_soup_can",
+               "007_tuna_fish_can", "002_master_chef_can")
+GEOM_COLOURS = ((1, 1, 0.5), (0.2, 0.2, 0.2), (1, 0, 0), (1, 0, 1), (0, 0.5, 1), (0, 0, 1))
+INCLINE_COLOURS = ((1, 0.5, 0), (0.8, 0.8, 0.8), (0.9, 0.4, 0.4), (0, 1, 0), (0.5, 0.15, 0.15), (1, 0.6, 0))
+GEOM_PLANE_COLOUR = (0.72, 0.72, 0.75)
+# Ycb variants: bulb's plane textures (red marble, bright blue, purple squares, wood stripes, dark
+# pattern, orange pattern) and incline textures (red metal strip, marble, birch, green, retro
+# purple, wood) as mean colours of our own choosing.
+YCB_PLANE_COLOURS = ((0.62, 0.28, 0.25), (0.2, 0.45, 0.9), (0.45, 0.3, 0.6), (0.62, 0.44, 0.27),
+                     (0.16, 0.16, 0.18), (0.92, 0.55, 0.2))
+YCB_INCLINE_COLOURS = ((0.62, 0.22, 0.16), (0.86, 0.86, 0.83), (0.86, 0.78, 0.67), (0.2, 0.7, 0.25),
+                       (0.5, 0.3, 0.6), (0.66, 0.46, 0.28))
+CAMERA = CameraConfig(distance=0.8, yaw=35.0, pitch=-45.0, body="world", target_offset=(0.5, 0.2, 0.1),
+                      fovy=90.0)
+
+
+def geom_object(version: int, scale: float) -> mjcf.RootElement:
+    """bulb's geometric object of `version` (block, block, block, cylinder, cylinder_large,
+    cylinder_short) scaled by `scale` (PyBullet's globalScaling: sizes x scale, inertia x scale^2),
+    one colour per version."""
+    rgba = (*GEOM_COLOURS[version], 1.0)
+    model = mjcf.RootElement(model=f"geom{version}")
+    body = model.worldbody.add("body", name="object")
+    if version < 3:  # block.urdf: box 0.05 x 0.10 x 0.15 m, 0.05 kg, the URDF's inertia
+        half = np.array([0.025, 0.05, 0.075]) * scale
+        body.add("geom", name="visual", type="box", size=half, rgba=rgba)
+        body.add("inertial", pos=[0, 0, 0], mass=0.05,
+                 diaginertia=np.array([1.041666667e-4, 5.208333333e-5, 1.354166667e-4]) * scale ** 2)
+    else:
+        radius, half_height = {3: (0.06, 0.06), 4: (0.06, 0.065), 5: (0.06, 0.03)}[version]
+        radius, half_height = radius * scale, half_height * scale
+        body.add("geom", name="visual", type="cylinder", size=[radius, half_height], rgba=rgba)
+        if version == 4:  # cylinder_large.urdf's inertia
+            inertia = np.array([3.267e-4, 3.267e-4, 9e-5]) * scale ** 2
+        else:  # a solid cylinder of 0.2 kg
+            ixx = 0.2 * (3 * radius ** 2 + (2 * half_height) ** 2) / 12
+            inertia = np.array([ixx, ixx, 0.2 * radius ** 2 / 2])
+        body.add("inertial", pos=[0, 0, 0], mass=0.2, diaginertia=inertia)
+    return model
+
+
+def _rpy_quat(roll: jax.Array, pitch: jax.Array, yaw: jax.Array) -> jax.Array:
+    """MuJoCo (w, x, y, z) quaternion of PyBullet's Euler angles (R = Rz(yaw) Ry(pitch) Rx(roll))."""
+    cr, sr = jnp.cos(roll / 2), jnp.sin(roll / 2)
+    cp, sp = jnp.cos(pitch / 2), jnp.sin(pitch / 2)
+    cy, sy = jnp.cos(yaw / 2), jnp.sin(yaw / 2)
+    return jnp.stack([cr * cp * cy + sr * sp * sy, sr * cp * cy - cr * sp * sy,
+                      cr * sp * cy + sr * cp * sy, cr * cp * sy - sr * sp * cy])
+
+
+def _quat_mat(q: jax.Array) -> jax.Array:
+    w, x, y, z = q[0], q[1], q[2], q[3]
+    return jnp.array([[1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+                      [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+                      [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]])
+
+
+def incline_state_spec(report_friction: bool = False) -> tuple[StateEntry, ...]:
+    """bulb's low-dim state of the incline domains, each entry scaled to [0, 1] by bulb's range:
+    texture id / 6, version / 6, (friction over [0.1, 0.5],) pitch over [0.25, 0.5] rad, distance
+    over [0, 1.27] m, speed over [0, 3.1] m/s."""
+    spec = [StateEntry("texture_id", "1/6", "static"), StateEntry("version", "1/6", "static")]
+    if report_friction:
+        spec.append(StateEntry("friction", "1/0.4 from 0.1", "static"))
+    return tuple(spec + [StateEntry("theta", "1/0.25 rad from 0.25", "static"),
+                         StateEntry("distance", "1.27 m", "position"),
+                         StateEntry("speed", "3.1 m/s", "velocity")])
+
+
+class Incline(MjxPixelEnv):
+    """bulb's BlockOnInclineEnv on MJX; subclasses pick the object family and scale."""
+
+    variant: str = "Geom"
+    scale: float = 2.5
+    report_friction: bool = False  # bulb's report_fric: friction in the state, before the pitch
+    state_spec = incline_state_spec(False)
+    camera = CAMERA
+    episode_length = EPISODE_STEPS
+    solved_return = 0.0
+    discrete = False
+    action_size = 1
+    frame_skip = STEPS_PER_ACTION * BULLET_SUBSTEPS
+    kinematics_after_step = True
+    always_recolour = True  # plane and incline colours follow each world's texture id
+    naconmax_per_world = 16
+    njmax = 80
+    pointcloud_exclude = ("plane", "incline")
+    supports_multicolour = False
+    ppo_overrides = {"lr": 3e-4}
+
+    def __init__(self, config: EnvConfig):
+        version = config.version
+        if version == "random":
+            self.versions = tuple(range(NUM_VERSIONS))
+        elif isinstance(version, (int, np.integer)) and 0 <= version < NUM_VERSIONS:
+            self.versions = (int(version),)
+        else:
+            raise ValueError(f"{self.name}: version must be an int in 0..{NUM_VERSIONS - 1} or 'random', "
+                             f"got {version!r}")
+        self.random_version = version == "random"
+        super().__init__(config)
+        m = self.mj_model
+        # attaching a sub-model makes a frame body that carries the free joint; the object's
+        # body (geoms, inertia) is its child at the identity pose
+        self._obj_bodies = np.array([m.body(f"obj{v}/object").id for v in self.versions])
+        frames = m.body_parentid[self._obj_bodies]
+        self._obj_qadr = jnp.asarray(m.jnt_qposadr[m.body_jntadr[frames]])
+        self._obj_vadr = jnp.asarray(m.jnt_dofadr[m.body_jntadr[frames]])
+        self._obj_geoms = np.array([g for g in range(m.ngeom) if m.geom_bodyid[g] in set(self._obj_bodies)
+                                    and m.geom_contype[g]])
+        self._incline_geom = self._geom_id("incline")
+        self._mass0 = jnp.asarray(m.body_mass[self._obj_bodies], jnp.float32)
+        self._qpos_park = jnp.asarray(np.concatenate([
+            [0.5 + 2.0 * i, 0.2, PARK_HEIGHT, 1.0, 0.0, 0.0, 0.0] for i in range(len(self.versions))]), jnp.float32)
+
+    # ----- model -----
+    def _build_spec(self) -> mujoco.MjSpec:
+        root = mjcf.RootElement(model=self.name)
+        root.compiler.angle = "radian"
+        root.option.timestep = BULLET_DT / BULLET_SUBSTEPS
+        root.option.gravity = [0, 0, -9.81]
+        root.option.solver = "Newton"
+        root.option.iterations = 10
+        root.option.ls_iterations = 10
+        root.visual.headlight.ambient = [0.45, 0.45, 0.45]
+        root.visual.headlight.diffuse = [0.55, 0.55, 0.55]
+        root.worldbody.add("light", name="key", directional=True, pos=[0, 0, 3], dir=[0.3, 0.3, -1],
+                           diffuse=[0.5, 0.5, 0.5])
+        root.worldbody.add("geom", name="plane", type="plane", size=[5, 5, 0.1],
+                           rgba=(*GEOM_PLANE_COLOUR, 1), friction=[1.0, 0.005, 0.0001])
+        incline = root.worldbody.add("body", name="incline_body", mocap=True, pos=INCLINE_POS)
+        incline.add("geom", name="incline", type="box", size=INCLINE_HALF, rgba=(*INCLINE_COLOURS[0], 1))
+        for v in self.versions:
+            model = self._object_model(v)
+            model.model = f"obj{v}"
+            frame = root.worldbody.attach(model)
+            frame.add("freejoint")
+            body = model.find("body", "object")
+            body.gravcomp = 1e-6  # compiled in so that per-world gravity compensation can park it
+            frame.pos = [0.5, 0.2, PARK_HEIGHT]
+        return mujoco.MjSpec.from_string(root.to_xml_string(), assets=root.get_assets())
+
+    def _object_model(self, version: int) -> mjcf.RootElement:
+        return geom_object(version, self.scale)
+
+    def _post_put(self, mx: mjx.Model) -> mjx.Model:
+        return _quiet_solver_limits(mx)
+
+    def _scheme_colours(self) -> tuple[np.ndarray, np.ndarray]:
+        plane, incline = (YCB_PLANE_COLOURS, YCB_INCLINE_COLOURS) if self.variant == "Ycb" else (
+            (GEOM_PLANE_COLOUR,) * NUM_TEXTURES, INCLINE_COLOURS)
+        ids = np.array([self._geom_id("plane"), self._geom_id("incline")], np.int32)
+        return ids, np.stack([np.array(plane), np.array(incline)], axis=1).astype(np.float32)
+
+    # ----- state -----
+    @property
+    def raw_state_spec(self) -> tuple[StateEntry, ...]:
+        pos = [StateEntry(f"pos_{a}", "m", "position") for a in "xyz"]
+        quat = [StateEntry(f"quat_{a}", "1", "orientation") for a in "wxyz"]
+        lin = [StateEntry(f"vel_{a}", "m/s", "velocity") for a in "xyz"]
+        ang = [StateEntry(f"angvel_{a}", "rad/s", "angular_velocity") for a in "xyz"]
+        static = [StateEntry("texture_id", "1", "static"), StateEntry("version", "1", "static"),
+                  StateEntry("mass", "kg", "static"), StateEntry("friction", "1", "static"),
+                  StateEntry("theta", "rad", "static"), StateEntry("distance", "m", "position"),
+                  StateEntry("speed", "m/s", "velocity")]
+        return tuple(pos + quat + lin + ang + static)
+
+    def _slot(self, params: dict[str, jax.Array]) -> jax.Array:
+        """Index of the world's object among the model's objects."""
+        return params["version"] if self.random_version else jnp.zeros_like(params["version"])
+
+    def _object_qpos(self, data: mjx.Data, slot: jax.Array) -> jax.Array:
+        return jax.lax.dynamic_slice(data.qpos, (self._obj_qadr[slot],), (7,))
+
+    def _object_qvel(self, data: mjx.Data, slot: jax.Array) -> jax.Array:
+        return jax.lax.dynamic_slice(data.qvel, (self._obj_vadr[slot],), (6,))
+
+    def _physical(self, data: mjx.Data, params: dict[str, jax.Array]) -> dict[str, jax.Array]:
+        """One world's object pose and velocities (world frame) and bulb's travelled distance
+        and speed."""
+        slot = self._slot(params)
+        q, v = self._object_qpos(data, slot), self._object_qvel(data, slot)
+        pos = q[:3]
+        dist = jnp.where(pos[0] < MIN_X, 0.0, jnp.linalg.norm(pos - jnp.asarray(START_POS)))
+        return {"pos": pos, "quat": q[3:7], "lin": v[:3], "ang": v[3:6], "dist": dist,
+                "speed": jnp.linalg.norm(v[:3])}
+
+    def _lowdim_batch(self, data: mjx.Data, params: dict[str, jax.Array]) -> jax.Array:
+        def one(d, p):
+            ph = self._physical(d, p)
+            raw = [p["texture"].astype(jnp.float32), p["version"].astype(jnp.float32)]
+            lo = [0.0, 0.0]
+            hi = [float(NUM_TEXTURES), float(NUM_VERSIONS)]
+            if self.report_friction:
+                raw, lo, hi = raw + [p["friction"]], lo + [FRICTION[0]], hi + [FRICTION[1]]
+            raw = jnp.stack(raw + [p["theta"], ph["dist"], ph["speed"]])
+            lo = jnp.asarray(lo + [PITCH[0], MIN_X, 0.0])
+            hi = jnp.asarray(hi + [PITCH[1], CLIP_DIST, CLIP_SPEED])
+            return (jnp.clip(raw, lo, hi) - lo) / (hi - lo)
+        return jax.vmap(one)(data, params).astype(jnp.float32)
+
+    def raw_state(self, data: mjx.Data, params: dict[str, jax.Array] | None = None) -> jax.Array:
+        if params is None:
+            raise ValueError(f"{self.name}.raw_state needs the worlds' params (state.params)")
+
+        def one(d, p):
+            ph = self._physical(d, p)
+            static = jnp.stack([p["texture"].astype(jnp.float32), p["version"].astype(jnp.float32),
+                                p["mass"], p["friction"], p["theta"], ph["dist"], ph["speed"]])
+            return jnp.concatenate([ph["pos"], ph["quat"], ph["lin"], ph["ang"], static])
+        return jax.vmap(one)(data, params).astype(jnp.float32)
+
+    def _reward_terminated_batch(self, data, lowdim, action, prev_data, params):
+        def one(d, p):
+            x, y = self._physical(d, p)["pos"][:2]
+            return 1.0 - jnp.abs(x - TARGET_X), (x >= MAX_X) | (x <= MIN_X) | (jnp.abs(y) >= MAX_Y)
+        return jax.vmap(one)(data, params)
+
+    # ----- dynamics -----
+    def _world_model(self, params: dict[str, jax.Array]) -> mjx.Model:
+        if not params:
+            return self.mx
+        n = params["mass"].shape[0]
+        mx = self.mx
+        slots = jnp.arange(len(self.versions))
+        active = (slots[None, :] == self._slot(params)[:, None]).astype(jnp.float32)  # [N, V]
+        ratio = params["mass"][:, None] / self._mass0[None, :]  # [N, V]
+        body_mass = jnp.broadcast_to(mx.body_mass, (n, *mx.body_mass.shape)).at[:, self._obj_bodies].set(
+            params["mass"][:, None] * jnp.ones_like(ratio))
+        body_inertia = jnp.broadcast_to(mx.body_inertia, (n, *mx.body_inertia.shape)).at[:, self._obj_bodies].multiply(
+            ratio[..., None])
+        gravcomp = jnp.broadcast_to(mx.body_gravcomp, (n, *mx.body_gravcomp.shape)).at[:, self._obj_bodies].set(
+            1.0 - active)
+        mu = params["friction"] ** 2  # Bullet multiplies the two coefficients; MuJoCo takes the max
+        friction = jnp.broadcast_to(mx.geom_friction, (n, *mx.geom_friction.shape))
+        friction = friction.at[:, self._obj_geoms, 0].set(mu[:, None]).at[:, self._incline_geom, 0].set(mu)
+        return mx.tree_replace({"body_mass": body_mass, "body_inertia": body_inertia,
+                                "body_gravcomp": gravcomp, "geom_friction": friction})
+
+    def physics(self, data: mjx.Data, action: jax.Array, params: dict[str, jax.Array] | None = None) -> mjx.Data:
+        """One env step: 4 of bulb's stepSimulation calls (8 MuJoCo steps) with the push applied
+        at each, then kinematics."""
+        if not params:
+            raise ValueError(f"{self.name}.physics needs the worlds' params (state.params)")
+        force = jnp.clip(action[:, 0], -1.0, 1.0) * MAX_FORCE
+        data = self._substeps(data, params, force, self.frame_skip)
+        return jax.vmap(mjx.kinematics, in_axes=(None, 0))(self._world_model(params), data)
+
+    def _substeps(self, data: mjx.Data, params: dict[str, jax.Array], force: jax.Array, steps: int) -> mjx.Data:
+        """`steps` MuJoCo steps of every world with `force` [N] along the object's own z axis."""
+        mx = self._world_model(params)
+        slot = self._slot(params)
+        bodies = jnp.asarray(self._obj_bodies)
+
+        def set_force(d: mjx.Data, f: jax.Array, s: jax.Array) -> mjx.Data:
+            b = bodies[s]
+            axis = _quat_mat(self._object_qpos(d, s)[3:7])[:, 2]
+            return d.replace(xfrc_applied=jnp.zeros_like(d.xfrc_applied).at[b, :3].set(f * axis))
+
+        def one(d: mjx.Data, _):
+            d = jax.vmap(set_force)(d, force, slot)
+            return jax.vmap(mjx.step, in_axes=(None, 0))(mx, d), None
+        return jax.lax.scan(one, data, None, length=steps)[0]
+
+    # ----- reset -----
+    def _reset_batch(self, keys: jax.Array, done: jax.Array, forward: bool = True):
+        """bulb's reset for every world: parameters drawn, the object placed above the incline,
+        then the initial fall (skipped when no world is done)."""
+        data, params, start_x, keys = jax.vmap(self._draw)(keys)
+        data = jax.lax.cond(done.any(), lambda d: self._fall(d, params, start_x, done), lambda d: d, data)
+        if forward:
+            data = jax.vmap(mjx.forward, in_axes=(None, 0))(self._world_model(params), data)
+        return data, params["texture"], params, keys
+
+    def _draw(self, key: jax.Array):
+        key, k = jax.random.split(key)
+        km, kf, kt, ktex, kv, ke, ks = jax.random.split(k, 7)
+        u = lambda kk, lo_hi: jax.random.uniform(kk, (), minval=lo_hi[0], maxval=lo_hi[1])
+        version = (jax.random.randint(kv, (), 0, NUM_VERSIONS) if self.random_version
+                   else jnp.asarray(self.versions[0]))
+        params = {"mass": u(km, MASS), "friction": u(kf, FRICTION), "theta": u(kt, PITCH),
+                  "texture": jax.random.randint(ktex, (), 0, NUM_TEXTURES).astype(jnp.int32),
+                  "version": version.astype(jnp.int32)}
+        eps = u(ke, (-START_EPS, START_EPS))
+        half = jnp.pi / 2
+        pose = jnp.concatenate([jnp.asarray(START_POS), _rpy_quat(half, half + eps, half + eps)])
+        slot = self._slot(params)
+        qpos = jax.lax.dynamic_update_slice(self._qpos_park, pose, (slot * 7,))
+        theta = params["theta"]
+        data = self._data0.replace(
+            qpos=qpos, qvel=jnp.zeros(self.mj_model.nv),
+            mocap_pos=jnp.asarray([INCLINE_POS], jnp.float32),
+            mocap_quat=jnp.stack([jnp.cos(theta / 2), 0.0, jnp.sin(theta / 2), 0.0])[None])
+        return data, params, u(ks, START_X), key
+
+    def _fall(self, data: mjx.Data, params: dict[str, jax.Array], start_x: jax.Array, done: jax.Array) -> mjx.Data:
+        """bulb's initial fall: one stepSimulation at a time, for the worlds in `done`, until
+        the object's x passes `start_x` (at most 50)."""
+        slot = self._slot(params)
+        zero = jnp.zeros(self.num_envs)
+
+        def cond(carry):
+            i, _, active = carry
+            return (i < FALL_STEPS) & active.any()
+
+        def body(carry):
+            i, d, active = carry
+            moved = self._substeps(d, params, zero, BULLET_SUBSTEPS)
+            d = _where_tree(active, moved, d)
+            x = jax.vmap(lambda dd, s: self._object_qpos(dd, s)[0])(d, slot)
+            return i + 1, d, active & (x <= start_x)
+
+        return jax.lax.while_loop(cond, body, (jnp.int32(0), data, done))[1]
+
+
+class GeomOnIncline(Incline):
+    """GeomOnIncline (scale 2.5): blocks and cylinders in one colour per version."""
+
+    name = "GeomOnIncline"
+
+
+class GeomOnInclineMd(GeomOnIncline):
+    name, scale = "GeomOnInclineMd", SCALES["Md"]
+
+
+class GeomOnInclineSm(GeomOnIncline):
+    name, scale = "GeomOnInclineSm", SCALES["Sm"]
+
+
+class YcbOnIncline(Incline):
+    """YcbOnIncline (scale 2.5): bulb's six YCB objects (sugar box, pudding box, gelatin box,
+    tomato soup can, tuna fish can, master chef can) at bulb's scale times 2.5, meshes from
+    `ycb_dir` / $BULBJAX_YCB_DIR through `bulbjax.assets` (decimated, textured where a texture
+    map exists, convex hull for contacts, inertia from the mesh at bulb's mass)."""
+
+    name = "YcbOnIncline"
+    variant = "Ycb"
+
+    def _object_model(self, version: int) -> mjcf.RootElement:
+        from bulbjax.assets import load_ycb_object, ycb_mjcf
+
+        asset = load_ycb_object(YCB_OBJECTS[version], scale=self.scale, ycb_dir=self.config.ycb_dir)
+        return ycb_mjcf(asset, "object", origin="com")
+
+
+class YcbOnInclineMd(YcbOnIncline):
+    name, scale = "YcbOnInclineMd", SCALES["Md"]
+
+
+class YcbOnInclineSm(YcbOnIncline):
+    name, scale = "YcbOnInclineSm", SCALES["Sm"]
