@@ -6,7 +6,11 @@
 - `beta_vae`: beta-VAE with beta=5 (the paper's best) and the same 50% retention;
 or one of the sequential learners (train on windows, one latent per step; sequential.py)
 - `svae`, `pred`, `dsa`: each with the 50% initial-replay retention, as the paper applied the
-  fix to every learner after VAE_v0.
+  fix to every learner after VAE_v0;
+or the structured frame learner
+- `spair`: SPAIR with a learned background (spair.py), 64 frames per batch (the paper's
+  equalised compute) and the 50% retention; its latent size follows from its config
+  (G*G cells of 6 + spair_what_dim), not from `latent_dim`.
 """
 
 from __future__ import annotations
@@ -24,6 +28,7 @@ from bulbjax.learners.base import (
 )
 from bulbjax.learners.networks import ConvEncoder, DeconvDecoder, check_frame_shape
 from bulbjax.learners.sequential import DSA, PRED, SEQUENTIAL_LEARNERS, SVAE, SequentialVAE
+from bulbjax.learners.spair import SPAIR
 from bulbjax.learners.vae import VAE
 
 # Per-name defaults, applied on top of LearnerConfig's defaults.
@@ -34,6 +39,7 @@ _PRESETS: dict[str, dict[str, Any]] = {
     "svae": {"retain_fraction": 0.5},
     "pred": {"retain_fraction": 0.5},
     "dsa": {"retain_fraction": 0.5},
+    "spair": {"batch_size": 64, "retain_fraction": 0.5},
 }
 LEARNER_NAMES: tuple[str, ...] = tuple(_PRESETS)
 SEQUENCE_LEARNER_NAMES: tuple[str, ...] = tuple(SEQUENTIAL_LEARNERS)
@@ -78,13 +84,15 @@ def make_learner(
     latent_dim: int,
     config: LearnerConfig | Mapping[str, Any] | None = None,
     action_dim: int = 1,
-) -> VAE | SequentialVAE:
+) -> VAE | SequentialVAE | SPAIR:
     """Build the learner `name` (one of LEARNER_NAMES); see `resolve_config`. `action_dim` is the
     width of the actions the sequential learners condition on (one-hot size for discrete
     actions); the frame learners ignore it."""
     cfg = resolve_config(name, config)
     if name in SEQUENTIAL_LEARNERS:
         return SEQUENTIAL_LEARNERS[name](latent_dim=latent_dim, config=cfg, action_dim=action_dim)
+    if name == "spair":
+        return SPAIR(config=cfg)
     return VAE(latent_dim=latent_dim, config=cfg)
 
 
@@ -100,6 +108,7 @@ __all__ = [
     "LEARNER_NAMES",
     "PRED",
     "SEQUENCE_LEARNER_NAMES",
+    "SPAIR",
     "SVAE",
     "SequenceLearner",
     "SequentialVAE",

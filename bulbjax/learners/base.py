@@ -45,6 +45,18 @@ class LearnerConfig:
     sequence_length: int = 24  # steps per window (paper: 24 pendulums, 16 locomotion)
     pred_horizon: int = 4  # PRED reconstructs sequence_length + pred_horizon frames
     dsa_encoder: str = "bilstm"  # DSA's static/dynamic encoders: one of DSA_ENCODERS
+    # SPAIR only (spair.py); the other learners ignore these. Defaults follow the original
+    # (Crawford & Pineau 2019) where it says, and the bulb paper (28 px glimpses, 4x4 grid).
+    spair_grid: int = 4  # G: cells per side of the grid (paper: 4 or 6)
+    spair_glimpse: int = 28  # side in pixels of the glimpse an object encoder sees
+    spair_what_dim: int = 50  # z_what (appearance) size per cell; the original's A=50
+    spair_bg_dim: int = 4  # latent size of the background VAE (kept small: a smooth backdrop)
+    spair_count_odds_start: float = 1e6  # prior odds of "object in a cell": start of annealing,
+    spair_count_odds_end: float = 0.0125  # ... and end (original: 1e6 -> 0.0125)
+    spair_count_decay_steps: int = 1000  # the odds' excess over the end shrinks x0.1 per this many updates
+    spair_temperature: float = 1.0  # Concrete (relaxed Bernoulli) temperature of z_pres
+    spair_training_wheels: int = 1000  # first updates: no gradient into the where/depth/pres heads
+    spair_pixel_std: float = 0.15  # > 0: Gaussian likelihood with this std; 0: Bernoulli (the original's)
 
     def __post_init__(self) -> None:
         # Accept lists for conv_features but store a tuple, so the config stays hashable.
@@ -71,6 +83,19 @@ class LearnerConfig:
             raise ValueError(f"pred_horizon must be >= 0, got {self.pred_horizon!r}")
         if self.dsa_encoder not in DSA_ENCODERS:
             raise ValueError(f"dsa_encoder must be one of {DSA_ENCODERS}, got {self.dsa_encoder!r}")
+        for name in ("spair_grid", "spair_glimpse", "spair_what_dim", "spair_bg_dim",
+                     "spair_count_decay_steps"):
+            if getattr(self, name) < 1:
+                raise ValueError(f"{name} must be >= 1, got {getattr(self, name)!r}")
+        if self.spair_training_wheels < 0:
+            raise ValueError(f"spair_training_wheels must be >= 0, got {self.spair_training_wheels!r}")
+        odds = (self.spair_count_odds_start, self.spair_count_odds_end)
+        if not (all(math.isfinite(o) and o > 0 for o in odds) and odds[0] >= odds[1]):
+            raise ValueError(f"spair count odds must be positive and finite with start >= end, got {odds!r}")
+        if not (math.isfinite(self.spair_pixel_std) and self.spair_pixel_std >= 0):
+            raise ValueError(f"spair_pixel_std must be >= 0, got {self.spair_pixel_std!r}")
+        if not (math.isfinite(self.spair_temperature) and self.spair_temperature > 0):
+            raise ValueError(f"spair_temperature must be > 0, got {self.spair_temperature!r}")
         if not 0.0 <= self.retain_fraction < 1.0:
             raise ValueError(f"retain_fraction must be in [0, 1), got {self.retain_fraction!r}")
 
