@@ -23,7 +23,7 @@ Warp kernels index per world; the pitch is the incline's mocap pose in Data.
 
 Known differences from bulb: bulb's `incline.urdf` and the `cylinder`/`cylinder_short` URDFs are
 not in the stored repository: the incline is a 2.4 x 0.6 x 0.04 m box (long enough that the slide
-range 0 <= x <= 1 lies on it at every pitch), `cylinder` has radius 0.06 and half-height 0.06 (the
+range 0 <= x <= 1 lies on it at every pitch) whose top face collides as a plane, `cylinder` has radius 0.06 and half-height 0.06 (the
 reference's numbers), `cylinder_short` radius 0.06 and half-height 0.03 (assumed). Bullet
 multiplies the friction coefficients of a contact (0.1-0.5 each -> 0.01-0.25) while MuJoCo takes
 the larger one, so both geoms get friction^2 here. Contacts are MuJoCo's soft contacts; Bullet's
@@ -45,7 +45,7 @@ import mujoco
 import numpy as np
 from mujoco import mjx
 
-from bulbjax.envs.base import EnvConfig, MjxPixelEnv, _where_tree
+from bulbjax.envs.base import EnvConfig, EnvState, MjxPixelEnv, _where_tree
 from bulbjax.envs.camera import CameraConfig
 from bulbjax.envs.locomotion import _quiet_solver_limits
 from bulbjax.eval.spec import StateEntry
@@ -72,6 +72,7 @@ FRICTION = (0.1, 0.5)
 PITCH = (0.25, 0.5)
 CLIP_DIST, CLIP_SPEED = 1.27, 3.10
 SCALES = {"": 2.5, "Md": 1.5, "Sm": 1.0}
+NAN_RETRIES = 2  # redraws of a world whose reset went non-finite
 PARK_HEIGHT = 50.0  # objects of unused versions float here, out of every camera's view
 
 YCB_OBJECTS = ("004_sugar_box", "008_pudding_box", "009_gelatin_box", "005_tomato_soup_can",
@@ -184,7 +185,7 @@ class Incline(MjxPixelEnv):
         self._obj_vadr = jnp.asarray(m.jnt_dofadr[m.body_jntadr[frames]])
         self._obj_geoms = np.array([g for g in range(m.ngeom) if m.geom_bodyid[g] in set(self._obj_bodies)
                                     and m.geom_contype[g]])
-        self._incline_geom = self._geom_id("incline")
+        self._incline_geom = self._geom_id("incline_surface")
         self._mass0 = jnp.asarray(m.body_mass[self._obj_bodies], jnp.float32)
         self._qpos_park = jnp.asarray(np.concatenate([
             [0.5 + 2.0 * i, 0.2, PARK_HEIGHT, 1.0, 0.0, 0.0, 0.0] for i in range(len(self.versions))]), jnp.float32)
@@ -205,7 +206,12 @@ class Incline(MjxPixelEnv):
         root.worldbody.add("geom", name="plane", type="plane", size=[5, 5, 0.1],
                            rgba=(*GEOM_PLANE_COLOUR, 1), friction=[1.0, 0.005, 0.0001])
         incline = root.worldbody.add("body", name="incline_body", mocap=True, pos=INCLINE_POS)
-        incline.add("geom", name="incline", type="box", size=INCLINE_HALF, rgba=(*INCLINE_COLOURS[0], 1))
+        # drawn as a box; contacts with its top face as a plane (a half-space, robust where
+        # MJX-Warp's box-box contacts of the blocks produced NaNs from deep starts)
+        incline.add("geom", name="incline", type="box", size=INCLINE_HALF, rgba=(*INCLINE_COLOURS[0], 1),
+                    contype=0, conaffinity=0)
+        incline.add("geom", name="incline_surface", type="plane", size=[INCLINE_HALF[0], INCLINE_HALF[1], 0.01],
+                    pos=[0, 0, INCLINE_HALF[2]], group=3, rgba=[0, 0, 0, 0])
         for v in self.versions:
             model = self._object_model(v)
             model.model = f"obj{v}"
@@ -289,7 +295,9 @@ class Incline(MjxPixelEnv):
     def _reward_terminated_batch(self, data, lowdim, action, prev_data, params):
         def one(d, p):
             x, y = self._physical(d, p)["pos"][:2]
-            return 1.0 - jnp.abs(x - TARGET_X), (x >= MAX_X) | (x <= MIN_X) | (jnp.abs(y) >= MAX_Y)
+            finite = jnp.isfinite(d.qpos).all()  # a world gone non-finite ends its episode
+            reward = jnp.where(finite, 1.0 - jnp.abs(x - TARGET_X), 0.0)
+            return reward, (x >= MAX_X) | (x <= MIN_X) | (jnp.abs(y) >= MAX_Y) | ~finite
         return jax.vmap(one)(data, params)
 
     # ----- dynamics -----
@@ -339,35 +347,77 @@ class Incline(MjxPixelEnv):
         return jax.lax.scan(one, data, None, length=steps)[0]
 
     # ----- reset -----
+    RESET_FIELDS = ("mass", "friction", "theta", "texture", "version", "eps", "start_x")
+
+    def reset_with(self, key: jax.Array, **fixed: jax.Array) -> EnvState:
+        """`reset(key)` with some of the per-world draws fixed (arrays `[num_envs]` or scalars):
+        `mass`, `friction`, `theta`, `texture`, `version` (with `version="random"`), `eps` (the
+        orientation noise) and `start_x` (where the initial fall ends). For controlled
+        experiments (tests, parity sweeps); the later automatic resets draw as usual."""
+        unknown = set(fixed) - set(self.RESET_FIELDS)
+        if unknown:
+            raise ValueError(f"unknown reset fields {sorted(unknown)}; known: {self.RESET_FIELDS}")
+        if "version" in fixed and not self.random_version:
+            raise ValueError(f"{self.name} was made with version={self.versions[0]}; make it with "
+                             f"version='random' to set versions per world")
+        fixed = {k: jnp.broadcast_to(jnp.asarray(v), (self.num_envs,)) for k, v in fixed.items()}
+        saved, self._fixed = self._fixed, fixed
+        try:
+            return self.reset(key)
+        finally:
+            self._fixed = saved
+
+    _fixed: dict[str, jax.Array] = {}
+
     def _reset_batch(self, keys: jax.Array, done: jax.Array, forward: bool = True):
         """bulb's reset for every world: parameters drawn, the object placed above the incline,
         then the initial fall (skipped when no world is done)."""
-        data, params, start_x, keys = jax.vmap(self._draw)(keys)
+        draws = self._draws_fixed(keys)
+        data, params, start_x = jax.vmap(self._place)(draws)
         data = jax.lax.cond(done.any(), lambda d: self._fall(d, params, start_x, done), lambda d: d, data)
+        for _ in range(NAN_RETRIES):
+            # Rarely (blocks started in deep contact) MJX-Warp's step returns NaN for a world:
+            # such a world is drawn again, as MuJoCo Playground resets non-finite worlds.
+            bad = done & ~jnp.isfinite(data.qpos).all(axis=1)
+            again = self._draws_fixed(draws["key"])
+            draws = _where_tree(bad, again, draws)
+            placed, params, start_x = jax.vmap(self._place)(draws)
+            data = _where_tree(bad, placed, data)
+            data = jax.lax.cond(bad.any(), lambda d: self._fall(d, params, start_x, bad), lambda d: d, data)
         if forward:
             data = jax.vmap(mjx.forward, in_axes=(None, 0))(self._world_model(params), data)
-        return data, params["texture"], params, keys
+        return data, params["texture"], params, draws["key"]
 
-    def _draw(self, key: jax.Array):
+    def _draws_fixed(self, keys: jax.Array) -> dict[str, jax.Array]:
+        """Every world's draws, with those fixed by `reset_with` put in."""
+        draws = jax.vmap(self._draws)(keys)
+        return {**draws, **{k: v.astype(draws[k].dtype) for k, v in self._fixed.items()}}
+
+    def _draws(self, key: jax.Array) -> dict[str, jax.Array]:
+        """One world's random reset draws (bulb's distributions) and its advanced key."""
         key, k = jax.random.split(key)
         km, kf, kt, ktex, kv, ke, ks = jax.random.split(k, 7)
         u = lambda kk, lo_hi: jax.random.uniform(kk, (), minval=lo_hi[0], maxval=lo_hi[1])
         version = (jax.random.randint(kv, (), 0, NUM_VERSIONS) if self.random_version
                    else jnp.asarray(self.versions[0]))
-        params = {"mass": u(km, MASS), "friction": u(kf, FRICTION), "theta": u(kt, PITCH),
-                  "texture": jax.random.randint(ktex, (), 0, NUM_TEXTURES).astype(jnp.int32),
-                  "version": version.astype(jnp.int32)}
-        eps = u(ke, (-START_EPS, START_EPS))
-        half = jnp.pi / 2
+        return {"mass": u(km, MASS), "friction": u(kf, FRICTION), "theta": u(kt, PITCH),
+                "texture": jax.random.randint(ktex, (), 0, NUM_TEXTURES).astype(jnp.int32),
+                "version": version.astype(jnp.int32), "eps": u(ke, (-START_EPS, START_EPS)),
+                "start_x": u(ks, START_X), "key": key}
+
+    def _place(self, draws: dict[str, jax.Array]):
+        """One world's Data before the fall: objects parked, the world's object at bulb's start
+        pose, the incline at its pitch; the episode's parameters and where the fall ends."""
+        params = {k: draws[k] for k in ("mass", "friction", "theta", "texture", "version")}
+        half, eps = jnp.pi / 2, draws["eps"]
         pose = jnp.concatenate([jnp.asarray(START_POS), _rpy_quat(half, half + eps, half + eps)])
-        slot = self._slot(params)
-        qpos = jax.lax.dynamic_update_slice(self._qpos_park, pose, (slot * 7,))
+        qpos = jax.lax.dynamic_update_slice(self._qpos_park, pose, (self._slot(params) * 7,))
         theta = params["theta"]
         data = self._data0.replace(
             qpos=qpos, qvel=jnp.zeros(self.mj_model.nv),
             mocap_pos=jnp.asarray([INCLINE_POS], jnp.float32),
             mocap_quat=jnp.stack([jnp.cos(theta / 2), 0.0, jnp.sin(theta / 2), 0.0])[None])
-        return data, params, u(ks, START_X), key
+        return data, params, draws["start_x"]
 
     def _fall(self, data: mjx.Data, params: dict[str, jax.Array], start_x: jax.Array, done: jax.Array) -> mjx.Data:
         """bulb's initial fall: one stepSimulation at a time, for the worlds in `done`, until
