@@ -121,6 +121,7 @@ class Walker(MjxPixelEnv):
     """PyBullet's WalkerBase on MJX: subclasses name the model, joints, feet and alive rule."""
 
     camera = LOCOMOTION_CAMERA
+    pointcloud_exclude = ("floor",)
     episode_length = 1000
     discrete = False
     num_actions = None

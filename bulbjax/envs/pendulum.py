@@ -35,6 +35,7 @@ class CartPole(MjxPixelEnv):
     num_actions = 2
     action_size = 1
     colour_roles = {"cart": "base", "pole": "pole"}
+    pointcloud_exclude = ("slidebar",)
     force_mag = 10.0
     theta_threshold = 12 * 2 * math.pi / 360
     x_threshold = 0.4
@@ -88,6 +89,7 @@ class InvertedPendulum(MjxPixelEnv):
     discrete = False
     action_size = 1
     colour_roles = {"cart": "base", "cpole": "pole"}
+    pointcloud_exclude = ("rail",)
 
     def _reset_qpos_qvel(self, key: jax.Array) -> tuple[jax.Array, jax.Array]:
         theta = jax.random.uniform(key, (), minval=-0.1, maxval=0.1)
