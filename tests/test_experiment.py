@@ -28,7 +28,7 @@ def tiny_config() -> ExperimentConfig:
         ppo_updates_per_epoch=1, frames_per_epoch=8, replay_capacity=32,
         learner=LearnerConfig(batch_size=8, conv_features=(8, 8, 8, 8), hidden=16, lr=1e-3),
         learner_batches=2, eval_frames=8, probe_train_frames=16,
-        probe=ProbeConfig(hidden=(16,), steps=20, batch_size=16))
+        probe=ProbeConfig(hidden=(16,), steps=20, batch_size=16), reference_steps=16)
 
 
 @pytest.fixture(scope="module")
@@ -106,10 +106,22 @@ def test_reports(run, tmp_path):
     assert set(g) == {"position", "velocity"}
     e = back[0]["probes"]["vae"]["curr"]["entries"]["x"]
     assert e["unit"] == "m" and e["mae"] == pytest.approx(float(m1["probes"]["vae"]["curr"]["mae"][0, 2]))
-    report.plot(back, exp.spec, str(tmp_path / "fig.png"), "test", solved_return=190)
+    # fixed scale: both streams divided by the run's reference spread (random policy, at init)
+    ref = np.asarray(rs_ref := m1["ref_spread"])
+    assert ref.shape == (SEEDS, exp.env.state_dim) and np.all(ref[0] == ref[1]) and np.all(ref > 0)
+    for stream in ("curr", "rand"):
+        e = back[0]["probes"]["vae"][stream]["entries"]["x"]
+        assert e["ref_spread"] == pytest.approx(float(rs_ref[0, 2]))
+        assert e["mae_norm"] == pytest.approx(e["mae"] / e["ref_spread"])
+    # an epoch without a probe (--probe-every) is recorded, plotted and tabled around
+    m_np = {k: v for k, v in m2.items() if k != "probes"}
+    recs += report.epoch_records(2, m_np, exp.spec)
+    assert recs[-1]["probes"] == {} and len(report.probed(recs)) == 2 * SEEDS
+    report.plot(recs, exp.spec, str(tmp_path / "fig.png"), "test", solved_return=190)
     assert os.path.getsize(tmp_path / "fig.png") > 10_000
-    tab = report.table(back, exp.spec)
+    tab = report.table(recs, exp.spec)
     assert "| vae_rpl | π_rand |" in tab and "| constant | π_curr |" in tab
+    assert "epoch 1;" in tab and "reference spread" in tab
 
 
 def test_ci90_matches_student_t():

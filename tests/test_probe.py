@@ -70,7 +70,10 @@ SPEC = (
 
 
 def test_summarise_groups() -> None:
-    out = probe.summarise([0.5, 0.1, 2.0, 0.3], [1.0, 0.4, 2.0, 0.5], [1.0, 0.5, 4.0, 0.0], SPEC)
+    # third argument: the run's reference spread (random policy); the stream's own spread is reported only
+    out = probe.summarise([0.5, 0.1, 2.0, 0.3], [1.0, 0.4, 2.0, 0.5], [1.0, 0.5, 4.0, 0.0], SPEC,
+                          spread_D=[9.0, 9.0, 9.0, 9.0])
+    assert out["normalised_by"] == "ref_spread"
     assert list(out["groups"]) == ["position", "velocity", "contact"]
     pos = out["groups"]["position"]
     assert pos["n"] == 2 and pos["unit"] is None and pos["mae"] is None  # mixed units: no raw mean
@@ -78,15 +81,38 @@ def test_summarise_groups() -> None:
     assert pos["baseline_norm"] == pytest.approx((1.0 + 0.8) / 2)
     vel = out["groups"]["velocity"]
     assert vel["unit"] == "m/s" and vel["mae"] == pytest.approx(2.0) and vel["mae_norm"] == pytest.approx(0.5)
-    assert out["excluded"] == ["foot_contact"]  # zero spread cannot be normalised
+    assert out["excluded"] == ["foot_contact"]  # zero reference spread cannot be normalised
     assert math.isnan(out["entries"]["foot_contact"]["mae_norm"])
     assert math.isnan(out["groups"]["contact"]["mae_norm"])
     assert out["entries"]["foot_contact"]["mae"] == pytest.approx(0.3)
     assert out["overall"]["n"] == 4
     assert out["overall"]["mae_norm"] == pytest.approx((0.5 + 0.2 + 0.5) / 3)
     assert out["entries"]["pole_angle"] == pytest.approx(
-        {"group": "position", "unit": "rad", "mae": 0.1, "baseline": 0.4, "spread": 0.5,
-         "mae_norm": 0.2, "baseline_norm": 0.8}
+        {"group": "position", "unit": "rad", "mae": 0.1, "baseline": 0.4, "ref_spread": 0.5,
+         "spread": 9.0, "mae_norm": 0.2, "baseline_norm": 0.8}
     )
     with pytest.raises(ValueError):
         probe.summarise([0.1], [0.1], [0.1], SPEC)
+
+
+def test_fixed_scale_does_not_depend_on_the_scored_stream() -> None:
+    """A solved policy's stream hardly moves (own spread ~1e-3): its normalised errors stay on
+    the reference scale instead of blowing up by 1 / own spread."""
+    ref = [0.5, 0.5, 2.0, 0.4]
+    solved = probe.summarise([0.01, 0.02, 0.1, 0.1], [0.05, 0.3, 0.2, 0.1], ref, SPEC,
+                             spread_D=[1e-3, 1e-3, 1e-3, 1e-3])
+    rand = probe.summarise([0.01, 0.02, 0.1, 0.1], [0.5, 0.5, 2.0, 0.4], ref, SPEC,
+                           spread_D=[0.5, 0.5, 2.0, 0.4])
+    for g in ("position", "velocity", "contact"):
+        assert solved["groups"][g]["mae_norm"] == pytest.approx(rand["groups"][g]["mae_norm"])
+    assert solved["entries"]["cart_x"]["mae_norm"] == pytest.approx(0.02)  # not 0.01 / 1e-3 = 10
+
+
+def test_context_latents() -> None:
+    z = jnp.arange(2 * 3 * 2, dtype=jnp.float32).reshape(2, 3, 2)
+    c = np.asarray(probe.context_latents(z, 2))
+    assert c.shape == (2, 3, 4)
+    np.testing.assert_array_equal(c[:, 1:, :2], np.asarray(z[:, :-1]))  # previous step first
+    np.testing.assert_array_equal(c[:, :, 2:], np.asarray(z))
+    np.testing.assert_array_equal(c[:, 0, :2], np.asarray(z[:, 0]))  # window start: repeated
+    np.testing.assert_array_equal(np.asarray(probe.context_latents(z, 1)), np.asarray(z))

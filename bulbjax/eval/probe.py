@@ -1,12 +1,16 @@
 """Alignment probes: regress true low-dimensional state from learned latents (paper Sec. 2/Fig. 2).
 
-A small MLP is fit on (latent, state) pairs and judged by mean absolute error on held-out pairs.
-Errors are put next to the best constant predictor (training median) and divided by the spread
-of the held-out states, so entries in different units can be averaged.
+A small MLP is fit on (latent, state) pairs and judged by mean absolute error on held-out pairs,
+in each state entry's own unit, next to the best constant predictor (training median).
 
-Normalisation choice: ``spread`` is the mean absolute deviation around the median. With it a
-normalised error of 1.0 means "as good as predicting the held-out median", so the normalised
-constant baseline is ~1 whenever train and test distributions match, and 0 is perfect.
+Errors on a fixed scale: the normalised error of an entry divides its MAE by a *reference
+spread* of that entry which does not depend on the policy being scored: the mean absolute
+deviation around the median of the entry under the random policy, measured once per run on
+held-out data (``spread`` below). Every stream (pi_curr, pi_rand) and every epoch is divided by
+the same number, so a normalised error of 1.0 is what predicting the random-policy median
+achieves on random-policy frames, errors of different streams and epochs compare directly, and
+a solved policy whose states hardly move no longer inflates them (dividing by the scored
+stream's own spread did: pi_curr errors up to ~90 on solved pendulums).
 """
 
 from __future__ import annotations
@@ -35,6 +39,24 @@ class ProbeConfig:
     lr: float = 1e-3
     steps: int = 500
     batch_size: int = 256
+    # Sequential learners: the probe at step t reads the per-step latents of steps t-c+1..t of
+    # the window (`context_latents`), a part of the window's latent code as the original bulb
+    # probes read it (all steps of a window); 1 = z_t alone. Frame learners: one frame, always.
+    sequence_context: int = 2
+
+    def __post_init__(self) -> None:
+        if self.sequence_context < 1:
+            raise ValueError(f"sequence_context must be >= 1, got {self.sequence_context}")
+
+
+def context_latents(z: jax.Array, context: int) -> jax.Array:
+    """Per-step latents `[B, L, Z]` -> `[B, L, context * Z]`: at step t the latents of steps
+    t-context+1..t (oldest first); before a window's first step its first latent is repeated."""
+    parts = []
+    for lag in range(context - 1, -1, -1):
+        shifted = jnp.concatenate([jnp.repeat(z[:, :1], lag, axis=1), z[:, : z.shape[1] - lag]], axis=1)
+        parts.append(shifted)
+    return jnp.concatenate(parts, axis=-1)
 
 
 @struct.dataclass
@@ -139,8 +161,9 @@ def constant_baseline(
 
 
 def spread(states: jax.Array, weights: jax.Array | None = None) -> jax.Array:
-    """Per-entry mean absolute deviation around the median ``[D]`` of held-out states; the unit
-    used to normalise errors (see module docstring). ``weights`` select/weigh rows (see `mae`)."""
+    """Per-entry mean absolute deviation around the median ``[D]``. On random-policy held-out
+    states it is the reference spread that normalises errors (see module docstring); on a scored
+    stream it is reported beside the errors. ``weights`` select/weigh rows (see `mae`)."""
     return mae(_median(states, weights), states, weights)
 
 
@@ -162,27 +185,37 @@ def _aggregate(
 
 
 def summarise(
-    mae_D: Any, baseline_D: Any, spread_D: Any, spec: Sequence[StateEntry]
+    mae_D: Any, baseline_D: Any, ref_spread_D: Any, spec: Sequence[StateEntry],
+    spread_D: Any | None = None,
 ) -> dict[str, Any]:
     """Host-side report of one probe evaluation.
 
+    ``mae_D`` and ``baseline_D`` are the probe's and the constant predictor's MAE per entry in
+    the entry's unit; ``ref_spread_D`` is the run's reference spread (random policy, see the
+    module docstring), the divisor of every normalised value; ``spread_D`` (optional) is the
+    scored stream's own spread, reported only.
+
     Returns ``{"entries": {name: {...}}, "groups": {group: {...}}, "overall": {...},
-    "excluded": [names]}``. Each entry has ``group, unit, mae, baseline, spread, mae_norm,
-    baseline_norm``; groups and overall have ``n, unit, mae, baseline, mae_norm,
-    baseline_norm``, where normalised values are the equal-weight mean over entries and raw
-    values are given only if every entry has the same unit (else None). Entries whose held-out
-    spread is ~0 (e.g. a contact never made) cannot be normalised: their normalised values are
+    "excluded": [names], "normalised_by": "ref_spread"}``. Each entry has ``group, unit, mae,
+    baseline, ref_spread, spread, mae_norm = mae / ref_spread, baseline_norm = baseline /
+    ref_spread``; groups and overall have ``n, unit, mae, baseline, mae_norm, baseline_norm``,
+    where normalised values are the equal-weight mean over entries and raw values are given only
+    if every entry has the same unit (else None). Entries whose reference spread is ~0 (e.g. a
+    contact the random policy never makes) cannot be normalised: their normalised values are
     NaN and they are listed in ``excluded`` and left out of normalised averages.
     """
-    m, b, s = (np.asarray(a, np.float64) for a in (mae_D, baseline_D, spread_D))
+    m, b, r = (np.asarray(a, np.float64) for a in (mae_D, baseline_D, ref_spread_D))
     d = len(spec)
-    if not (m.shape == b.shape == s.shape == (d,)):
-        raise ValueError(f"expected [D={d}] arrays, got {m.shape}, {b.shape}, {s.shape}")
+    if not (m.shape == b.shape == r.shape == (d,)):
+        raise ValueError(f"expected [D={d}] arrays, got {m.shape}, {b.shape}, {r.shape}")
+    own = np.full(d, np.nan) if spread_D is None else np.asarray(spread_D, np.float64)
+    if own.shape != (d,):
+        raise ValueError(f"expected a [D={d}] spread, got {own.shape}")
     names = [e.name for e in spec]
     if len(set(names)) != d:
         raise ValueError(f"duplicate state entry names in spec: {names}")
-    good = s > _EPS
-    safe = np.where(good, s, 1.0)
+    good = r > _EPS
+    safe = np.where(good, r, 1.0)
     mn = np.where(good, m / safe, np.nan)
     bn = np.where(good, b / safe, np.nan)
 
@@ -192,7 +225,8 @@ def summarise(
             "unit": e.unit,
             "mae": float(m[i]),
             "baseline": float(b[i]),
-            "spread": float(s[i]),
+            "ref_spread": float(r[i]),
+            "spread": float(own[i]),
             "mae_norm": float(mn[i]),
             "baseline_norm": float(bn[i]),
         }
@@ -206,4 +240,5 @@ def summarise(
         "groups": {g: _aggregate(idx, spec, m, b, mn, bn) for g, idx in groups.items()},
         "overall": _aggregate(list(range(d)), spec, m, b, mn, bn),
         "excluded": [names[i] for i in range(d) if not good[i]],
+        "normalised_by": "ref_spread",
     }

@@ -47,6 +47,9 @@ class ExperimentConfig:
     eval_frames: int = 512  # held-out frames per stream (pi_curr, pi_rand), per seed
     probe_train_frames: int = 2048
     probe: ProbeConfig = field(default_factory=ProbeConfig)
+    # Steps of the random policy's held-out worlds at init (no frames) whose states give the
+    # reference spread that normalises every error of the run (bulbjax.eval.probe).
+    reference_steps: int = 256
     # Window length of the sequential learners; 0 picks the domain's default (24 pendulums,
     # 16 locomotion). It overrides `learner.sequence_length`.
     sequence_length: int = 0
@@ -68,7 +71,8 @@ class ExperimentConfig:
         unknown = [n for n in self.learners if n not in LEARNER_NAMES]
         if unknown or not self.learners:
             raise ValueError(f"unknown learners {unknown}; accepted: {', '.join(LEARNER_NAMES)}")
-        for name in ("seeds", "epochs", "num_envs", "ppo_updates_per_epoch", "learner_batches"):
+        for name in ("seeds", "epochs", "num_envs", "ppo_updates_per_epoch", "learner_batches",
+                     "reference_steps"):
             if getattr(self, name) < 1:
                 raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
         for name in ("frames_per_epoch", "eval_frames"):
@@ -117,6 +121,7 @@ def small_config(base: ExperimentConfig) -> ExperimentConfig:
         sequence_length=min(base.seq_len, 8),
         probe_train_frames=512,
         probe=dataclasses.replace(base.probe, steps=300, hidden=(128, 128)),
+        reference_steps=64,
     )
 
 

@@ -42,6 +42,7 @@ class RunState:
     train_env: EnvState  # [S*N] worlds driven by PPO; frames for replay come from here
     curr_env: EnvState  # [S*N] held-out worlds under the current policy (never in replay)
     rand_env: EnvState  # [S*N] held-out worlds under the random policy (never in replay)
+    ref_spread: jax.Array  # [D] reference spread of every state entry (random policy, at init)
     epoch: jax.Array
 
 
@@ -54,6 +55,60 @@ def learner_unroll() -> bool | int:
 def buffer_key(fraction: float) -> str:
     """Learners with the same replay retention share one buffer."""
     return f"retain_{fraction:g}"
+
+
+def train_learner(learner: Any, state: Any, sample: Any, key: jax.Array, updates: int,
+                  unroll: bool | int | None = None) -> tuple[Any, dict]:
+    """`updates` updates of one learner (one seed) on batches `sample(key)` gives (uint8 frames
+    for frame learners, `Windows` for sequential ones), as one `lax.scan`; per-update metrics."""
+    def one(state, k):
+        k_s, k_u = jax.random.split(k)
+        return learner.update(state, sample(k_s), k_u)
+    keys = jax.random.split(key, updates)
+    if updates == 1:  # no loop: XLA:CPU runs even a one-step scan ~4x slower than the bare update
+        state, m = one(state, keys[0])
+        return state, jax.tree.map(lambda x: x[None], m)
+    return jax.lax.scan(one, state, keys, unroll=learner_unroll() if unroll is None else unroll)
+
+
+def probe_learner(learner: Any, params: Any, train: Any, held: dict[str, Windows], key: jax.Array,
+                  config: probe.ProbeConfig, train_frames: int,
+                  corrupt: Any = None) -> dict[str, dict[str, jax.Array]]:
+    """Fit a probe latent -> true state on `train` and score it on every held-out stream (one
+    seed). `train` is `(frames, states)` for a frame learner and `Windows` for a sequential
+    one, whose per-step latents (with `config.sequence_context` steps of context, see
+    `probe.context_latents`) are paired with the states of the same step and `train_frames`
+    valid steps drawn from them. Held-out windows are scored on their valid
+    steps (frame learners encode each frame). `corrupt` (tests only) maps per-step latents
+    `[B, L, Z]` to what the probe sees, e.g. latents shuffled across time steps.
+    Returns `{stream: {"mae", "baseline", "spread"}}`, each `[D]` in the states' units."""
+    k_c, k_f = jax.random.split(key)
+    corrupt = corrupt or (lambda z, k: z)
+    if is_sequential(learner):
+        l = learner.sequence_length
+        ctx = lambda z: probe.context_latents(z, config.sequence_context)  # noqa: E731
+        z = ctx(corrupt(learner.encode(params, train), k_c))
+        z, s = z.reshape((-1, z.shape[-1])), train.states[:, :l].reshape((-1, train.states.shape[-1]))
+        v = train.valid[:, :l].reshape(-1).astype(jnp.float32)
+        pick = jax.random.choice(k_c, v.shape[0], (train_frames,), p=v / v.sum())
+        tz, ts = z[pick], s[pick]
+        enc = lambda w: ctx(corrupt(learner.encode(params, w), k_c))  # noqa: E731
+    else:
+        tf, ts = train
+        tz = corrupt(learner.encode(params, tf)[:, None], k_c)[:, 0]
+
+        def enc(w: Windows) -> jax.Array:
+            z = learner.encode(params, w.frames.reshape((-1,) + w.frames.shape[2:]))
+            return corrupt(z.reshape(w.frames.shape[:2] + z.shape[-1:]), k_c)
+    p = probe.fit(k_f, tz, ts, config)
+    res = {}
+    for stream, w in held.items():
+        z = enc(w).reshape((-1, tz.shape[-1]))
+        s, v = w.states.reshape((-1, ts.shape[-1])), w.valid.reshape(-1)
+        res[stream] = {"mae": probe.mae(probe.predict(p, z), s, v),
+                       "baseline": probe.constant_baseline(ts, s, v),
+                       "spread": probe.spread(s, v)}
+    return res
 
 
 class Experiment:
@@ -82,7 +137,8 @@ class Experiment:
         self.window_length = c.window_length  # stored windows (0 without sequential learners)
         self.eval_length = c.seq_len if self.window_length else 1  # held-out window length
         self.init = jax.jit(self._init)
-        self.epoch = jax.jit(self._epoch, donate_argnums=0)
+        # `epoch(rs, key, probe=False)` skips the held-out rollouts and probes (`--probe-every`).
+        self.epoch = jax.jit(self._epoch, donate_argnums=0, static_argnames="probe")
 
     # ------------------------------------------------------------------ helpers
     @property
@@ -168,8 +224,13 @@ class Experiment:
         for i, (name, learner) in enumerate(self.learners.items()):
             keys = jax.random.split(jax.random.fold_in(k_learn, i), self.S)
             learners[name] = jax.vmap(lambda k, l=learner: l.init(k, self.env.frame_shape))(keys)
-        ke = jax.random.split(k_env, 3)
-        train_env, curr_env, rand_env = (self.env.reset(k) for k in ke)
+        ke = jax.random.split(k_env, 4)
+        train_env, curr_env, rand_env = (self.env.reset(k) for k in ke[:3])
+        # The reference spread of every state entry, once per run: the random policy's held-out
+        # worlds run `reference_steps` steps (pooled over seeds); their π_rand stream goes on from there.
+        rand_env, (_, ref_states, _, _) = self._rollout(ppo_state, rand_env, ke[3], c.reference_steps,
+                                                        random=True)
+        ref_spread = probe.spread(ref_states.reshape((-1, ref_states.shape[-1])))
         # Fill replay with frames of the random policy; retained learners keep a share of them.
         steps = -(-c.replay_capacity // self.N)
         k_fill_reset, k_fill_roll = jax.random.split(k_fill)
@@ -188,7 +249,7 @@ class Experiment:
         windows = self._init_windows(ppo_state, jax.random.fold_in(key, 1)) if self.window_length else {}
         return RunState(ppo=ppo_state, learners=learners, buffers=buffers, windows=windows,
                         train_env=train_env, curr_env=curr_env, rand_env=rand_env,
-                        epoch=jnp.zeros((), jnp.int32))
+                        ref_spread=ref_spread, epoch=jnp.zeros((), jnp.int32))
 
     def _init_windows(self, ppo_state: PPOState, key: jax.Array) -> dict[str, sequence.WindowBuffer]:
         """Fill the window buffers with windows of a random-policy rollout (consecutive,
@@ -284,15 +345,11 @@ class Experiment:
             seq = self.sequential[name]
 
             def train_seed(state, b, k, learner=learner, seq=seq):
-                def one(state, kk):
-                    k_s, k_u = jax.random.split(kk)
-                    if seq:
-                        batch = sequence.sample(b, k_s, learner.batch_size)
-                    else:
-                        batch, _ = replay.sample(b, k_s, learner.batch_size)
-                    return learner.update(state, batch, k_u)
-                return jax.lax.scan(one, state, jax.random.split(k, c.learner_batches),
-                                    unroll=learner_unroll())
+                if seq:
+                    sample = lambda kk: sequence.sample(b, kk, learner.batch_size)  # noqa: E731
+                else:
+                    sample = lambda kk: replay.sample(b, kk, learner.batch_size)[0]  # noqa: E731
+                return train_learner(learner, state, sample, k, c.learner_batches)
 
             keys = jax.random.split(jax.random.fold_in(key, i), self.S)
             buf = (windows if seq else buffers)[buffer_key(self.retention[name])]
@@ -325,53 +382,40 @@ class Experiment:
             seq = self.sequential[name]
 
             def probe_seed(lstate, b, held, k, learner=learner, seq=seq):
-                k_s, k_f, k_c = jax.random.split(k, 3)
+                k_s, k_p = jax.random.split(k)
                 if seq:
-                    l = learner.sequence_length
-                    tw = sequence.sample(b, k_s, -(-c.probe_train_frames // l))
-                    z = learner.encode(lstate.params, tw)
-                    z, s = z.reshape((-1, z.shape[-1])), tw.states[:, :l].reshape((-1, tw.states.shape[-1]))
-                    v = tw.valid[:, :l].reshape(-1).astype(jnp.float32)
-                    pick = jax.random.choice(k_c, v.shape[0], (c.probe_train_frames,), p=v / v.sum())
-                    tz, ts = z[pick], s[pick]
-                    enc = lambda w: learner.encode(lstate.params, w)
+                    train = sequence.sample(b, k_s, -(-c.probe_train_frames // learner.sequence_length))
                 else:
-                    tf, ts = replay.sample(b, k_s, c.probe_train_frames)
-                    tz = learner.encode(lstate.params, tf)
-                    enc = lambda w: learner.encode(lstate.params, w.frames.reshape((-1,) + w.frames.shape[2:]))
-                p = probe.fit(k_f, tz, ts, c.probe)
-                res = {}
-                for stream, w in held.items():
-                    z = enc(w).reshape((-1, tz.shape[-1]))
-                    s, v = w.states.reshape((-1, ts.shape[-1])), w.valid.reshape(-1)
-                    res[stream] = {"mae": probe.mae(probe.predict(p, z), s, v),
-                                   "baseline": probe.constant_baseline(ts, s, v),
-                                   "spread": probe.spread(s, v)}
-                return res
+                    train = replay.sample(b, k_s, c.probe_train_frames)
+                return probe_learner(learner, lstate.params, train, held, k_p, c.probe,
+                                     c.probe_train_frames)
 
             keys = jax.random.split(jax.random.fold_in(key, i), self.S)
             buf = (windows if seq else buffers)[buffer_key(self.retention[name])]
             out[name] = jax.vmap(probe_seed)(learners[name], buf, held_out, keys)
         return out
 
-    def _epoch(self, rs: RunState, key: jax.Array) -> tuple[RunState, dict[str, Any]]:
+    def _epoch(self, rs: RunState, key: jax.Array, probe: bool = True) -> tuple[RunState, dict[str, Any]]:
+        """One epoch; with `probe=False` no held-out rollout or probe (metrics without `probes`)."""
         k_rl, k_rep, k_learn, k_eval, k_probe = jax.random.split(key, 5)
         ppo_state, train_env, ppo_m, ret_sum, count, steps = self.rl_phase(rs.ppo, rs.train_env, k_rl)
         buffers = self.replay_phase(rs.buffers, steps, k_rep)
         windows = self.window_phase(rs.windows, steps, jax.random.fold_in(k_rep, 1))
         learners, learn_m = self.learn_phase(rs.learners, buffers, k_learn, windows)
-        curr_env, rand_env, held_out = self.eval_phase(ppo_state, rs.curr_env, rs.rand_env, k_eval)
-        probes = self.probe_phase(learners, buffers, held_out, k_probe, windows)
         metrics = {
             "rl_return": jnp.where(count > 0, ret_sum / jnp.maximum(count, 1), jnp.nan),
             "rl_episodes": count,
             "ppo": ppo_m,
             "learners": learn_m,
-            "probes": probes,
+            "ref_spread": jnp.broadcast_to(rs.ref_spread, (self.S,) + rs.ref_spread.shape),
             "replay_dropped": {**{k: b.num_dropped for k, b in buffers.items()},
                                **{f"windows_{k}": b.num_dropped for k, b in windows.items()}},
         }
+        curr_env, rand_env = rs.curr_env, rs.rand_env
+        if probe:
+            curr_env, rand_env, held_out = self.eval_phase(ppo_state, curr_env, rand_env, k_eval)
+            metrics["probes"] = self.probe_phase(learners, buffers, held_out, k_probe, windows)
         new = RunState(ppo=ppo_state, learners=learners, buffers=buffers, windows=windows,
-                       train_env=train_env,
-                       curr_env=curr_env, rand_env=rand_env, epoch=rs.epoch + 1)
+                       train_env=train_env, curr_env=curr_env, rand_env=rand_env,
+                       ref_spread=rs.ref_spread, epoch=rs.epoch + 1)
         return new, metrics

@@ -17,8 +17,15 @@ STREAMS = (("curr", "π_curr"), ("rand", "π_rand"))
 _T95 = {1: 6.314, 2: 2.920, 3: 2.353, 4: 2.132, 5: 2.015, 6: 1.943, 7: 1.895, 8: 1.860, 9: 1.833}
 
 
+# What the normalised errors of these reports divide by (written into tables and plots).
+NORM_NOTE = ("normalised error = MAE / reference spread of each state entry (mean absolute deviation "
+             "around the median under the random policy, measured once per run at init); 1.0 = "
+             "predicting the random-policy median on π_rand frames")
+
+
 def epoch_records(epoch: int, metrics: Any, spec: Sequence[StateEntry]) -> list[dict[str, Any]]:
-    """One JSON-able record per seed from the epoch's metrics (arrays with a leading seed axis)."""
+    """One JSON-able record per seed from the epoch's metrics (arrays with a leading seed axis).
+    Epochs without a probe (`--probe-every`) have an empty `probes`."""
     m = _to_numpy(metrics)
     seeds = len(m["rl_return"])
     out = []
@@ -31,9 +38,11 @@ def epoch_records(epoch: int, metrics: Any, spec: Sequence[StateEntry]) -> list[
             "replay_dropped": {k: int(v[s]) for k, v in m["replay_dropped"].items()},
             "probes": {},
         }
-        for name, streams in m["probes"].items():
+        rec["ref_spread"] = [float(x) for x in m["ref_spread"][s]]
+        for name, streams in m.get("probes", {}).items():
             rec["probes"][name] = {
-                stream: summarise(d["mae"][s], d["baseline"][s], d["spread"][s], spec)
+                stream: summarise(d["mae"][s], d["baseline"][s], m["ref_spread"][s], spec,
+                                  spread_D=d["spread"][s])
                 for stream, d in streams.items()}
         out.append(rec)
     return out
@@ -60,26 +69,32 @@ def ci90(values: np.ndarray, axis: int = 0) -> tuple[np.ndarray, np.ndarray]:
     return mean, t * np.nanstd(values, axis=axis, ddof=1) / math.sqrt(n)
 
 
-def _seed_epoch_matrix(records: Sequence[dict[str, Any]],
-                       value: Any) -> tuple[np.ndarray, np.ndarray]:
-    """Epochs and a `[seeds, epochs]` matrix of `value(record)` (NaN where it gives None)."""
-    epochs = sorted({r["epoch"] for r in records})
+def _seed_epoch_matrix(records: Sequence[dict[str, Any]], value: Any,
+                       x_key: str = "epoch") -> tuple[np.ndarray, np.ndarray]:
+    """Epochs (or `x_key` values, e.g. updates) and a `[seeds, epochs]` matrix of
+    `value(record)` (NaN where it gives None)."""
+    epochs = sorted({r[x_key] for r in records})
     seeds = sorted({r["seed"] for r in records})
     v = np.full((len(seeds), len(epochs)), np.nan)
     for r in records:
         x = value(r)
         if x is not None:
-            v[seeds.index(r["seed"]), epochs.index(r["epoch"])] = x
+            v[seeds.index(r["seed"]), epochs.index(r[x_key])] = x
     return np.array(epochs), v
 
 
+def probed(records: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
+    """The records of epochs with a probe evaluation."""
+    return [r for r in records if r.get("probes")]
+
+
 def curves(records: Sequence[dict[str, Any]], learner: str, stream: str, group: str,
-           key: str = "mae_norm") -> tuple[np.ndarray, np.ndarray]:
-    """Epochs and `[seeds, epochs]` values of a group's error (or `baseline_norm`)."""
+           key: str = "mae_norm", x_key: str = "epoch") -> tuple[np.ndarray, np.ndarray]:
+    """Probed epochs and `[seeds, epochs]` values of a group's error (or `baseline_norm`)."""
     def value(r: dict[str, Any]) -> Any:
         g = r["probes"][learner][stream]["groups"].get(group)
         return None if g is None else g[key]
-    return _seed_epoch_matrix(records, value)
+    return _seed_epoch_matrix(probed(records), value, x_key)
 
 
 def rl_curve(records: Sequence[dict[str, Any]]) -> tuple[np.ndarray, np.ndarray]:
@@ -92,58 +107,71 @@ def groups_of(spec: Sequence[StateEntry]) -> list[str]:
 
 
 def plot(records: Sequence[dict[str, Any]], spec: Sequence[StateEntry], path: str, title: str,
-         solved_return: float | None = None) -> None:
+         solved_return: float | None = None, x_key: str = "epoch",
+         streams: Sequence[tuple[str, str]] = STREAMS) -> None:
     """Fig. 2 of the paper for one domain: normalised MAE against epoch for each learner (mean and
-    90% band over seeds), rows pi_curr / pi_rand, one column per state group, RL return below.
-    The dotted black line is the constant (median) predictor: an error is read against it."""
+    90% band over seeds), rows pi_curr / pi_rand, one column per state group, RL return below
+    (when the records have one). The dotted black line is the constant (median) predictor: an
+    error is read against it. Offline fits plot against `x_key="update"`, one stream."""
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     groups = groups_of(spec)
-    learners = list(records[0]["probes"])
-    fig, axes = plt.subplots(3, len(groups), figsize=(4.2 * len(groups), 8.5), squeeze=False,
-                             sharex=True)
+    learners = list(probed(records)[0]["probes"])
+    has_rl = "rl_return" in records[0]
+    rows = len(streams) + has_rl
+    fig, axes = plt.subplots(rows, len(groups), figsize=(4.2 * len(groups), 2.9 * rows + 0.6),
+                             squeeze=False, sharex=True)
     colours = plt.rcParams["axes.prop_cycle"].by_key()["color"]
-    for row, (stream, label) in enumerate(STREAMS):
+    for row, (stream, label) in enumerate(streams):
         for col, group in enumerate(groups):
             ax = axes[row, col]
             for i, name in enumerate(learners):
-                ep, v = curves(records, name, stream, group)
+                ep, v = curves(records, name, stream, group, x_key=x_key)
                 mean, half = ci90(v)
-                ax.plot(ep, mean, color=colours[i % len(colours)], label=name)
+                ax.plot(ep, mean, color=colours[i % len(colours)], label=name, marker="." if len(ep) < 30 else None)
                 ax.fill_between(ep, mean - half, mean + half, color=colours[i % len(colours)], alpha=0.2)
-            ep, b = curves(records, learners[0], stream, group, key="baseline_norm")
+            ep, b = curves(records, learners[0], stream, group, key="baseline_norm", x_key=x_key)
             ax.plot(ep, np.nanmean(b, 0), "k:", label="constant predictor")
             ax.set_title(f"{label}: {group}")
-            ax.set_ylabel("MAE / spread")
+            ax.set_ylabel("MAE / π_rand reference spread")
             ax.set_ylim(bottom=0)
+            if not has_rl and row == rows - 1:
+                ax.set_xlabel(x_key)
+    if has_rl:
+        _plot_rl(axes[-1], records, solved_return)
+    axes[0, 0].legend(fontsize=8)
+    fig.suptitle(f"{title}\n{NORM_NOTE}", fontsize=9)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def _plot_rl(axes: Any, records: Sequence[dict[str, Any]], solved_return: float | None) -> None:
+    """The PPO return row of the Fig. 2 plot."""
     ep, r = rl_curve(records)
     mean, half = ci90(r)
     # epochs in which no episode ended (long locomotion episodes) have no return: join the others
     ok = np.isfinite(mean)
     ep, mean, half = np.asarray(ep)[ok], mean[ok], np.nan_to_num(half[ok])
-    for col in range(len(groups)):
-        ax = axes[2, col]
+    for ax in axes:
         ax.plot(ep, mean, color="tab:green", marker=".", label="PPO return")
         ax.fill_between(ep, mean - half, mean + half, color="tab:green", alpha=0.2)
         if solved_return is not None:
             ax.axhline(solved_return, color="k", ls="--", lw=0.8, label="solved")
         ax.set_xlabel("epoch")
         ax.set_ylabel("episode return")
-    axes[0, 0].legend(fontsize=8)
-    axes[2, 0].legend(fontsize=8)
-    fig.suptitle(title)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    axes[0].legend(fontsize=8)
 
 
-def table(records: Sequence[dict[str, Any]], spec: Sequence[StateEntry], last: int = 1) -> str:
+def table(records: Sequence[dict[str, Any]], spec: Sequence[StateEntry], last: int = 1,
+          x_key: str = "epoch", streams: Sequence[tuple[str, str]] = STREAMS) -> str:
     """Markdown table of the final normalised group errors (mean +- 90% CI over seeds, averaged
-    over the `last` epochs) per learner and stream, with the constant predictor and RL return."""
-    epochs = sorted({r["epoch"] for r in records})[-last:]
-    recs = [r for r in records if r["epoch"] in epochs]
+    over the `last` probed epochs) per learner and stream, with the constant predictor, the RL
+    return over the same epochs, and a line saying what the errors are divided by."""
+    epochs = sorted({r[x_key] for r in probed(records)})[-last:]
+    recs = [r for r in records if r[x_key] in epochs]
     groups = groups_of(spec)
     learners = list(recs[0]["probes"])
     head = "| learner | stream | " + " | ".join(f"{g} (norm. MAE)" for g in groups) + " | overall |"
@@ -155,7 +183,7 @@ def table(records: Sequence[dict[str, Any]], spec: Sequence[StateEntry], last: i
         mean, half = ci90(v)
         return f"{mean:.3f} ± {half:.3f}"
 
-    for stream, label in STREAMS:
+    for stream, label in streams:
         for name in learners + ["constant"]:
             cells = []
             for g in groups + ["overall"]:
@@ -167,10 +195,15 @@ def table(records: Sequence[dict[str, Any]], spec: Sequence[StateEntry], last: i
                     vals.append([p["baseline_norm" if name == "constant" else "mae_norm"] for p in pick])
                 cells.append(cell(vals))
             lines.append(f"| {name} | {label} | " + " | ".join(cells) + " |")
-    ret = np.array([np.nanmean([r["rl_return"] for r in recs if r["seed"] == s]) for s in seeds])
-    mean, half = ci90(ret)
     lines.append("")
-    lines.append(f"PPO return over the last {last} epoch(s): {mean:.1f} ± {half:.1f} (90% CI over {len(seeds)} seeds)")
+    lines.append(f"{x_key} {', '.join(str(e) for e in epochs)}; mean ± 90% CI over {len(seeds)} seeds.")
+    if "rl_return" in recs[0]:
+        ret = np.array([np.nanmean([r["rl_return"] for r in recs if r["seed"] == s]) for s in seeds])
+        mean, half = ci90(ret)
+        lines.append(f"PPO return over the last {len(epochs)} probed epoch(s): {mean:.1f} ± {half:.1f} "
+                 f"(90% CI over {len(seeds)} seeds)")
+    lines.append("")
+    lines.append(f"Errors: {NORM_NOTE}; raw MAE in each entry's unit in metrics.jsonl.")
     return "\n".join(lines)
 
 
