@@ -1,4 +1,4 @@
-"""Command line: `bulbjax run | envs | render`."""
+"""Command line: `bulbjax run | fit | envs | render`."""
 
 from __future__ import annotations
 
@@ -79,12 +79,16 @@ def cmd_run(args: argparse.Namespace) -> int:
     key = jax.random.PRNGKey(args.seed + 1)
     bar = tqdm(range(cfg.epochs), desc=f"{cfg.env} x{cfg.seeds} seeds", unit="epoch")
     t_first = None
+    every = args.probe_every
+    if every < 1:
+        raise ValueError(f"--probe-every must be >= 1, got {every}")
     for epoch in bar:
         if args.max_minutes and time.time() - t0 > 60 * args.max_minutes:
             bar.write(f"stopping after {epoch} epochs: --max-minutes {args.max_minutes} reached")
             break
         key, k = jax.random.split(key)
-        rs, m = exp.epoch(rs, k)
+        # probe every `every` epochs, at epoch 0 and at the last epoch
+        rs, m = exp.epoch(rs, k, probe=epoch % every == 0 or epoch == cfg.epochs - 1)
         m = jax.device_get(m)
         if t_first is None:
             t_first = time.time() - t0 - t_init
@@ -93,18 +97,58 @@ def cmd_run(args: argparse.Namespace) -> int:
         recs = report.epoch_records(epoch, m, exp.spec)
         report.write_jsonl(metrics_path, recs)
         records += recs
-        bar.set_postfix(_postfix(recs))
+        if recs[0]["probes"]:
+            bar.set_postfix(_postfix(recs))
     wall = time.time() - t0
     done_epochs = len(records) // cfg.seeds
     title = f"{cfg.env}{' (multicolour)' if cfg.multicolour else ''}: {cfg.seeds} seeds, {done_epochs} epochs"
     plot_path = os.path.join(args.out, "fig2.png")
     report.plot(records, exp.spec, plot_path, title, solved_return=exp.env.solved_return)
-    tab = report.table(records, exp.spec, last=min(3, done_epochs))
+    tab = report.table(records, exp.spec, last=min(3, len(report.probed(records)) // cfg.seeds))
     timing = (f"wall time {wall:.1f} s (build+init {t_init:.1f} s, first epoch incl. compile "
               f"{t_first:.1f} s) on {jax.devices()[0].device_kind}")
     with open(os.path.join(args.out, "table.md"), "w") as f:
         f.write(f"# {title}\n\n{tab}\n\n{timing}\n")
     print(f"\n{tab}\n\n{timing}\nplot: {plot_path}\nmetrics: {metrics_path}")
+    return 0
+
+
+def build_offline_config(args: argparse.Namespace):
+    """The OfflineConfig of `bulbjax fit`: the run's settings (a preset or the defaults, with
+    the flags given, --small, --lr, --bf16; SyntheticMovers at 32x32 by default), the schedule,
+    and the dataset's size (CPU sizes with --small)."""
+    from bulbjax.data import synthetic
+    from bulbjax.experiment.offline import OfflineConfig
+
+    if args.env is None and args.preset is None:
+        raise ValueError("fit needs --env (an environment of `bulbjax envs`, or SyntheticMovers) or --preset")
+    ns = argparse.Namespace(**{**vars(args), "epochs": None, "ppo_updates": None,
+                               "multicolour": getattr(args, "multicolour", False)})
+    synth = args.env == synthetic.NAME
+    if synth:  # not an MJX env: build the run settings on a stand-in, then swap the name back
+        ns.env = "CartPole"
+    base = build_config(ns)
+    if synth:
+        base = base.replace(env=synthetic.NAME, resolution=args.resolution or 32, multicolour=False,
+                            sequence_length=args.sequence_length or 8)
+    elif args.resolution:
+        base = base.replace(resolution=args.resolution)
+    kw = dict(updates=args.updates, probe_every=args.probe_every, data_seed=args.data_seed)
+    if args.small:
+        kw.update(data_worlds=32, data_steps=128, heldout_steps=32)
+    for name in ("data_worlds", "data_steps", "heldout_steps"):
+        if getattr(args, name) is not None:
+            kw[name] = getattr(args, name)
+    return OfflineConfig(base=base, **kw)
+
+
+def cmd_fit(args: argparse.Namespace) -> int:
+    from bulbjax.experiment import offline
+
+    cfg = build_offline_config(args)
+    offline.run(cfg, args.out, cache_dir=args.cache_dir, max_minutes=args.max_minutes, seed=args.seed)
+    print(f"curves: {args.out}/curves.png, {args.out}/curves.jsonl; table: {args.out}/table.md; "
+          f"reconstructions: {args.out}/recon.png")
     return 0
 
 
@@ -122,9 +166,10 @@ def cmd_envs(args: argparse.Namespace) -> int:
     from bulbjax.envs.registry import _REGISTRY, MULTICOLOUR_SUFFIX
 
     for name, cls in _REGISTRY.items():
-        spec = ", ".join(f"{e.name}[{e.unit}]" for e in cls.state_spec)
+        spec = ", ".join(f"{e.name}[{e.unit}]/{e.group}" for e in cls.state_spec)
         act = f"discrete({cls.num_actions})" if cls.discrete else f"box({cls.action_size})"
-        print(f"{name:<20} (+{MULTICOLOUR_SUFFIX}) action {act}, episode {cls.episode_length}, "
+        variant = f"(+{MULTICOLOUR_SUFFIX})" if cls.supports_multicolour else "(versions 0-5, random)"
+        print(f"{name:<20} {variant} action {act}, episode {cls.episode_length}, "
               f"solved {cls.solved_return:g}; state: {spec}")
     return 0
 
@@ -136,7 +181,8 @@ def cmd_render(args: argparse.Namespace) -> int:
 
     import bulbjax
 
-    env = bulbjax.make(args.env, num_envs=args.frames, resolution=args.resolution)
+    version = args.version if args.version == "random" else int(args.version)
+    env = bulbjax.make(args.env, num_envs=args.frames, resolution=args.resolution, version=version)
     state = jax.jit(env.reset)(jax.random.PRNGKey(args.seed))
     step = jax.jit(env.step)
     key = jax.random.PRNGKey(args.seed + 1)
@@ -184,7 +230,33 @@ def main(argv: Sequence[str] | None = None) -> int:
     r.add_argument("--lr", type=float, default=None, help="learners' Adam learning rate (paper: 1e-4)")
     r.add_argument("--max-minutes", type=float, default=0.0,
                    help="stop after this wall time and report the epochs done (0: no limit)")
+    r.add_argument("--probe-every", type=int, default=1,
+                   help="probe every k epochs (and at the first and last); plots keep epochs on the x axis")
     r.set_defaults(fn=cmd_run)
+    o = sub.add_parser("fit", help="offline: train learners on one cached random-policy dataset, "
+                                   "probe every M updates")
+    o.add_argument("--env", default=None, help="an environment (`bulbjax envs`) or SyntheticMovers")
+    o.add_argument("--preset", default=None, help="run settings of a preset (e.g. fig2-invpend)")
+    o.add_argument("--learners", default=None, help="comma-separated learners (default: the preset's or vae,vae_rpl,beta_vae)")
+    o.add_argument("--updates", type=int, default=5000, help="learner updates")
+    o.add_argument("--probe-every", type=int, default=250, help="probe every M updates")
+    o.add_argument("--seeds", type=int, default=None, help="learner seeds, vmapped (default 3)")
+    o.add_argument("--sequence-length", type=int, default=None, help="window length L of sequential learners")
+    o.add_argument("--resolution", type=int, default=None, help="frame size (default 64; SyntheticMovers 32)")
+    o.add_argument("--multicolour", action="store_true", help="bulb's multicolour variant")
+    o.add_argument("--small", action="store_true", help="CPU-sized learners and dataset (not the paper's)")
+    o.add_argument("--bf16", action="store_true", help="bf16 compute in the learners (GPU)")
+    o.add_argument("--lr", type=float, default=None, help="learners' Adam learning rate (paper: 1e-4)")
+    o.add_argument("--data-worlds", type=int, default=None, help="worlds of the dataset (default 256)")
+    o.add_argument("--data-steps", type=int, default=None, help="steps per world of the dataset (default 200)")
+    o.add_argument("--heldout-steps", type=int, default=None, help="steps per world held out (default 48)")
+    o.add_argument("--data-seed", type=int, default=0, help="seed of the dataset (part of its cache key)")
+    o.add_argument("--cache-dir", default=None, help="dataset cache (default OUT/data)")
+    o.add_argument("--seed", type=int, default=0, help="base PRNG seed of the learners")
+    o.add_argument("--max-minutes", type=float, default=0.0,
+                   help="stop cleanly before this wall time, probe and write the plots (0: no limit)")
+    o.add_argument("--out", default="runs/fit")
+    o.set_defaults(fn=cmd_fit)
     e = sub.add_parser("envs", help="list the environments")
     e.set_defaults(fn=cmd_envs)
     d = sub.add_parser("render", help="save a strip of frames")
@@ -194,6 +266,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     d.add_argument("--steps", type=int, default=10)
     d.add_argument("--resolution", type=int, default=64)
     d.add_argument("--seed", type=int, default=0)
+    d.add_argument("--version", default="0",
+                   help="object version of the multi-object domains: 0-5, or random (one per frame)")
     d.set_defaults(fn=cmd_render)
     args = p.parse_args(argv)
     try:

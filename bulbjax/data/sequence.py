@@ -144,3 +144,56 @@ def sample(buf: WindowBuffer, key: jax.Array, batch: int) -> Windows:
     """`batch` windows drawn uniformly with replacement among the filled slots."""
     idx = jax.random.randint(key, (batch,), 0, jnp.maximum(buf.size, 1))
     return jax.tree.map(lambda x: x[idx], buf.windows)
+
+
+# ---------------------------------------------------------------------------- offline datasets
+@struct.dataclass
+class Trajectories:
+    """Rendered rollouts of `N` worlds for `T` steps: an offline dataset (`bulbjax fit`). Same
+    step convention as above; windows are cut from it on the fly at random starts."""
+
+    frames: jax.Array  # uint8 [T, N, H, W, 3]
+    actions: jax.Array  # float32 [T, N, A]: action that led into each frame (one-hot if discrete)
+    states: jax.Array  # float32 [T, N, D]
+    dones: jax.Array  # float32 [T, N]: 1 where step t ended an episode
+
+    @property
+    def steps(self) -> int:
+        return self.dones.shape[0]
+
+    @property
+    def worlds(self) -> int:
+        return self.dones.shape[1]
+
+
+def sample_windows(traj: Trajectories, key: jax.Array, batch: int, length: int) -> Windows:
+    """`batch` windows `[batch, length]` at uniformly random (world, start) pairs, cut at
+    episode boundaries like `cut_windows`."""
+    if length > traj.steps:
+        raise ValueError(f"window length {length} exceeds the {traj.steps} stored steps")
+    k_w, k_t = jax.random.split(key)
+    world = jax.random.randint(k_w, (batch,), 0, traj.worlds)
+    start = jax.random.randint(k_t, (batch,), 0, traj.steps - length + 1)
+    src, valid = window_indices(traj.dones[:, world], start, length)  # [L, B]
+    pick = lambda x: x[src, world[None, :]].swapaxes(0, 1)  # noqa: E731  [B, L, ...]
+    return Windows(frames=pick(traj.frames), states=pick(traj.states),
+                   actions=pick(traj.actions) * valid.T[..., None], valid=valid.T)
+
+
+def sample_steps(traj: Trajectories, key: jax.Array, batch: int) -> tuple[jax.Array, jax.Array]:
+    """`batch` (frame, state) pairs drawn uniformly over all steps and worlds."""
+    k_t, k_w = jax.random.split(key)
+    t = jax.random.randint(k_t, (batch,), 0, traj.steps)
+    n = jax.random.randint(k_w, (batch,), 0, traj.worlds)
+    return traj.frames[t, n], traj.states[t, n]
+
+
+def consecutive_windows(traj: Trajectories, length: int) -> Windows:
+    """Every world's steps cut into consecutive windows of `length` (and at episode
+    boundaries): `[(T // length) * N, length]`, the held-out layout of the experiment."""
+    rounds = traj.steps // length
+    if rounds < 1:
+        raise ValueError(f"window length {length} exceeds the {traj.steps} stored steps")
+    starts = jnp.broadcast_to((jnp.arange(rounds) * length)[:, None], (rounds, traj.worlds))
+    w = jax.vmap(lambda s: cut_windows(traj.frames, traj.states, traj.actions, traj.dones, s, length))(starts)
+    return jax.tree.map(lambda x: x.reshape((-1,) + x.shape[2:]), w)

@@ -142,7 +142,9 @@ def plot(records: Sequence[dict[str, Any]], spec: Sequence[StateEntry], path: st
     if has_rl:
         _plot_rl(axes[-1], records, solved_return)
     axes[0, 0].legend(fontsize=8)
-    fig.suptitle(f"{title}\n{NORM_NOTE}", fontsize=9)
+    import textwrap
+    note = "\n".join(textwrap.wrap(NORM_NOTE, 55 * len(groups)))
+    fig.suptitle(f"{title}\n{note}", fontsize=8)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)

@@ -12,7 +12,7 @@ context the window does not have), so whatever frame t is decoded from depends o
 a_1..a_{t-1} of the window, never on the true state.
 
 Per-step latents, `encode(params, windows) -> [B, sequence_length, latent_dim]`; the probe maps
-the latent at step t to the true state at step t:
+the latents at steps t-1 and t (`ProbeConfig.sequence_context`) to the true state at step t:
 - svae: posterior mean of z_t, the output of an LSTM over frames 1..t and the actions into them
   (causal: the latent at step t has seen no later frame).
 - pred: chunk t of the predictive latent's mean, the part the decoder turns into frame t. It is a

@@ -1,0 +1,391 @@
+"""Offline fits (`bulbjax fit`): learners trained on one fixed dataset, probed every M updates.
+
+The experiment (`loop.py`) trains learners on a non-stationary replay stream while PPO learns;
+this mode isolates the learners: a random-policy dataset (frames, actions, true states, episode
+boundaries) is collected once, cached on disk, and every learner trains on it with the paper's
+batches (1,024 frames; 1,024 // L windows of L steps for sequential learners, cut at random
+starts and at episode boundaries), seeds vmapped. Every `probe_every` updates a probe is fit on
+training data and scored on held-out random-policy windows (separate worlds), normalised by
+the held-out states' reference spread (`bulbjax.eval.probe`). The pieces are the experiment's:
+its rollout and window cutting collect the data, `train_learner` / `probe_learner` train and
+probe, `report` writes curves and tables.
+
+Sources: any registered MJX environment (random policy, as π_rand), or `SyntheticMovers`
+(`bulbjax.data.synthetic`: squares at constant velocities, where only sequences can win).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import os
+import time
+from dataclasses import dataclass, field
+from typing import Any, Callable
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from bulbjax.data import sequence, synthetic
+from bulbjax.data.sequence import Trajectories, Windows
+from bulbjax.eval import probe
+from bulbjax.eval.spec import StateEntry
+from bulbjax.experiment import report
+from bulbjax.experiment.config import ExperimentConfig
+from bulbjax.experiment.loop import probe_learner, train_learner
+from bulbjax.learners import check_finite, is_sequential, make_learner
+
+
+@dataclass(frozen=True)
+class OfflineConfig:
+    """An offline fit. `base` gives the env, learners, seeds, resolution, learner and probe
+    settings (as for `bulbjax run`); the rest sizes the dataset and the schedule.
+
+    The dataset is `data_steps` steps of `data_worlds` random-policy worlds; the held-out set
+    `heldout_steps` steps of another `data_worlds` worlds (a different reset key), cut into
+    consecutive windows of L steps. `updates_per_call` updates run in one jitted `lax.scan`
+    (0: the whole chunk between two probes on an accelerator, 1 on the CPU, where XLA runs the
+    conv nets ~10x slower inside a rolled loop)."""
+
+    base: ExperimentConfig = field(default_factory=ExperimentConfig)
+    updates: int = 5000
+    probe_every: int = 250
+    data_worlds: int = 256
+    data_steps: int = 200
+    heldout_steps: int = 48
+    data_seed: int = 0
+    updates_per_call: int = 0
+    movers: synthetic.MoversConfig | None = None  # SyntheticMovers settings (resolution from base)
+
+    def __post_init__(self) -> None:
+        for name in ("updates", "probe_every", "data_worlds", "data_steps", "heldout_steps"):
+            if getattr(self, name) < 1:
+                raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
+        lw = max(self.base.window_length, 1)
+        if self.data_steps < lw:
+            raise ValueError(f"data_steps={self.data_steps} is shorter than a training window ({lw} steps)")
+        if self.heldout_steps < self.eval_length:
+            raise ValueError(f"heldout_steps={self.heldout_steps} is shorter than a held-out window "
+                             f"({self.eval_length} steps)")
+        if self.updates_per_call < 0:
+            raise ValueError(f"updates_per_call must be >= 0, got {self.updates_per_call}")
+
+    @property
+    def synthetic(self) -> bool:
+        return self.base.env == synthetic.NAME
+
+    @property
+    def eval_length(self) -> int:
+        """Held-out window length: L with sequential learners, else 1."""
+        return self.base.seq_len if self.base.window_length else 1
+
+    def replace(self, **kw) -> "OfflineConfig":
+        return dataclasses.replace(self, **kw)
+
+    def movers_config(self) -> synthetic.MoversConfig:
+        m = self.movers or synthetic.MoversConfig(resolution=self.base.resolution)
+        return m if m.resolution == self.base.resolution else m.replace(resolution=self.base.resolution)
+
+
+@dataclass(frozen=True)
+class Source:
+    """Where data comes from: its state spec, frame shape, action width and a collector
+    `collect(key, steps) -> Trajectories [steps, data_worlds]` (host-side call, jitted inside)."""
+
+    name: str
+    spec: tuple[StateEntry, ...]
+    frame_shape: tuple[int, int, int]
+    action_dim: int
+    collect: Callable[[jax.Array, int], Trajectories]
+
+
+def make_source(config: OfflineConfig) -> Source:
+    """The data source of a config: SyntheticMovers or an MJX env under the random policy."""
+    c = config
+    if c.synthetic:
+        m = c.movers_config()
+        gen = jax.jit(lambda k, steps: synthetic.generate(k, m, steps, c.data_worlds), static_argnums=1)
+        return Source(synthetic.NAME, m.state_spec, m.frame_shape, m.action_dim, gen)
+    from bulbjax.experiment.loop import Experiment  # builds the env; its rollout collects
+
+    b = c.base
+    w = c.data_worlds
+    exp = Experiment(b.replace(seeds=1, num_envs=w, frames_per_epoch=w, eval_frames=w,
+                               replay_capacity=max(b.replay_capacity, w)))
+
+    def _steps(key: jax.Array, steps: int) -> Trajectories:
+        k_reset, k_roll = jax.random.split(key)
+        _, (ri, low, act, done) = exp._rollout(None, exp.env.reset(k_reset), k_roll, steps, random=True)
+        return Trajectories(frames=exp.env.render_sequence(ri), actions=act, states=low, dones=done)
+
+    collect = jax.jit(_steps, static_argnums=1)
+    name = b.env + ("Multicolour" if b.multicolour and not b.env.endswith("Multicolour") else "")
+    return Source(name, exp.spec, exp.env.frame_shape, exp.action_dim, collect)
+
+
+def dataset_path(config: OfflineConfig, source: Source, cache_dir: str, kind: str, steps: int) -> str:
+    """Cache file of a dataset, keyed by env, frame size, worlds x steps, seed and kind."""
+    r = source.frame_shape[0]
+    tag = f"{source.name}_{r}px_{config.data_worlds}x{steps}_seed{config.data_seed}_{kind}"
+    if config.synthetic:
+        m = config.movers_config()
+        tag += f"_k{m.num_objects}s{m.size:g}v{m.max_speed:g}e{m.episode_length}"
+    return os.path.join(cache_dir, tag + ".npz")
+
+
+def load_or_collect(config: OfflineConfig, source: Source, cache_dir: str | None
+                    ) -> tuple[Trajectories, Trajectories, bool]:
+    """(training data, held-out data, whether both came from the cache). Collected once with
+    the data seed (held-out: another key, so other worlds) and saved under `cache_dir`."""
+    key = jax.random.PRNGKey(config.data_seed)
+    out, cached = [], True
+    for kind, steps, k in (("train", config.data_steps, jax.random.fold_in(key, 0)),
+                           ("heldout", config.heldout_steps, jax.random.fold_in(key, 1))):
+        path = dataset_path(config, source, cache_dir, kind, steps) if cache_dir else None
+        if path and os.path.exists(path):
+            with np.load(path) as z:
+                traj = Trajectories(**{f: jnp.asarray(z[f]) for f in ("frames", "actions", "states", "dones")})
+        else:
+            cached = False
+            traj = source.collect(k, steps)
+            if path:
+                os.makedirs(cache_dir, exist_ok=True)
+                tmp = path + ".tmp.npz"
+                np.savez(tmp, **{f: np.asarray(getattr(traj, f)) for f in ("frames", "actions", "states", "dones")})
+                os.replace(tmp, path)
+        out.append(traj)
+    return out[0], out[1], cached
+
+
+class OfflineFit:
+    """Learners (seeds vmapped) on one dataset; jitted training chunks and probes."""
+
+    def __init__(self, config: OfflineConfig, source: Source | None = None):
+        self.config = c = config
+        self.source = source or make_source(config)
+        b = c.base
+        latent = b.latent_factor * len(self.source.spec)
+        self.learners = {n: make_learner(n, latent, b.learner, self.source.action_dim) for n in b.learners}
+        self.spec = self.source.spec
+        self.S = b.seeds
+        per_call = c.updates_per_call or (1 if jax.default_backend() == "cpu" else c.probe_every)
+        self.per_call = min(per_call, c.probe_every)
+        self.init = jax.jit(self._init)
+        self.train = jax.jit(self._train, static_argnums=3, donate_argnums=0)
+        self.probe = jax.jit(self._probe)
+
+    def _init(self, key: jax.Array) -> dict[str, Any]:
+        out = {}
+        for i, (name, l) in enumerate(self.learners.items()):
+            keys = jax.random.split(jax.random.fold_in(key, i), self.S)
+            out[name] = jax.vmap(lambda k, l=l: l.init(k, self.source.frame_shape))(keys)
+        return out
+
+    def _sampler(self, learner: Any, data: Trajectories) -> Callable[[jax.Array], Any]:
+        if is_sequential(learner):
+            return lambda k: sequence.sample_windows(data, k, learner.batch_size, learner.window_length)
+        return lambda k: sequence.sample_steps(data, k, learner.batch_size)[0]
+
+    def _train(self, states: dict, data: Trajectories, key: jax.Array, updates: int) -> tuple[dict, dict]:
+        """`updates` updates of every learner and seed (seeds vmapped, data shared); metrics are
+        the means over the updates, per seed."""
+        out, metrics = {}, {}
+        unroll = True if jax.default_backend() == "cpu" else 1
+        for i, (name, l) in enumerate(self.learners.items()):
+            keys = jax.random.split(jax.random.fold_in(key, i), self.S)
+            run = lambda st, k, l=l: train_learner(l, st, self._sampler(l, data), k, updates, unroll)  # noqa: E731
+            out[name], m = jax.vmap(run)(states[name], keys)
+            metrics[name] = jax.tree.map(lambda x: x.mean(-1), m)
+        return out, metrics
+
+    def _probe(self, states: dict, data: Trajectories, held: Windows, key: jax.Array,
+               broken: jax.Array | bool = False) -> dict:
+        """Probe every learner and seed: fit on training data, score on the held-out windows
+        (stream `rand`). `broken=True` (a check of the check) shuffles the per-step latents
+        across time steps first (`shuffle_time`); traced, so both share one compile."""
+        b = self.config.base
+        out = {}
+        corrupt = lambda z, k: jnp.where(broken, shuffle_time(z, k), z)  # noqa: E731
+        for i, (name, l) in enumerate(self.learners.items()):
+            def one(st, k, l=l):
+                k_s, k_p = jax.random.split(k)
+                if is_sequential(l):
+                    train = sequence.sample_windows(data, k_s, -(-b.probe_train_frames // l.sequence_length),
+                                                    l.sequence_length)
+                else:
+                    train = sequence.sample_steps(data, k_s, b.probe_train_frames)
+                return probe_learner(l, st.params, train, {"rand": held}, k_p, b.probe,
+                                     b.probe_train_frames, corrupt)
+            keys = jax.random.split(jax.random.fold_in(key, i), self.S)
+            out[name] = jax.vmap(one)(states[name], keys)
+        return out
+
+
+def shuffle_time(z: jax.Array, key: jax.Array) -> jax.Array:
+    """A deliberately broken latent: per-step latents `[B, L, Z]` permuted across all time steps
+    of all windows, so the latent paired with a state belongs to another step."""
+    flat = z.reshape((-1, z.shape[-1]))
+    return jax.random.permutation(key, flat, axis=0).reshape(z.shape)
+
+
+def records_of(update: int, probes: Any, losses: Any, ref_spread: np.ndarray,
+               spec: tuple[StateEntry, ...], seeds: int) -> list[dict[str, Any]]:
+    """One JSON-able record per seed for a probe after `update` updates."""
+    p, lm = jax.device_get(probes), jax.device_get(losses)
+    out = []
+    for s in range(seeds):
+        rec: dict[str, Any] = {"update": update, "seed": s, "ref_spread": [float(x) for x in ref_spread],
+                               "learners": {n: {k: float(v[s]) for k, v in m.items()} for n, m in lm.items()},
+                               "probes": {}}
+        for name, streams in p.items():
+            rec["probes"][name] = {st: probe.summarise(d["mae"][s], d["baseline"][s], ref_spread, spec,
+                                                        spread_D=d["spread"][s])
+                                   for st, d in streams.items()}
+        out.append(rec)
+    return out
+
+
+def run(config: OfflineConfig, out_dir: str, cache_dir: str | None = None, max_minutes: float = 0.0,
+        seed: int = 0, log: Callable[[str], None] = print) -> list[dict[str, Any]]:
+    """The whole offline fit: data (cached), training, a probe at update 0 and every
+    `probe_every` updates (and at the end), `curves.jsonl`, `curves.png`, `table.md`,
+    `recon.png`, `config.json` under `out_dir`. Stops cleanly after `max_minutes` of wall time
+    (then the last chunk is probed and everything is written). Returns the records."""
+    c = config
+    t0 = time.time()
+    os.makedirs(out_dir, exist_ok=True)
+    cache_dir = cache_dir if cache_dir is not None else os.path.join(out_dir, "data")
+    fit = OfflineFit(c)
+    with open(os.path.join(out_dir, "config.json"), "w") as f:
+        json.dump({"offline": {k: v for k, v in dataclasses.asdict(c).items() if k != "base"},
+                   "base": dataclasses.asdict(c.base), "source": fit.source.name}, f, indent=1, default=str)
+    data, held_traj, cached = load_or_collect(c, fit.source, cache_dir)
+    held = sequence.consecutive_windows(held_traj, c.eval_length)
+    ref_spread = np.asarray(jax.device_get(_ref_spread(held)))
+    t_data = time.time() - t0
+    log(f"data: {data.frames.shape[1]} worlds x {data.steps} steps for training, "
+        f"{held.valid.size} held-out steps ({'cache' if cached else 'collected'}, {t_data:.1f} s)")
+    path = os.path.join(out_dir, "curves.jsonl")
+    if os.path.exists(path):
+        os.remove(path)
+    key = jax.random.PRNGKey(seed)
+    k_init, key = jax.random.split(key)
+    states = fit.init(k_init)
+    records: list[dict[str, Any]] = []
+    losses: dict = {n: {"loss": np.full((fit.S,), np.nan)} for n in fit.learners}
+
+    def do_probe(update: int) -> None:
+        nonlocal key
+        key, k = jax.random.split(key)
+        recs = records_of(update, fit.probe(states, data, held, k), losses, ref_spread, fit.spec, fit.S)
+        report.write_jsonl(path, recs)
+        records.extend(recs)
+        log(f"update {update:>6} ({time.time() - t0:6.1f} s): " + _summary(recs))
+
+    do_probe(0)
+    done, stopped, last_call = 0, False, 0.0
+    while done < c.updates and not stopped:
+        chunk = min(c.probe_every, c.updates - done)
+        sums: dict = {"_n": []}
+        while sum(sums["_n"]) < chunk:
+            # stop before a call that would not end within the budget (its length: the last one's)
+            if max_minutes and time.time() - t0 + last_call > 60 * max_minutes:
+                stopped = True
+                break
+            n = min(fit.per_call, chunk - sum(sums["_n"]))
+            key, k = jax.random.split(key)
+            t_call = time.time()
+            states, m = fit.train(states, data, k, n)
+            m = jax.device_get(m)
+            last_call = time.time() - t_call
+            for name, lm in m.items():
+                check_finite(lm, where=f"learner {name} before update {done + chunk}")
+            sums = _accumulate(sums, m, n)
+        n_done = sum(sums["_n"])
+        if n_done == 0:
+            log(f"stopping after {done} updates: --max-minutes {max_minutes} reached")
+            break
+        losses = {name: {k: v / n_done for k, v in lm.items()} for name, lm in sums.items() if name != "_n"}
+        done += n_done
+        if stopped:
+            log(f"stopping after {done} updates: --max-minutes {max_minutes} reached")
+        do_probe(done)
+    write_outputs(fit, records, states, held, out_dir, time.time() - t0, t_data)
+    return records
+
+
+def _ref_spread(held: Windows) -> jax.Array:
+    """The reference spread: held-out random-policy states, valid steps."""
+    return probe.spread(held.states.reshape((-1, held.states.shape[-1])), held.valid.reshape(-1))
+
+
+def _accumulate(sums: dict, m: dict, n: int) -> dict:
+    """Running sums of per-call mean metrics weighted by the call's updates."""
+    out = dict(sums)
+    out["_n"] = sums["_n"] + [n]
+    for name, lm in m.items():
+        prev = sums.get(name, {})
+        out[name] = {k: prev.get(k, 0.0) + np.asarray(v) * n for k, v in lm.items()}
+    return out
+
+
+def _summary(recs: list[dict]) -> str:
+    parts = []
+    for name in recs[0]["probes"]:
+        g = recs[0]["probes"][name]["rand"]["groups"]
+        vals = {k: np.nanmean([r["probes"][name]["rand"]["groups"][k]["mae_norm"] for r in recs]) for k in g}
+        parts.append(f"{name} " + "/".join(f"{v:.2f}" for v in vals.values()))
+    base = recs[0]["probes"][next(iter(recs[0]["probes"]))]["rand"]["groups"]
+    parts.append("constant " + "/".join(f"{g['baseline_norm']:.2f}" for g in base.values()))
+    return "; ".join(parts) + f"  ({'/'.join(base)})"
+
+
+def write_outputs(fit: OfflineFit, records: list[dict], states: dict, held: Windows, out_dir: str,
+                  wall: float, t_data: float) -> None:
+    """`curves.png` (normalised error against updates per group and learner, constant
+    predictor dotted), `table.md` (last probe) and `recon.png` (held-out frames and every
+    learner's reconstruction, seed 0)."""
+    c = fit.config
+    n_upd = max(r["update"] for r in records)
+    title = f"{fit.source.name} offline: {fit.S} seeds, {n_upd} updates"
+    report.plot(records, fit.spec, os.path.join(out_dir, "curves.png"), title, x_key="update",
+                streams=(("rand", "held-out π_rand"),))
+    tab = report.table(records, fit.spec, last=1, x_key="update", streams=(("rand", "held-out π_rand"),))
+    timing = (f"wall time {wall:.1f} s (data {t_data:.1f} s) on {jax.devices()[0].device_kind}; "
+              f"batch {c.base.learner.batch_size} frames, sequential {c.base.seq_len}-step windows")
+    with open(os.path.join(out_dir, "table.md"), "w") as f:
+        f.write(f"# {title}\n\n{tab}\n\n{timing}\n")
+    save_recon_grid(fit, states, held, os.path.join(out_dir, "recon.png"))
+
+
+def save_recon_grid(fit: OfflineFit, states: dict, held: Windows, path: str, n: int = 8) -> None:
+    """Row 0: `n` consecutive held-out frames (one window); then one row per learner (seed 0)."""
+    w = jax.tree.map(lambda x: x[:1], held)
+    frames = w.frames[0, :n]
+    rows = [np.asarray(frames, np.float32) / 255.0]
+    labels = ["held-out"]
+    for name, l in fit.learners.items():
+        params = jax.tree.map(lambda x: x[0], states[name].params)
+        if is_sequential(l):
+            rec = l.reconstruct(params, w)[0, : frames.shape[0]]
+        else:
+            rec = l.reconstruct(params, frames)
+        rows.append(np.asarray(rec))
+        labels.append(name)
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    k = rows[0].shape[0]
+    fig, axes = plt.subplots(len(rows), k, figsize=(1.1 * k, 1.2 * len(rows)), squeeze=False)
+    for i, row in enumerate(rows):
+        for j in range(k):
+            ax = axes[i, j]
+            if j < row.shape[0]:
+                ax.imshow(np.clip(row[j], 0, 1))
+            ax.set_xticks([])
+            ax.set_yticks([])
+        axes[i, 0].set_ylabel(labels[i], fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
