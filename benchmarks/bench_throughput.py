@@ -4,9 +4,13 @@
    `jax.lax.scan` with random actions, physics only (render=False) and with 64x64 Warp frames
    (render=True: physics step + render + low-dim state). Compile time (lower + compile), first
    call and `--repeats` timed calls are reported separately; rates use the median call.
-2. Learner: `vae` updates per second at `--vae-batch` frames, fp32 and bf16 compute, one jitted
-   update (donated state) called `--vae-steps` times after warm-up; and, in a subprocess on the
-   same device, the PyTorch reference of `torch_vae_reference.py` (eager and torch.compile, fp32
+2. Learners (`--learners`, default `vae`): updates per second at `--vae-batch` frames (sequential
+   learners: `vae_batch // L` windows of L steps; spair: its own 64-frame batch), fp32 and bf16
+   compute, each decoder form of `--deconv-impls` (transpose / subpixel: same parameters, same
+   function) and each fp32 matmul/conv precision of `--precisions` (JAX's `default`, or
+   `tensorfloat32`, what PyTorch's cuDNN convolutions use by default), one jitted update (donated
+   state) called `--vae-steps` times after warm-up; and, in a subprocess on the same device, the
+   PyTorch reference of `torch_vae_reference.py` (eager and torch.compile, fp32
    and bf16 autocast), with the bulbjax/PyTorch ratios.
 
 Results are printed and written (after every measurement, so a run cut short keeps what it had)
@@ -47,7 +51,8 @@ import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 
 import bulbjax  # noqa: E402
-from bulbjax.learners import LearnerConfig, check_finite, make_learner  # noqa: E402
+from bulbjax.data.sequence import Windows  # noqa: E402
+from bulbjax.learners import LearnerConfig, check_finite, is_sequential, make_learner  # noqa: E402
 
 MODES: tuple[str, ...] = ("physics", "rendered")
 PARTS: tuple[str, ...] = ("env", "learner", "torch")
@@ -68,6 +73,9 @@ class BenchSettings:
     vae_warmup: int = 3
     latent_dim: int = 32
     dtypes: tuple[str, ...] = DTYPES
+    learners: tuple[str, ...] = ("vae",)
+    deconv_impls: tuple[str, ...] = ("transpose", "subpixel")
+    precisions: tuple[str, ...] = ("default",)
     parts: tuple[str, ...] = PARTS
     torch_compile: bool = True
     torch_channels_last: bool = False
@@ -256,20 +264,37 @@ def run_envs(s: BenchSettings, w: ResultWriter) -> None:
 # ----------------------------------------------------------------------------- learner
 
 
-def bench_vae(dtype: str, s: BenchSettings) -> dict[str, Any]:
-    """Updates per second of the `vae` learner at `s.vae_batch` frames, compute dtype `dtype`."""
-    learner = make_learner("vae", latent_dim=s.latent_dim,
-                           config=LearnerConfig(batch_size=s.vae_batch, compute_dtype=dtype))
+def learner_batch(learner: Any, name: str, s: BenchSettings, rng: np.random.Generator) -> Any:
+    """A random batch in the learner's input layout: uint8 frames [B, R, R, 3], or `Windows`
+    [B // L, L, ...] for the sequential learners."""
+    shape = (s.resolution, s.resolution, 3)
+    if not is_sequential(learner):
+        n = learner.batch_size if name == "spair" else s.vae_batch
+        return jax.device_put(rng.integers(0, 256, (n, *shape), dtype=np.uint8))
+    b, lw = learner.batch_size, learner.window_length
+    return Windows(frames=jax.device_put(rng.integers(0, 256, (b, lw, *shape), dtype=np.uint8)),
+                   actions=jnp.asarray(rng.uniform(-1, 1, (b, lw, 1)), jnp.float32),
+                   states=jnp.zeros((b, lw, 4), jnp.float32), valid=jnp.ones((b, lw), bool))
+
+
+def bench_vae(dtype: str, s: BenchSettings, name: str = "vae", impl: str = "transpose",
+              precision: str = "default") -> dict[str, Any]:
+    """Updates per second of learner `name` at `s.vae_batch` frames, compute dtype `dtype`,
+    decoder form `impl`, matmul/conv precision `precision` (JAX's default_matmul_precision)."""
+    learner = make_learner(name, latent_dim=s.latent_dim, action_dim=1,
+                           config=LearnerConfig(batch_size=s.vae_batch, compute_dtype=dtype,
+                                                deconv_impl=impl))
     shape = (s.resolution, s.resolution, 3)
     key = jax.random.PRNGKey(s.seed)
     k_init, k_steps = jax.random.split(key)
     state, init_s = timed(lambda: jax.jit(learner.init, static_argnums=1)(k_init, shape))
     rng = np.random.default_rng(s.seed)
-    frames = jax.device_put(rng.integers(0, 256, (s.vae_batch, *shape), dtype=np.uint8))
+    frames = learner_batch(learner, name, s, rng)
     keys = list(jax.random.split(k_steps, s.vae_warmup + s.vae_steps))
     update = jax.jit(learner.update, donate_argnums=0)
     t0 = time.perf_counter()
-    compiled = update.lower(state, frames, keys[0]).compile()
+    with jax.default_matmul_precision(None if precision == "default" else precision):
+        compiled = update.lower(state, frames, keys[0]).compile()
     compile_s = time.perf_counter() - t0
     t0 = time.perf_counter()
     for k in keys[: s.vae_warmup]:
@@ -281,8 +306,11 @@ def bench_vae(dtype: str, s: BenchSettings) -> dict[str, Any]:
         state, metrics = compiled(state, frames, k)
     jax.block_until_ready((state, metrics))
     elapsed = time.perf_counter() - t0
-    check_finite(metrics, f"vae {dtype} benchmark")
-    return {"learner": "vae", "dtype": dtype, "batch": s.vae_batch, "resolution": s.resolution,
+    check_finite(metrics, f"{name} {dtype} benchmark")
+    batch = learner.batch_size if name == "spair" or is_sequential(learner) else s.vae_batch
+    return {"learner": name, "dtype": dtype, "deconv_impl": impl, "precision": precision,
+            "batch": batch, "frames_per_batch": batch * getattr(learner, "window_length", 1),
+            "resolution": s.resolution,
             "latent_dim": s.latent_dim, "steps": s.vae_steps, "warmup_steps": s.vae_warmup,
             "init_s": init_s, "compile_s": compile_s, "warmup_s": warmup_s, "elapsed_s": elapsed,
             "updates_per_s": s.vae_steps / elapsed, "final_loss": float(metrics["loss"])}
@@ -290,16 +318,21 @@ def bench_vae(dtype: str, s: BenchSettings) -> dict[str, Any]:
 
 def run_learner(s: BenchSettings, w: ResultWriter) -> None:
     rows: list[dict[str, Any]] = w.results.setdefault("learner", [])
-    for dtype in s.dtypes:
-        log(f"learner vae {dtype} batch={s.vae_batch} ...")
-        try:
-            r = bench_vae(dtype, s)
-            log(f"  {r['updates_per_s']:.2f} updates/s; compile {r['compile_s']:.1f} s")
-        except Exception as e:  # noqa: BLE001
-            log(f"  FAILED: {type(e).__name__}: {e}")
-            r = {"learner": "vae", "dtype": dtype, "error": f"{type(e).__name__}: {e}"[:2000]}
-        rows.append(r)
-        w.write()
+    for name in s.learners:
+        impls = s.deconv_impls if name != "spair" else s.deconv_impls[:1]  # spair has no deconv
+        for impl in impls:
+            for dtype in s.dtypes:
+                for prec in (s.precisions if dtype == "float32" else ("default",)):
+                    log(f"learner {name} {dtype} {impl} precision={prec} batch={s.vae_batch} ...")
+                    try:
+                        r = bench_vae(dtype, s, name, impl, prec)
+                        log(f"  {r['updates_per_s']:.2f} updates/s; compile {r['compile_s']:.1f} s")
+                    except Exception as e:  # noqa: BLE001
+                        log(f"  FAILED: {type(e).__name__}: {e}")
+                        r = {"learner": name, "dtype": dtype, "deconv_impl": impl, "precision": prec,
+                             "error": f"{type(e).__name__}: {e}"[:2000]}
+                    rows.append(r)
+                    w.write()
 
 
 # ----------------------------------------------------------------------------- PyTorch reference
@@ -337,14 +370,14 @@ def ratios(learner_rows: list[dict[str, Any]], torch_info: dict[str, Any], platf
         return {"skipped": f"torch ran on {torch_info.get('device')}, JAX on {platform_}: not comparable"}
     out: dict[str, Any] = {}
     for row in learner_rows:
-        if "updates_per_s" not in row:
+        if "updates_per_s" not in row or row.get("learner", "vae") != "vae":
             continue
         ref = {r["mode"]: r["updates_per_s"] for r in torch_info["results"]
                if r.get("dtype") == row["dtype"] and "updates_per_s" in r}
         d: dict[str, float] = {f"vs_torch_{m}": row["updates_per_s"] / v for m, v in ref.items()}
         if ref:
             d["vs_torch_best"] = row["updates_per_s"] / max(ref.values())
-        out[row["dtype"]] = d
+        out[f"{row['dtype']} {row.get('deconv_impl', 'transpose')} {row.get('precision', 'default')}"] = d
     return out
 
 
@@ -366,6 +399,10 @@ def parse_args(argv: list[str] | None = None) -> BenchSettings:
     p.add_argument("--vae-warmup", type=int, default=d.vae_warmup, help="untimed updates after compile")
     p.add_argument("--latent-dim", type=int, default=d.latent_dim)
     p.add_argument("--dtypes", default=",".join(d.dtypes), help="learner compute dtypes")
+    p.add_argument("--learners", default=",".join(d.learners), help="learners to time (vae, svae, pred, dsa, spair, ...)")
+    p.add_argument("--deconv-impls", default=",".join(d.deconv_impls), help="decoder forms: transpose, subpixel")
+    p.add_argument("--precisions", default=",".join(d.precisions),
+                   help="fp32 matmul/conv precisions: default, tensorfloat32, highest")
     p.add_argument("--parts", default=",".join(d.parts), help=f"subset of {','.join(PARTS)}")
     p.add_argument("--no-torch-compile", action="store_true", help="reference: eager only")
     p.add_argument("--torch-channels-last", action="store_true", help="reference: channels_last layout")
@@ -379,6 +416,7 @@ def parse_args(argv: list[str] | None = None) -> BenchSettings:
         envs=split(a.envs), batch_sizes=tuple(int(x) for x in split(a.batch_sizes)), steps=a.steps,
         repeats=a.repeats, resolution=a.resolution, vae_batch=a.vae_batch, vae_steps=a.vae_steps,
         vae_warmup=a.vae_warmup, latent_dim=a.latent_dim, dtypes=split(a.dtypes), parts=split(a.parts),
+        learners=split(a.learners), deconv_impls=split(a.deconv_impls), precisions=split(a.precisions),
         torch_compile=not a.no_torch_compile, torch_channels_last=a.torch_channels_last,
         torch_timeout_s=a.torch_timeout, seed=a.seed, out_dir=a.out_dir,
         verbose=a.verbose)
@@ -397,10 +435,11 @@ def print_summary(results: dict[str, Any]) -> None:
             print(f"{r['env']:18} {r['batch_size']:>6} {r['mode']:9} {fmt_rate(r['per_s_median']):>10} "
                   f"{fmt_rate(r['per_s_best']):>10} {r['compile_s']:>9.1f} {r['first_call_s']:>8.2f}")
     if results.get("learner"):
-        print(f"\nvae updates/s at batch {results['settings']['vae_batch']}:")
+        print(f"\nlearner updates/s at {results['settings']['vae_batch']} frames per batch (spair: 64):")
         for r in results["learner"]:
-            print(f"  bulbjax {r['dtype']:9} " + (f"{r['updates_per_s']:8.2f}  (compile {r['compile_s']:.1f} s)"
-                                                  if "updates_per_s" in r else f"ERROR {r['error'][:60]}"))
+            label = f"{r.get('learner', 'vae'):8} {r['dtype']:9} {r.get('deconv_impl', 'transpose'):9} {r.get('precision', 'default'):13}"
+            print(f"  bulbjax {label} " + (f"{r['updates_per_s']:8.2f}  (compile {r['compile_s']:.1f} s)"
+                                           if "updates_per_s" in r else f"ERROR {r['error'][:60]}"))
     t = results.get("torch_reference")
     if t is not None:
         if not t.get("available"):

@@ -200,3 +200,27 @@ def test_config_is_hashable_and_frozen() -> None:
     hash(make_learner("vae", LATENT, config))
     with pytest.raises(dataclasses.FrozenInstanceError):
         config.lr = 1.0  # type: ignore[misc]
+
+
+def test_subpixel_decoder_equals_transpose() -> None:
+    """The two decoder forms share parameters and compute the same function (and gradients),
+    so switching `deconv_impl` for speed cannot change what a learner learns."""
+    from bulbjax.learners.networks import DeconvDecoder
+
+    z = jax.random.normal(jax.random.PRNGKey(3), (3, 6))
+    a = DeconvDecoder(32, (8, 8, 16, 16), 32, impl="transpose")
+    b = DeconvDecoder(32, (8, 8, 16, 16), 32, impl="subpixel")
+    params = a.init(jax.random.PRNGKey(4), z)
+    assert jax.tree.map(jnp.shape, params) == jax.tree.map(jnp.shape, b.init(jax.random.PRNGKey(4), z))
+    # non-zero biases, so a misplaced bias shows
+    params = jax.tree.map(lambda p: p + 0.05, params)
+    ya, yb = a.apply(params, z), b.apply(params, z)
+    assert ya.shape == (3, 32, 32, 3)
+    np.testing.assert_allclose(np.asarray(yb), np.asarray(ya), rtol=1e-5, atol=1e-5)
+    ga = jax.grad(lambda p: jnp.sum(jnp.sin(a.apply(p, z))))(params)
+    gb = jax.grad(lambda p: jnp.sum(jnp.sin(b.apply(p, z))))(params)
+    for x, y in zip(jax.tree.leaves(ga), jax.tree.leaves(gb)):
+        scale = float(np.abs(np.asarray(x)).max())  # float32 sums in another order: relative to the leaf
+        np.testing.assert_allclose(np.asarray(y), np.asarray(x), rtol=1e-4, atol=1e-5 * max(scale, 1.0))
+    with pytest.raises(ValueError, match="deconv_impl"):
+        LearnerConfig(deconv_impl="nearest")

@@ -16,6 +16,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from bulbjax.learners.networks import DECONV_IMPLS
+
 COMPUTE_DTYPES: tuple[str, ...] = ("float32", "bfloat16")
 # DSA's encoder variants (the paper tried all of them); see networks.SequenceModel.
 DSA_ENCODERS: tuple[str, ...] = ("lstm", "bilstm", "gru", "rnn", "conv", "fc")
@@ -41,6 +43,9 @@ class LearnerConfig:
     hidden: int = 512
     compute_dtype: str = "float32"
     retain_fraction: float = 0.0
+    # How the decoder's transposed convs are computed (networks.DECONV_IMPLS; same parameters,
+    # same function): "transpose" (flax ConvTranspose) or "subpixel" (3x3 conv + depth-to-space).
+    deconv_impl: str = "transpose"
     # Sequential learners only (svae, pred, dsa); the frame learners ignore these.
     sequence_length: int = 24  # steps per window (paper: 24 pendulums, 16 locomotion)
     pred_horizon: int = 4  # PRED reconstructs sequence_length + pred_horizon frames
@@ -77,6 +82,8 @@ class LearnerConfig:
             raise ValueError(
                 f"compute_dtype must be one of {COMPUTE_DTYPES}, got {self.compute_dtype!r}"
             )
+        if self.deconv_impl not in DECONV_IMPLS:
+            raise ValueError(f"deconv_impl must be one of {DECONV_IMPLS}, got {self.deconv_impl!r}")
         if self.sequence_length < 2:
             raise ValueError(f"sequence_length must be >= 2, got {self.sequence_length!r}")
         if self.pred_horizon < 0:

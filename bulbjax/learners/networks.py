@@ -5,6 +5,12 @@ default), a 512-unit FC layer, then two linear heads for the posterior mean and
 log-variance. Decoder mirrors it: FC 512 -> FC to (R/16)x(R/16)x256 -> transposed convs
 (4x4, stride 2) with 128,64,64 filters and ReLU, and a last one to 3 channels of logits.
 
+The decoder's transposed convs have two exact implementations with the same parameters
+(`DECONV_IMPLS`): `transpose` (flax's `ConvTranspose`: a convolution over a zero-dilated input)
+and `subpixel` (the same 4x4 stride-2 kernel rearranged into a 3x3 convolution with 4x the output
+channels, then depth-to-space). They compute the same function; which is faster depends on the
+device (XLA's dilated-input convolutions are slow on GPU in fp32): see `benchmarks/`.
+
 The two are separate modules so the sequential learners can reuse them. Params are
 always float32; `dtype` sets the compute dtype of the conv/FC stacks. The posterior
 heads run in float32 (they are tiny and their output is what the probes see), and all
@@ -102,6 +108,49 @@ class ConvEncoder(nn.Module):
         return mean, logvar
 
 
+DECONV_IMPLS: tuple[str, ...] = ("transpose", "subpixel")
+
+# For a 4x4 stride-2 'SAME' transposed conv (lax.conv_transpose pads the 2x-dilated input by 2
+# on each side): output 2i+0 reads input i-1 with tap 0 and i with tap 2; output 2i+1 reads i
+# with tap 1 and i+1 with tap 3. _PHASE_TAPS[p][d] is the tap that output phase p applies to
+# input offset d-1 (d = 0, 1, 2 of a 3-wide window), -1 where none.
+_PHASE_TAPS: tuple[tuple[int, ...], ...] = ((0, 2, -1), (-1, 1, 3))
+
+
+def _phase_selector() -> jax.Array:
+    """[2 phases, 3 offsets, 4 taps] one-hot: which tap of the 4-wide kernel each phase applies
+    at each offset of the 3-wide window."""
+    sel = [[[1.0 if t == tap else 0.0 for t in range(4)] for tap in row] for row in _PHASE_TAPS]
+    return jnp.asarray(sel, jnp.float32)
+
+
+class SubpixelConvTranspose(nn.Module):
+    """`nn.ConvTranspose(features, (4, 4), strides=(2, 2), padding="SAME")` computed as a 3x3
+    stride-1 convolution to 4 * features channels followed by depth-to-space. Same parameters
+    (`kernel [4, 4, in, features]`, `bias [features]`, same init) and the same function, so the two
+    are interchangeable; this one avoids convolutions over zero-dilated inputs."""
+
+    features: int
+    dtype: jnp.dtype = jnp.float32
+    param_dtype: jnp.dtype = jnp.float32
+    kernel_init: Any = lecun_normal_flat
+
+    @nn.compact
+    def __call__(self, x: jax.Array) -> jax.Array:
+        cin = x.shape[-1]
+        kernel = self.param("kernel", self.kernel_init, (4, 4, cin, self.features), self.param_dtype)
+        bias = self.param("bias", nn.initializers.zeros_init(), (self.features,), self.param_dtype)
+        sel = _phase_selector()
+        # k3[dy, dx, c, py, px, f] = kernel[tap(py, dy), tap(px, dx), c, f] (0 where no tap)
+        k3 = jnp.einsum("pat,qbs,tscf->abcpqf", sel, sel, kernel)
+        k3 = k3.reshape((3, 3, cin, 4 * self.features)).astype(self.dtype)
+        y = jax.lax.conv_general_dilated(x.astype(self.dtype), k3, (1, 1), "SAME",
+                                         dimension_numbers=("NHWC", "HWIO", "NHWC"))
+        b, h, w, _ = y.shape
+        y = y.reshape((b, h, w, 2, 2, self.features)).transpose((0, 1, 3, 2, 4, 5))
+        return y.reshape((b, 2 * h, 2 * w, self.features)) + bias.astype(self.dtype)
+
+
 class DeconvDecoder(nn.Module):
     """Latents [B, latent_dim] -> pixel logits [B, R, R, 3] float32 (sigmoid gives [0, 1]).
 
@@ -113,9 +162,12 @@ class DeconvDecoder(nn.Module):
     hidden: int = 512
     channels: int = 3
     dtype: jnp.dtype = jnp.float32
+    impl: str = "transpose"  # one of DECONV_IMPLS (same parameters, same function)
 
     @nn.compact
     def __call__(self, z: jax.Array) -> jax.Array:
+        if self.impl not in DECONV_IMPLS:
+            raise ValueError(f"unknown deconv impl {self.impl!r}; accepted: {', '.join(DECONV_IMPLS)}")
         check_frame_shape(
             (self.resolution, self.resolution, self.channels), len(self.features), self.channels
         )
@@ -126,9 +178,12 @@ class DeconvDecoder(nn.Module):
         h = h.reshape((h.shape[0], start, start, self.features[-1]))
         out_features = (*reversed(self.features[:-1]), self.channels)
         for i, f in enumerate(out_features):
-            h = nn.ConvTranspose(
-                f, (4, 4), strides=(2, 2), padding="SAME", name=f"deconv{i}", **dense
-            )(h)
+            if self.impl == "subpixel":
+                h = SubpixelConvTranspose(f, name=f"deconv{i}", **dense)(h)
+            else:
+                h = nn.ConvTranspose(
+                    f, (4, 4), strides=(2, 2), padding="SAME", name=f"deconv{i}", **dense
+                )(h)
             if i < len(out_features) - 1:
                 h = nn.relu(h)
         return h.astype(jnp.float32)

@@ -108,7 +108,7 @@ class SequentialVAE:
 
     def decoder(self, resolution: int) -> DeconvDecoder:
         c = self.config
-        return DeconvDecoder(resolution, c.conv_features, c.hidden, 3, c.dtype)
+        return DeconvDecoder(resolution, c.conv_features, c.hidden, 3, c.dtype, c.deconv_impl)
 
     def resolution(self, params: Any) -> int:
         """Frame resolution R the params were initialised for (read off a weight shape)."""

@@ -67,7 +67,7 @@ class VAE:
 
     def decoder(self, resolution: int) -> DeconvDecoder:
         c = self.config
-        return DeconvDecoder(resolution, c.conv_features, c.hidden, 3, c.dtype)
+        return DeconvDecoder(resolution, c.conv_features, c.hidden, 3, c.dtype, c.deconv_impl)
 
     @property
     def optimizer(self) -> optax.GradientTransformation:

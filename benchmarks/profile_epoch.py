@@ -1,0 +1,209 @@
+"""Per-phase profile of one experiment epoch (issue 13): where an epoch's time goes.
+
+For a preset (`--preset fig2-invpend`, ...) it builds the experiment, times the build and the
+init, then jits every phase of `Experiment._epoch` on its own and times it on the run state of
+a warmed-up run (median of `--repeats` calls, each ended by `block_until_ready`):
+PPO rollout and update (`rl_phase`), rendering and writing replay frames (`replay_phase`),
+cutting and rendering windows (`window_phase`), each learner's `learner_batches` updates
+(`learn_phase` restricted to that learner), the held-out rollouts (`eval_phase`), each
+learner's probe fit and evaluation (`probe_phase` for that learner). Then the whole jitted
+epoch with and without probing (compile time, then the median call), the host transfer of
+its metrics (`jax.device_get`) and the host-side record building (`report.epoch_records`).
+The phases timed one by one add up to more than the fused epoch (no overlap between them,
+one dispatch each): their shares say what to make cheaper, the fused numbers what a run costs.
+
+Optionally (`--trace DIR`) a JAX profiler trace of two fused epochs for TensorBoard/Perfetto.
+Writes `<out-dir>/profile_<preset>_<device>_<timestamp>.json` and prints a table.
+
+GPU:  python benchmarks/profile_epoch.py --preset fig2-invpend --bf16
+CPU smoke run:  python benchmarks/profile_epoch.py --preset fig2-invpend --small --seeds 1 --repeats 1
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import dataclasses
+import datetime as dt
+import json
+import os
+import statistics
+import sys
+import time
+from typing import Any, Callable, Iterator
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+REPO = os.path.dirname(HERE)
+sys.path.insert(0, REPO)
+
+import jax  # noqa: E402
+
+from bulbjax.envs import registry  # noqa: E402
+from bulbjax.experiment import report, small_config  # noqa: E402
+from bulbjax.experiment.config import ExperimentConfig, preset  # noqa: E402
+from bulbjax.experiment.loop import Experiment  # noqa: E402
+
+
+def build_config(a: argparse.Namespace) -> ExperimentConfig:
+    """The preset with the domain's PPO settings, then --small, --seeds, --learners, --bf16."""
+    cfg = preset(a.preset)
+    cfg = cfg.replace(ppo=registry.ppo_config_for(cfg.env, cfg.ppo))
+    if a.small:
+        cfg = small_config(cfg)
+    if a.seeds:
+        cfg = cfg.replace(seeds=a.seeds)
+    if a.learners:
+        cfg = cfg.replace(learners=tuple(x for x in a.learners.split(",") if x))
+    if a.bf16 or a.deconv_impl:
+        lc = cfg.learner
+        if a.bf16:
+            lc = dataclasses.replace(lc, compute_dtype="bfloat16")
+        if a.deconv_impl:
+            lc = dataclasses.replace(lc, deconv_impl=a.deconv_impl)
+        cfg = cfg.replace(learner=lc)
+    return cfg
+
+
+@contextlib.contextmanager
+def only_learner(exp: Experiment, name: str) -> Iterator[None]:
+    """Let the experiment's phases see one learner only (for timing it on its own)."""
+    saved = exp.learners
+    exp.learners = {name: saved[name]}
+    try:
+        yield
+    finally:
+        exp.learners = saved
+
+
+def time_fn(fn: Callable[[], Any], repeats: int) -> dict[str, float]:
+    """First call (compile + run) and the median/min of `repeats` further calls, in seconds."""
+    t0 = time.perf_counter()
+    jax.block_until_ready(fn())
+    first = time.perf_counter() - t0
+    times = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        jax.block_until_ready(fn())
+        times.append(time.perf_counter() - t0)
+    return {"first_s": first, "median_s": statistics.median(times), "min_s": min(times)}
+
+
+def profile(cfg: ExperimentConfig, repeats: int, warm_epochs: int, trace_dir: str | None,
+            log: Callable[[str], None] = print) -> dict[str, Any]:
+    """Every phase's time and the fused epoch's, as a JSON-able dict."""
+    out: dict[str, Any] = {"phases": {}, "fused": {}}
+    t0 = time.perf_counter()
+    exp = Experiment(cfg)
+    out["build_s"] = time.perf_counter() - t0
+    key = jax.random.PRNGKey(0)
+    t0 = time.perf_counter()
+    rs = jax.block_until_ready(exp.init(key))
+    out["init_s"] = time.perf_counter() - t0  # compile + run of init
+    log(f"build {out['build_s']:.1f} s, init (compile + run) {out['init_s']:.1f} s")
+
+    # the fused epoch: compile, first call, then timed calls (probing and not)
+    for probe in (True, False):
+        tag = "probe" if probe else "no_probe"
+        k = jax.random.fold_in(key, 100 + probe)
+        t0 = time.perf_counter()
+        compiled = exp.epoch.lower(rs, k, probe=probe).compile()
+        compile_s = time.perf_counter() - t0
+        times, get_s, rec_s = [], [], []
+        for i in range(warm_epochs + repeats):
+            t0 = time.perf_counter()
+            rs, m = compiled(rs, jax.random.fold_in(k, i))
+            jax.block_until_ready(rs)
+            t1 = time.perf_counter()
+            m = jax.device_get(m)
+            t2 = time.perf_counter()
+            report.epoch_records(i, m, exp.spec)
+            t3 = time.perf_counter()
+            if i >= warm_epochs:
+                times.append(t1 - t0)
+                get_s.append(t2 - t1)
+                rec_s.append(t3 - t2)
+        out["fused"][tag] = {"compile_s": compile_s, "median_s": statistics.median(times),
+                             "min_s": min(times), "device_get_s": statistics.median(get_s),
+                             "records_s": statistics.median(rec_s)}
+        log(f"fused epoch ({tag}): compile {compile_s:.1f} s, median {out['fused'][tag]['median_s']:.3f} s")
+
+    if trace_dir:
+        os.makedirs(trace_dir, exist_ok=True)
+        with jax.profiler.trace(trace_dir):
+            for i in range(2):
+                rs, m = exp.epoch(rs, jax.random.fold_in(key, 200 + i))
+            jax.block_until_ready(rs)
+        out["trace_dir"] = trace_dir
+
+    # phases one by one, on the warmed-up state (inputs made once, outside the timings)
+    keys = jax.random.split(jax.random.fold_in(key, 300), 6)
+    ph = out["phases"]
+    rl = jax.jit(exp.rl_phase)
+    ph["rl (ppo rollout + update)"] = time_fn(lambda: rl(rs.ppo, rs.train_env, keys[0]), repeats)
+    ppo_state, _, _, _, _, steps = rl(rs.ppo, rs.train_env, keys[0])
+    rep = jax.jit(exp.replay_phase)
+    ph["replay (render + insert)"] = time_fn(lambda: rep(rs.buffers, steps, keys[1]), repeats)
+    if rs.windows:
+        win = jax.jit(exp.window_phase)
+        ph["windows (cut + render + insert)"] = time_fn(lambda: win(rs.windows, steps, keys[2]), repeats)
+    ev = jax.jit(exp.eval_phase)
+    ph["eval (held-out rollouts + render)"] = time_fn(lambda: ev(ppo_state, rs.curr_env, rs.rand_env, keys[3]),
+                                                      repeats)
+    _, _, held = ev(ppo_state, rs.curr_env, rs.rand_env, keys[3])
+    for name in list(exp.learners):
+        with only_learner(exp, name):
+            learn = jax.jit(exp.learn_phase)
+            sub = {name: rs.learners[name]}
+            ph[f"learn {name}"] = time_fn(lambda: learn(sub, rs.buffers, keys[4], rs.windows), repeats)
+            pr = jax.jit(exp.probe_phase)
+            ph[f"probe {name}"] = time_fn(lambda: pr(sub, rs.buffers, held, keys[5], rs.windows), repeats)
+        log(f"  learn {name} {ph[f'learn {name}']['median_s']:.3f} s, probe {ph[f'probe {name}']['median_s']:.3f} s")
+    total = sum(v["median_s"] for v in ph.values())
+    for v in ph.values():
+        v["share"] = v["median_s"] / total if total else float("nan")
+    out["phases_sum_s"] = total
+    return out
+
+
+def main(argv: list[str] | None = None) -> dict[str, Any]:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--preset", default="fig2-invpend")
+    p.add_argument("--small", action="store_true", help="CPU sizes (small_config)")
+    p.add_argument("--seeds", type=int, default=0, help="override the preset's seeds")
+    p.add_argument("--learners", default="", help="override the preset's learners (comma-separated)")
+    p.add_argument("--bf16", action="store_true")
+    p.add_argument("--deconv-impl", default="", help="decoder form (transpose, subpixel)")
+    p.add_argument("--repeats", type=int, default=5)
+    p.add_argument("--warm-epochs", type=int, default=2, help="untimed epochs after compile")
+    p.add_argument("--trace", default="", help="write a JAX profiler trace of two epochs here")
+    p.add_argument("--out-dir", default=os.path.join(HERE, "results"))
+    p.add_argument("--tag", default="", help="label for the file name (e.g. before/after)")
+    a = p.parse_args(argv)
+    cfg = build_config(a)
+    t_start = time.perf_counter()
+    res: dict[str, Any] = {"preset": a.preset, "argv": sys.argv if argv is None else argv, "tag": a.tag,
+                           "config": dataclasses.asdict(cfg), "device_kind": jax.devices()[0].device_kind,
+                           "platform": jax.default_backend(), "jax": jax.__version__}
+    res.update(profile(cfg, a.repeats, a.warm_epochs, a.trace or None))
+    res["total_s"] = time.perf_counter() - t_start
+    slug = res["device_kind"].lower().replace(" ", "_")
+    stamp = dt.datetime.now().strftime("%Y%m%d_%H%M%S")
+    os.makedirs(a.out_dir, exist_ok=True)
+    path = os.path.join(a.out_dir, f"profile_{a.preset}{'_' + a.tag if a.tag else ''}_{slug}_{stamp}.json")
+    with open(path, "w") as f:
+        json.dump(res, f, indent=1, default=str)
+    print(f"\n== epoch profile: {a.preset} on {res['device_kind']} ({cfg.seeds} seeds, "
+          f"{len(cfg.learners)} learners, {cfg.learner.compute_dtype}) ==")
+    print(f"build {res['build_s']:.1f} s, init {res['init_s']:.1f} s")
+    for tag, v in res["fused"].items():
+        print(f"fused epoch {tag:8}: compile {v['compile_s']:6.1f} s, median {v['median_s']:.3f} s, "
+              f"device_get {v['device_get_s'] * 1e3:.1f} ms, records {v['records_s'] * 1e3:.1f} ms")
+    print(f"{'phase (jitted alone)':40} {'median s':>9} {'share':>6} {'first s':>8}")
+    for name, v in res["phases"].items():
+        print(f"{name:40} {v['median_s']:9.3f} {100 * v['share']:5.1f}% {v['first_s']:8.1f}")
+    print(f"written: {path}")
+    return res
+
+
+if __name__ == "__main__":
+    main()
