@@ -10,11 +10,12 @@ from bulbjax.envs.incline import (GeomOnIncline, GeomOnInclineMd, GeomOnInclineS
                                   YcbOnInclineMd, YcbOnInclineSm)
 from bulbjax.envs.locomotion import Ant, HalfCheetah
 from bulbjax.envs.pendulum import CartPole, CartPoleContinuous, InvertedPendulum
+from bulbjax.envs.rearrange import REARRANGE_CLASSES
 
 _REGISTRY: dict[str, type[MjxPixelEnv]] = {
     cls.name: cls for cls in (CartPole, CartPoleContinuous, InvertedPendulum, HalfCheetah, Ant,
                               GeomOnIncline, GeomOnInclineMd, GeomOnInclineSm, YcbOnIncline,
-                              YcbOnInclineMd, YcbOnInclineSm)
+                              YcbOnInclineMd, YcbOnInclineSm, *REARRANGE_CLASSES)
 }
 MULTICOLOUR_SUFFIX = "Multicolour"
 ENV_NAMES: tuple[str, ...] = tuple(_REGISTRY)
