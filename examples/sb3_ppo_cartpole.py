@@ -6,7 +6,7 @@ SB3 has its own `VecEnv` API (auto-reset in the same step, the ended episode's l
 dependency; install it yourself (`pip install stable-baselines3`).
 
     python examples/sb3_ppo_cartpole.py --timesteps 4096
-    python examples/sb3_ppo_cartpole.py --obs pixels --resolution 32 --timesteps 4096   # CnnPolicy
+    python examples/sb3_ppo_cartpole.py --obs pixels --timesteps 4096   # CnnPolicy on 64x64 frames
 """
 
 from __future__ import annotations
@@ -78,7 +78,7 @@ def main() -> None:
     p.add_argument("--env", default="CartPole")
     p.add_argument("--obs", default="state", choices=["state", "pixels"])
     p.add_argument("--num-envs", type=int, default=8)
-    p.add_argument("--resolution", type=int, default=32)
+    p.add_argument("--resolution", type=int, default=64, help="frames (obs=pixels; SB3's CnnPolicy needs >= 36)")
     p.add_argument("--timesteps", type=int, default=4096)
     p.add_argument("--seed", type=int, default=0)
     args = p.parse_args()
