@@ -1,5 +1,8 @@
 """N PyBullet envs stepped together, with auto-reset, as bulb trained with many parallel envs.
 
+The envs are bulb's pybullet_envs domains (`BulletPixelEnv`) or the Incline originals
+(`pybullet_compat.incline.InclineBulletEnv`, picked by name; `env_kwargs` go to its constructor,
+e.g. `version`, or `shape` prepared in the parent so that workers never import JAX).
 `ProcessVecEnv` runs one env per process (multiprocessing, one pipe each; 'spawn' by default so
 it is safe after JAX started threads), `SerialVecEnv` runs the same in this process. Both return
 batched arrays with bulbjax's conventions: frames [N, H, W, 3] uint8, states [N, D] float32,
@@ -11,11 +14,17 @@ from __future__ import annotations
 
 import multiprocessing as mp
 from dataclasses import dataclass
-from typing import Any, Sequence
+from typing import Any, Mapping, Sequence
 
 import numpy as np
 
 from pybullet_compat.envs import BulletPixelEnv, domain
+from pybullet_compat.incline import INCLINE_DOMAINS, InclineBulletEnv, incline_domain
+
+
+def any_domain(name: str) -> Any:
+    """The spec of a pybullet_envs domain (`DomainSpec`) or an Incline domain (`InclineSpec`)."""
+    return incline_domain(name) if name in INCLINE_DOMAINS else domain(name)
 
 
 @dataclass(frozen=True)
@@ -25,13 +34,21 @@ class VecConfig:
     name: str
     resolution: int = 64
     render: bool = True
+    env_kwargs: tuple[tuple[str, Any], ...] = ()  # constructor options of Incline envs
+
+    def make(self) -> Any:
+        if self.name in INCLINE_DOMAINS:
+            return InclineBulletEnv(self.name, resolution=self.resolution, render=self.render, **dict(self.env_kwargs))
+        if self.env_kwargs:
+            raise ValueError(f"{self.name} takes no env_kwargs, got {dict(self.env_kwargs)}")
+        return BulletPixelEnv(self.name, self.resolution, self.render)
 
 
 class _AutoResetEnv:
     """One env plus auto-reset: what a worker process (or the serial vector) holds."""
 
     def __init__(self, cfg: VecConfig):
-        self.env = BulletPixelEnv(cfg.name, cfg.resolution, cfg.render)
+        self.env = cfg.make()
 
     def reset(self, seed: int | None) -> tuple[np.ndarray, np.ndarray]:
         return self.env.reset(seed)
@@ -82,12 +99,17 @@ class _VecBase:
     num_envs: int
     cfg: VecConfig
 
-    def __init__(self, name: str, num_envs: int, resolution: int, render: bool):
+    def __init__(self, name: str, num_envs: int, resolution: int, render: bool,
+                 env_kwargs: Mapping[str, Any] | Sequence[Mapping[str, Any]] | None = None):
         if not isinstance(num_envs, int) or num_envs < 1:
             raise ValueError(f"num_envs must be a positive integer, got {num_envs!r}")
-        self.spec = domain(name)
+        self.spec = any_domain(name)
         self.num_envs = num_envs
-        self.cfg = VecConfig(name, resolution, render)
+        per_env = env_kwargs if isinstance(env_kwargs, (list, tuple)) else [env_kwargs or {}] * num_envs
+        if len(per_env) != num_envs:
+            raise ValueError(f"need one env_kwargs per env ({num_envs}), got {len(per_env)}")
+        self.cfgs = [VecConfig(name, resolution, render, tuple(sorted(kw.items()))) for kw in per_env]
+        self.cfg = self.cfgs[0]
 
     def _call(self, cmd: str, payloads: Sequence[tuple]) -> list[Any]:
         raise NotImplementedError
@@ -135,9 +157,10 @@ class _VecBase:
 class SerialVecEnv(_VecBase):
     """N envs in this process (the reference the process version must reproduce)."""
 
-    def __init__(self, name: str, num_envs: int, resolution: int = 64, render: bool = True):
-        super().__init__(name, num_envs, resolution, render)
-        self.envs = [_AutoResetEnv(self.cfg) for _ in range(num_envs)]
+    def __init__(self, name: str, num_envs: int, resolution: int = 64, render: bool = True,
+                 env_kwargs: Mapping[str, Any] | Sequence[Mapping[str, Any]] | None = None):
+        super().__init__(name, num_envs, resolution, render, env_kwargs)
+        self.envs = [_AutoResetEnv(cfg) for cfg in self.cfgs]
 
     def _call(self, cmd: str, payloads: Sequence[tuple]) -> list[Any]:
         return [getattr(e, cmd)(*p) for e, p in zip(self.envs, payloads)]
@@ -152,13 +175,14 @@ class ProcessVecEnv(_VecBase):
     """N envs, one per process, talking over pipes: all commands are sent, then all replies read."""
 
     def __init__(self, name: str, num_envs: int, resolution: int = 64, render: bool = True,
-                 start_method: str = "spawn"):
-        super().__init__(name, num_envs, resolution, render)
+                 start_method: str = "spawn",
+                 env_kwargs: Mapping[str, Any] | Sequence[Mapping[str, Any]] | None = None):
+        super().__init__(name, num_envs, resolution, render, env_kwargs)
         ctx = mp.get_context(start_method)
         self._remotes, self._procs = [], []
-        for _ in range(num_envs):
+        for cfg in self.cfgs:
             parent, child = ctx.Pipe()
-            proc = ctx.Process(target=_worker, args=(child, self.cfg), daemon=True)
+            proc = ctx.Process(target=_worker, args=(child, cfg), daemon=True)
             proc.start()
             child.close()
             self._remotes.append(parent)
