@@ -263,3 +263,12 @@ def test_brax_unroll_with_brax_acting(cartpole):
     assert extras["truncation"].shape == (6, N) and extras["episode_metrics"]["sum_reward"].shape == (6, N)
     # pushing right every step accumulates one reward per step until an episode ends
     np.testing.assert_array_equal(np.asarray(extras["episode_metrics"]["length"])[:, 0], np.arange(1, 7))
+
+
+def test_register_envs():
+    from bulbjax.gym import register_envs
+
+    ids = register_envs()
+    assert "bulbjax/CartPole-v0" in ids and len(ids) == len(bulbjax.env_names())
+    spec = gymnasium.spec("bulbjax/InvertedPendulumMulticolour-v0")
+    assert spec.vector_entry_point is not None and spec.nondeterministic is False
