@@ -29,6 +29,7 @@ import math
 import os
 import sys
 import time
+import warnings
 from dataclasses import asdict, dataclass, replace
 from typing import Any, Callable
 
@@ -194,11 +195,17 @@ def trajectory_errors(pb: np.ndarray, mj: np.ndarray, dt: float, checkpoints: tu
     """Distance and speed errors (|PyBullet - MJX|) vs time while neither episode has ended."""
     live = ~(ended(pb) | ended(mj))  # [T + 1, n]
     out: dict[str, Any] = {"live_starts_per_step": live.sum(1).tolist()}
+    with warnings.catch_warnings():  # steps where every start has ended give NaN (null in JSON)
+        warnings.simplefilter("ignore", RuntimeWarning)
+        return _trajectory_errors(pb, mj, dt, checkpoints, live, out)
+
+
+def _trajectory_errors(pb: np.ndarray, mj: np.ndarray, dt: float, checkpoints: tuple[float, ...],
+                       live: np.ndarray, out: dict[str, Any]) -> dict[str, Any]:
     for nm, k in (("distance", DIST), ("speed", SPEED), ("x", X)):
         e = np.abs(pb[..., k] - mj[..., k])
         e_live = np.where(live, e, np.nan)
-        with np.errstate(invalid="ignore"):
-            mean_t = np.nanmean(e_live, 1)
+        mean_t = np.nanmean(e_live, 1)
         out[nm] = {"mean_abs_vs_step": _round(mean_t), "max_abs": float(np.nanmax(e_live)),
                    "at": {f"{c:g}s": _maybe(mean_t, int(round(c / dt))) for c in checkpoints},
                    "pybullet_mean_vs_step": _round(np.nanmean(np.where(live, pb[..., k], np.nan), 1)),
@@ -210,8 +217,7 @@ def trajectory_errors(pb: np.ndarray, mj: np.ndarray, dt: float, checkpoints: tu
                              "at_last_live_step": _maybe(mean_t, last)}
     # relative speed error (a drift in acceleration shows as a steady relative gap)
     rel = np.where(live[1:], (pb[1:, :, SPEED] - mj[1:, :, SPEED]) / np.maximum(mj[1:, :, SPEED], 0.05), np.nan)
-    with np.errstate(invalid="ignore"):
-        out["speed_signed_rel_vs_step"] = _round(np.nanmean(rel, 1))
+    out["speed_signed_rel_vs_step"] = _round(np.nanmean(rel, 1))
     out["end_step"] = {"pybullet": _first_end(pb).tolist(), "mjx": _first_end(mj).tolist()}
     return out
 

@@ -19,8 +19,7 @@ import numpy as np
 from flax import serialization
 
 from bulbjax.rl.ppo import PPO, PPOConfig, PPOState, Transition, train
-from pybullet_compat.envs import BulletPixelEnv, domain
-from pybullet_compat.vector import SerialVecEnv
+from pybullet_compat.vector import SerialVecEnv, VecConfig, any_domain
 
 POLICY_DIR = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "docs", "parity", "policies")
 
@@ -38,7 +37,7 @@ class TransferConfig:
 
 def make_ppo(name: str, num_envs: int = 64, num_steps: int = 64) -> PPO:
     """The PPO (default bulbjax hyperparameters) for domain `name`'s observation and actions."""
-    spec = domain(name)
+    spec = any_domain(name)
     cfg = PPOConfig(num_envs=num_envs, num_steps=num_steps)
     return PPO(cfg, spec.state_dim, spec.num_actions if spec.discrete else None, spec.action_size)
 
@@ -124,7 +123,7 @@ def evaluate_in_pybullet(name: str, ppo: PPO, state: PPOState, episodes: int, se
     key = jax.random.PRNGKey(0)
     out = []
     for i in range(episodes):
-        env = BulletPixelEnv(name, render=False)
+        env = VecConfig(name, render=False).make()  # pybullet_envs domain or Incline original
         _, s = env.reset(seed=seed * 1000 + i)
         while True:
             a = np.asarray(pi(jnp.asarray(s[None]), key))[0]
