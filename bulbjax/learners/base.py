@@ -45,7 +45,7 @@ class LearnerConfig:
     retain_fraction: float = 0.0
     # How the decoder's transposed convs are computed (networks.DECONV_IMPLS; same parameters,
     # same function): "transpose" (flax ConvTranspose) or "subpixel" (3x3 conv + depth-to-space).
-    deconv_impl: str = "transpose"
+    deconv_impl: str = "subpixel"
     # Sequential learners only (svae, pred, dsa); the frame learners ignore these.
     sequence_length: int = 24  # steps per window (paper: 24 pendulums, 16 locomotion)
     pred_horizon: int = 4  # PRED reconstructs sequence_length + pred_horizon frames
