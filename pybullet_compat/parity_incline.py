@@ -454,6 +454,36 @@ def sweep_line(r: dict[str, Any]) -> str:
             f"same trend {r['same_trend']}, spearman {r['spearman_same_state']:.2f}")
 
 
+def print_tables(report: dict[str, Any]) -> None:
+    """Markdown tables of the headline numbers of every run in `report['runs']`."""
+    print("\n| run | push | set-up | distance err 0.2 / 0.4 / 0.8 s (m) | speed err 0.2 / 0.4 / 0.8 s (m/s) | max d / v |")
+    print("|---|---|---|---|---|---|")
+    fmt = lambda v: "-" if v is None else f"{v:.4f}"  # noqa: E731
+    for run_name, r in report["runs"].items():
+        for kind in ("zero", "random"):
+            for setup, res in r["trajectories"][kind].items():
+                d, v = res["distance"], res["speed"]
+                cells = [" / ".join(fmt(x[k]) for k in ("0.2s", "0.4s", "0.8s")) for x in (d["at"], v["at"])]
+                print(f"| {run_name} | {kind} | {setup} | {cells[0]} | {cells[1]} | "
+                      f"{d['max_abs']:.4f} / {v['max_abs']:.4f} |")
+    print("\n| run | sweep | MJX distance | PyBullet distance (same state) | max diff same state / own reset | Spearman |")
+    print("|---|---|---|---|---|---|")
+    for run_name, r in report["runs"].items():
+        for param in ("friction", "mass", "theta"):
+            w = r["sweeps"][param]
+            print(f"| {run_name} | {param} {w['values'][0]:.2f}..{w['values'][-1]:.2f} | "
+                  f"{w['mjx_distance'][0]:.3f}..{w['mjx_distance'][-1]:.3f} | "
+                  f"{w['pybullet_distance_same_state'][0]:.3f}..{w['pybullet_distance_same_state'][-1]:.3f} | "
+                  f"{w['same_state_max_abs_diff']:.4f} / {w['own_reset_max_abs_diff']:.4f} | {w['spearman_same_state']:.2f} |")
+    print("\n| run | max abs err of the slide acceleration vs analytic (m/s^2): MJX | PyBullet (bulb, vs analytic - damping) | PyBullet no damping |")
+    print("|---|---|---|---|")
+    for run_name, r in report["runs"].items():
+        a = r["analytic"]
+        if "skipped" not in a:
+            print(f"| {run_name} | {a['mjx_max_abs_err']:.3f} | {a['pybullet_max_abs_err']:.3f} | "
+                  f"{a['pybullet_no_damping_max_abs_err']:.3f} |")
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--name", default="GeomOnIncline")
@@ -475,6 +505,7 @@ def main(argv: list[str] | None = None) -> int:
             report["runs"] = {**old.get("runs", {}), **report["runs"]}
         except (OSError, ValueError):
             pass
+    print_tables(report)
     os.makedirs(os.path.dirname(a.json) or ".", exist_ok=True)
     with open(a.json, "w") as f:
         json.dump(report, f, indent=1)
