@@ -1,13 +1,12 @@
-"""Command line: `bulbjax run | fit | envs | render`."""
+"""Command line: `bulbjax run | report | fit | envs | render` (parsing only: the run loop is
+`bulbjax.experiment.run`, the offline fit `bulbjax.experiment.offline`)."""
 
 from __future__ import annotations
 
 import argparse
 import dataclasses
-import json
 import os
 import sys
-import time
 from typing import Sequence
 
 
@@ -29,20 +28,24 @@ def _domain_ppo(cfg):
         return cfg
 
 
-def build_config(args: argparse.Namespace):
-    """The run's ExperimentConfig: a preset (or the defaults) with the flags that were given,
-    the domain's PPO settings, then --small, --lr and --bf16 on top."""
+def build_config(args: argparse.Namespace, base=None, domain_ppo: bool = True):
+    """The run's ExperimentConfig: `base` (default a preset, or the defaults) with the flags that
+    were given, the domain's PPO settings (unless `domain_ppo` is False), then --small, --lr and
+    --bf16 on top."""
     from bulbjax.experiment import ExperimentConfig, small_config
     from bulbjax.experiment.config import preset
 
-    base = preset(args.preset) if args.preset else ExperimentConfig()
+    if base is None:
+        base = preset(args.preset) if args.preset else ExperimentConfig()
     given = {k: v for k, v in (("env", args.env), ("seeds", args.seeds), ("epochs", args.epochs),
                                ("sequence_length", args.sequence_length)) if v is not None}
     if args.learners is not None:
         given["learners"] = _parse_learners(args.learners)
     if args.multicolour:
         given["multicolour"] = True
-    cfg = _domain_ppo(base.replace(**given))
+    cfg = base.replace(**given)
+    if domain_ppo:
+        cfg = _domain_ppo(cfg)
     if args.small:
         cfg = small_config(cfg)
     if args.ppo_updates:
@@ -54,62 +57,62 @@ def build_config(args: argparse.Namespace):
     return cfg
 
 
+def resume_settings(args: argparse.Namespace):
+    """Config and options of `run --resume RUN_DIR`: the run's own config.json, with the flags
+    given on top (applied as a fresh run would apply them to the saved settings; `--preset`
+    builds the whole config anew). `bulbjax.experiment.run.check_resume` then refuses any flag
+    that changes what the run computes; only --epochs may grow the run."""
+    from bulbjax.experiment.config import read_run_config
+    from bulbjax.experiment.run import RunOptions, run_options_of
+
+    if args.out is not None and os.path.abspath(args.out) != os.path.abspath(args.resume):
+        raise ValueError(f"--resume {args.resume} continues that run in its own folder; leave out --out {args.out}")
+    saved, raw = read_run_config(args.resume)
+    if args.preset:
+        cfg = build_config(args)
+    else:
+        cfg = build_config(args, base=saved, domain_ppo=args.env is not None)
+    if args.epochs is None:
+        cfg = cfg.replace(epochs=saved.epochs)
+    ident = run_options_of(raw)
+    opts = RunOptions(seed=ident["seed"] if args.seed is None else args.seed,
+                      probe_every=ident["probe_every"] if args.probe_every is None else args.probe_every,
+                      **_stretch_options(args))
+    return cfg, opts
+
+
+def _stretch_options(args: argparse.Namespace) -> dict:
+    return dict(checkpoint_every=args.checkpoint_every, keep=args.keep, max_minutes=args.max_minutes,
+                stop_after=args.stop_after, tensorboard=args.tensorboard)
+
+
 def cmd_run(args: argparse.Namespace) -> int:
+    """Parse into (config, options, folder) and hand over to `bulbjax.experiment.run.run`."""
     import jax
-    from tqdm import tqdm
 
-    from bulbjax.experiment import Experiment
+    from bulbjax.experiment.run import RunOptions, run
+
+    if args.resume:
+        cfg, opts = resume_settings(args)
+        out = args.resume
+    else:
+        cfg = build_config(args)
+        opts = RunOptions(seed=args.seed or 0, probe_every=args.probe_every or 1, **_stretch_options(args))
+        out = args.out or "runs/latest"
+    devices = jax.local_devices()
+    if args.devices is not None:
+        if not 1 <= args.devices <= len(devices):
+            raise ValueError(f"--devices {args.devices}: this machine has {len(devices)} local devices")
+        devices = devices[: args.devices]
+    run(cfg, opts, out, resume=bool(args.resume), devices=devices, argv=["bulbjax", *getattr(args, "argv", [])])
+    return 0
+
+
+def cmd_report(args: argparse.Namespace) -> int:
     from bulbjax.experiment import report
-    from bulbjax.learners import check_finite
 
-    cfg = build_config(args)
-    os.makedirs(args.out, exist_ok=True)
-    metrics_path = os.path.join(args.out, "metrics.jsonl")
-    if os.path.exists(metrics_path):
-        os.remove(metrics_path)
-    with open(os.path.join(args.out, "config.json"), "w") as f:
-        json.dump(dataclasses.asdict(cfg), f, indent=1)
-
-    t0 = time.time()
-    exp = Experiment(cfg)
-    rs = exp.init(jax.random.PRNGKey(args.seed))
-    jax.block_until_ready(rs)
-    t_init = time.time() - t0
-    records = []
-    key = jax.random.PRNGKey(args.seed + 1)
-    bar = tqdm(range(cfg.epochs), desc=f"{cfg.env} x{cfg.seeds} seeds", unit="epoch")
-    t_first = None
-    every = args.probe_every
-    if every < 1:
-        raise ValueError(f"--probe-every must be >= 1, got {every}")
-    for epoch in bar:
-        if args.max_minutes and time.time() - t0 > 60 * args.max_minutes:
-            bar.write(f"stopping after {epoch} epochs: --max-minutes {args.max_minutes} reached")
-            break
-        key, k = jax.random.split(key)
-        # probe every `every` epochs, at epoch 0 and at the last epoch
-        rs, m = exp.epoch(rs, k, probe=epoch % every == 0 or epoch == cfg.epochs - 1)
-        m = jax.device_get(m)
-        if t_first is None:
-            t_first = time.time() - t0 - t_init
-        for name, lm in m["learners"].items():
-            check_finite(lm, where=f"learner {name} at epoch {epoch}")
-        recs = report.epoch_records(epoch, m, exp.spec)
-        report.write_jsonl(metrics_path, recs)
-        records += recs
-        if recs[0]["probes"]:
-            bar.set_postfix(_postfix(recs))
-    wall = time.time() - t0
-    done_epochs = len(records) // cfg.seeds
-    title = f"{cfg.env}{' (multicolour)' if cfg.multicolour else ''}: {cfg.seeds} seeds, {done_epochs} epochs"
-    plot_path = os.path.join(args.out, "fig2.png")
-    report.plot(records, exp.spec, plot_path, title, solved_return=exp.env.solved_return)
-    tab = report.table(records, exp.spec, last=min(3, len(report.probed(records)) // cfg.seeds))
-    timing = (f"wall time {wall:.1f} s (build+init {t_init:.1f} s, first epoch incl. compile "
-              f"{t_first:.1f} s) on {jax.devices()[0].device_kind}")
-    with open(os.path.join(args.out, "table.md"), "w") as f:
-        f.write(f"# {title}\n\n{tab}\n\n{timing}\n")
-    print(f"\n{tab}\n\n{timing}\nplot: {plot_path}\nmetrics: {metrics_path}")
+    tab = report.redraw(args.run_dir)
+    print(f"{tab}\nplot: {os.path.join(args.run_dir, 'fig2.png')}\ntable: {os.path.join(args.run_dir, 'table.md')}")
     return 0
 
 
@@ -150,16 +153,6 @@ def cmd_fit(args: argparse.Namespace) -> int:
     print(f"curves: {args.out}/curves.png, {args.out}/curves.jsonl; table: {args.out}/table.md; "
           f"reconstructions: {args.out}/recon.png")
     return 0
-
-
-def _postfix(recs: list[dict]) -> dict[str, str]:
-    import numpy as np
-    out = {"return": f"{np.nanmean([r['rl_return'] for r in recs]):.1f}"}
-    for name in recs[0]["probes"]:
-        for stream in ("curr", "rand"):
-            v = np.nanmean([r["probes"][name][stream]["overall"]["mae_norm"] for r in recs])
-            out[f"{name}/{stream}"] = f"{v:.2f}"
-    return out
 
 
 def cmd_envs(args: argparse.Namespace) -> int:
@@ -221,18 +214,34 @@ def main(argv: Sequence[str] | None = None) -> int:
     r.add_argument("--epochs", type=int, default=None, help="epochs (default 50)")
     r.add_argument("--sequence-length", type=int, default=None,
                    help="window length of the sequential learners (default 24 pendulums, 16 locomotion)")
-    r.add_argument("--seed", type=int, default=0, help="base PRNG seed")
-    r.add_argument("--out", default="runs/latest")
+    r.add_argument("--seed", type=int, default=None, help="base PRNG seed (default 0)")
+    r.add_argument("--out", default=None, help="run folder (default runs/latest)")
     r.add_argument("--multicolour", action="store_true", help="bulb's multicolour variant")
     r.add_argument("--small", action="store_true", help="CPU-sized settings (not the paper's)")
     r.add_argument("--bf16", action="store_true", help="bf16 compute in the learners (GPU)")
     r.add_argument("--ppo-updates", type=int, default=None, help="PPO updates per epoch")
     r.add_argument("--lr", type=float, default=None, help="learners' Adam learning rate (paper: 1e-4)")
     r.add_argument("--max-minutes", type=float, default=0.0,
-                   help="stop after this wall time and report the epochs done (0: no limit)")
-    r.add_argument("--probe-every", type=int, default=1,
-                   help="probe every k epochs (and at the first and last); plots keep epochs on the x axis")
+                   help="stop after this wall time, checkpoint and report the epochs done (0: no limit)")
+    r.add_argument("--probe-every", type=int, default=None,
+                   help="probe every k epochs (and at the first and last; default 1); plots keep epochs on the x axis")
+    r.add_argument("--resume", default=None, metavar="RUN_DIR",
+                   help="continue the run in RUN_DIR from its newest checkpoint with its own config.json "
+                        "(flags that would change it are an error; --epochs may extend it)")
+    r.add_argument("--checkpoint-every", type=int, default=0, metavar="N",
+                   help="checkpoint every N epochs (0, default: only when the run stops: at the end, "
+                        "--max-minutes, --stop-after, SIGINT/SIGTERM)")
+    r.add_argument("--keep", type=int, default=2, metavar="K", help="checkpoints kept (default 2)")
+    r.add_argument("--stop-after", type=int, default=0, metavar="E",
+                   help="stop this stretch after E epochs and checkpoint (0: no limit)")
+    r.add_argument("--devices", type=int, default=None,
+                   help="use the first D local devices (default all): seeds (then worlds) sharded over them")
+    r.add_argument("--tensorboard", action="store_true",
+                   help="also write the metrics as TensorBoard events under RUN_DIR/tb (needs tensorboardX)")
     r.set_defaults(fn=cmd_run)
+    rp = sub.add_parser("report", help="redraw fig2.png and table.md of a run folder from its metrics.jsonl")
+    rp.add_argument("run_dir", metavar="RUN_DIR")
+    rp.set_defaults(fn=cmd_report)
     o = sub.add_parser("fit", help="offline: train learners on one cached random-policy dataset, "
                                    "probe every M updates")
     o.add_argument("--env", default=None, help="an environment (`bulbjax envs`) or SyntheticMovers")
@@ -269,7 +278,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     d.add_argument("--version", default="0",
                    help="object version of the multi-object domains: 0-5, or random (one per frame)")
     d.set_defaults(fn=cmd_render)
+    argv = list(sys.argv[1:] if argv is None else argv)
     args = p.parse_args(argv)
+    args.argv = argv
     try:
         return args.fn(args)
     except (ValueError, FloatingPointError) as err:

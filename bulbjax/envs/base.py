@@ -224,7 +224,11 @@ class MjxPixelEnv:
 
     def reset(self, key: jax.Array) -> EnvState:
         """Start `num_envs` episodes; `key` is one PRNG key."""
-        keys = jax.random.split(key, self.num_envs)
+        return self.reset_keys(jax.random.split(key, self.num_envs))
+
+    def reset_keys(self, keys: jax.Array) -> EnvState:
+        """Start `num_envs` episodes from per-world keys `[num_envs, 2]` (`reset(key)` splits
+        one key; a caller that shards worlds over devices hands each device its share)."""
         data, scheme, params, keys = self._reset_batch(keys, jnp.ones(self.num_envs, bool))
         zeros = jnp.zeros(self.num_envs)
         lowdim = self._lowdim_batch(data, params)

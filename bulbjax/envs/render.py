@@ -53,13 +53,17 @@ class Renderer:
     in metres when `depth`)."""
 
     def __init__(self, mj_model: mujoco.MjModel, nworld: int, resolution: int, camera: str = "bulb",
-                 depth: bool = False, background: tuple[float, float, float] = (1.0, 1.0, 1.0)):
+                 depth: bool = False, background: tuple[float, float, float] = (1.0, 1.0, 1.0),
+                 devices: list[str] | None = None):
+        """`devices`: Warp devices (e.g. ["cuda:0", "cuda:1"]) that each get a context of
+        `nworld` worlds, for callers that render `nworld` worlds per device under `shard_map`;
+        default Warp's default device."""
         self.nworld = nworld
         self.resolution = resolution
         self.depth = depth
         # The context object must stay alive as long as its pytree is used (see mjx-warp notes).
         self._context = mjx.create_render_context(
-            mj_model, nworld=nworld, cam_res=(resolution, resolution), render_rgb=True,
+            mj_model, nworld=nworld, devices=devices, cam_res=(resolution, resolution), render_rgb=True,
             render_depth=depth, use_textures=True, use_shadows=False, cam_active=[camera],
             enabled_geom_groups=list(FRAME_GROUPS), background_color=(*background, 1.0))
         self._pytree = self._context.pytree()

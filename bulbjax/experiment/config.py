@@ -154,3 +154,46 @@ def preset(name: str) -> ExperimentConfig:
     if name not in PRESETS:
         raise ValueError(f"unknown preset {name!r}; available: {', '.join(PRESETS)}")
     return PRESETS[name]
+
+
+# ---------------------------------------------------------------------------- from JSON
+def _tuplify(v: object) -> object:
+    return tuple(_tuplify(x) for x in v) if isinstance(v, list) else v
+
+
+def _from_dict(cls: type, d: dict) -> object:
+    proto = cls()
+    names = {f.name for f in dataclasses.fields(cls)}
+    unknown = sorted(set(d) - names)
+    if unknown:
+        raise ValueError(f"{cls.__name__} has no fields {unknown}: the config was written by another "
+                         "version of bulbjax; start a new run, or check out that version to resume it")
+    kw = {}
+    for f in dataclasses.fields(cls):
+        if f.name in d:
+            cur = getattr(proto, f.name)
+            v = d[f.name]
+            kw[f.name] = _from_dict(type(cur), v) if dataclasses.is_dataclass(cur) else _tuplify(v)
+    return cls(**kw)
+
+
+def config_from_dict(d: dict) -> ExperimentConfig:
+    """The ExperimentConfig of `dataclasses.asdict(config)` (e.g. read back from a run's
+    config.json): nested configs rebuilt, JSON lists turned back into tuples. Fields missing
+    from `d` take their defaults; unknown fields are an error."""
+    return _from_dict(ExperimentConfig, d)  # type: ignore[return-value]
+
+
+def read_run_config(run_dir: str) -> tuple[ExperimentConfig, dict]:
+    """The ExperimentConfig of a run folder's config.json and the whole JSON (`experiment`, `run`
+    options, `provenance`, `resumes`); runs written before config.json had sections hold the
+    experiment config at the top level."""
+    import json
+    import os
+
+    path = os.path.join(run_dir, "config.json")
+    if not os.path.exists(path):
+        raise ValueError(f"{path} does not exist: RUN_DIR must be the --out folder of a `bulbjax run`")
+    with open(path) as f:
+        raw = json.load(f)
+    return config_from_dict(raw.get("experiment", raw)), raw

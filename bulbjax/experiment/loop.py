@@ -15,11 +15,14 @@ frame learners encode each frame, sequential learners each window, one latent pe
 from __future__ import annotations
 
 import math
-from typing import Any
+from typing import Any, Callable, Sequence
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 from flax import struct
+from jax.sharding import Mesh, NamedSharding
+from jax.sharding import PartitionSpec as P
 
 import bulbjax
 from bulbjax.data import replay, sequence
@@ -44,6 +47,23 @@ class RunState:
     rand_env: EnvState  # [S*N] held-out worlds under the random policy (never in replay)
     ref_spread: jax.Array  # [D] reference spread of every state entry (random policy, at init)
     epoch: jax.Array
+
+
+SEED_AXIS, WORLD_AXIS = "seeds", "worlds"
+
+
+def make_mesh(devices: Sequence[jax.Device], seeds: int, worlds: int) -> Mesh:
+    """A `(seeds, worlds)` mesh over as many of `devices` as the run can use: the seed axis
+    takes the largest divisor of `seeds` that fits, the world axis (each seed's worlds split
+    further) the largest divisor of `worlds` that fits in the devices left. Seeds come first
+    because a seed's PPO and learner updates are not split, only replicated, over the world
+    axis. E.g. 6 seeds on 2 or 6 devices: 2 x 1 or 6 x 1; 12 seeds on 8: 6 x 1 (6 devices
+    used); 1 seed of 64 worlds on 4: 1 x 4."""
+    devices = list(devices)
+    n = len(devices)
+    ds = max(d for d in range(1, min(seeds, n) + 1) if seeds % d == 0)
+    dw = max(d for d in range(1, min(worlds, n // ds) + 1) if worlds % d == 0)
+    return Mesh(np.array(devices[: ds * dw], dtype=object).reshape(ds, dw), (SEED_AXIS, WORLD_AXIS))
 
 
 def learner_unroll() -> bool | int:
@@ -112,12 +132,24 @@ def probe_learner(learner: Any, params: Any, train: Any, held: dict[str, Windows
 
 
 class Experiment:
-    """Builds the environment, PPO, learners and the jitted `init` and `epoch` functions."""
+    """Builds the environment, PPO, learners and the jitted `init` and `epoch` functions.
 
-    def __init__(self, config: ExperimentConfig):
+    `devices` (default: the first device alone) are laid out as a `(seeds, worlds)` mesh
+    (`make_mesh`): everything a seed owns is sharded over the seed axis, the worlds of the
+    simulators over both axes. The physics and the renderer are Warp kernels that XLA cannot
+    partition, so env calls run under `shard_map`, each device stepping and rendering its own
+    worlds (the env is built for the worlds of one device, with one render context per device);
+    the rest (PPO, learners, replay, probes) is left to XLA's partitioner. On one device nothing
+    of this is used and the code is the unsharded one. With fewer seeds than devices the world
+    axis takes the other devices: physics and rendering split, PPO and learner updates of a
+    seed replicated on its devices."""
+
+    def __init__(self, config: ExperimentConfig, devices: Sequence[jax.Device] | None = None):
         self.config = c = config
+        self.mesh = make_mesh(devices or jax.devices()[:1], c.seeds, c.num_envs)
+        self.sharded = self.mesh.size > 1
         try:
-            self.env: MjxPixelEnv = bulbjax.make(c.env, num_envs=c.seeds * c.num_envs,
+            self.env: MjxPixelEnv = bulbjax.make(c.env, num_envs=c.seeds * c.num_envs // self.mesh.size,
                                                  resolution=c.resolution, render=True,
                                                  render_steps=False, multicolour=c.multicolour)
         except ValueError as err:
@@ -136,9 +168,102 @@ class Experiment:
         self.sequential = {n: is_sequential(l) for n, l in self.learners.items()}
         self.window_length = c.window_length  # stored windows (0 without sequential learners)
         self.eval_length = c.seq_len if self.window_length else 1  # held-out window length
-        self.init = jax.jit(self._init)
+        if self.sharded:
+            self._per_device_renderer()
+        self._rep = NamedSharding(self.mesh, P())
+        self._state_sh = self.state_shardings(jax.eval_shape(self._init, jax.random.PRNGKey(0)))
+        self.init = jax.jit(self._init, out_shardings=self._state_sh)
         # `epoch(rs, key, probe=False)` skips the held-out rollouts and probes (`--probe-every`).
         self.epoch = jax.jit(self._epoch, donate_argnums=0, static_argnames="probe")
+
+    # ------------------------------------------------------------------ devices
+    def _per_device_renderer(self) -> None:
+        """One render context per device of the mesh, for the worlds of one device. On GPUs Warp
+        looks the context up by the GPU a kernel runs on. Warp has a single CPU device, so
+        XLA's host devices (`--xla_force_host_platform_device_count`) would share one context
+        and race on its buffers (seen: frames of one device's worlds in the other's); there
+        each mesh device gets its own context, picked by its index (`_render_local`)."""
+        from bulbjax.envs.render import Renderer
+
+        r, env = self.env.renderer, self.env
+        self._renderers: list[Renderer] = []
+        if jax.default_backend() == "gpu":
+            devs = [f"cuda:{d.local_hardware_id}" for d in self.mesh.devices.flat]
+            env.renderer = Renderer(env.mj_model, env.num_envs, env.resolution, depth=r.depth, devices=devs)
+        else:
+            self._renderers = [Renderer(env.mj_model, env.num_envs, env.resolution, depth=r.depth)
+                               for _ in range(self.mesh.size)]
+
+    def _render_local(self, render_inputs: Any) -> jax.Array:
+        """`env.render_sequence` of this device's worlds (inside `shard_map`), with this
+        device's own render context where the contexts are not per device already (CPU)."""
+        if not self._renderers:
+            return self.env.render_sequence(render_inputs)
+
+        def with_renderer(r: Any) -> Callable:
+            def f(ri: Any) -> jax.Array:
+                old, self.env.renderer = self.env.renderer, r  # swapped while tracing only
+                try:
+                    return self.env.render_sequence(ri)
+                finally:
+                    self.env.renderer = old
+            return f
+
+        index = jax.lax.axis_index((SEED_AXIS, WORLD_AXIS))
+        return jax.lax.switch(index, [with_renderer(r) for r in self._renderers], render_inputs)
+
+    def state_shardings(self, rs: RunState) -> RunState:
+        """Shardings of a RunState: per-seed parts over the seed axis, simulator worlds over
+        both axes, the reference spread and the epoch counter replicated."""
+        seed = NamedSharding(self.mesh, P(SEED_AXIS))
+        world = NamedSharding(self.mesh, P((SEED_AXIS, WORLD_AXIS)))
+
+        def each(tree: Any, sh: NamedSharding) -> Any:
+            return jax.tree.map(lambda _: sh, tree)
+
+        return RunState(ppo=each(rs.ppo, seed), learners=each(rs.learners, seed),
+                        buffers=each(rs.buffers, seed), windows=each(rs.windows, seed),
+                        train_env=each(rs.train_env, world), curr_env=each(rs.curr_env, world),
+                        rand_env=each(rs.rand_env, world), ref_spread=self._rep, epoch=self._rep)
+
+    def abstract_state(self) -> RunState:
+        """Shapes, dtypes and shardings of the RunState (what a checkpoint is restored into)."""
+        shapes = jax.eval_shape(self._init, jax.random.PRNGKey(0))
+        return jax.tree.map(lambda x, sh: jax.ShapeDtypeStruct(x.shape, x.dtype, sharding=sh),
+                            shapes, self._state_sh)
+
+    def abstract_key(self) -> jax.ShapeDtypeStruct:
+        return jax.ShapeDtypeStruct((2,), jnp.uint32, sharding=self._rep)
+
+    def put_key(self, key: jax.Array) -> jax.Array:
+        """A host-side PRNG key placed on the mesh (replicated)."""
+        return jax.device_put(key, self._rep)
+
+    def _on_worlds(self, f: Callable, in_specs: Any, out_specs: Any) -> Callable:
+        """`f` run per device on its own worlds (`shard_map`) when sharded, else `f` itself."""
+        if not self.sharded:
+            return f
+        return jax.shard_map(f, mesh=self.mesh, in_specs=in_specs, out_specs=out_specs, check_vma=False)
+
+    def _env_reset(self, key: jax.Array) -> EnvState:
+        """`env.reset(key)` of all S*N worlds; sharded, each device resets its own worlds from
+        the same per-world keys as one device would."""
+        if not self.sharded:
+            return self.env.reset(key)
+        w = P((SEED_AXIS, WORLD_AXIS))
+        keys = jax.random.split(key, self.S * self.N)
+        return self._on_worlds(self.env.reset_keys, (w,), w)(keys)
+
+    def _env_step(self, es: EnvState, action: jax.Array) -> EnvState:
+        w = P((SEED_AXIS, WORLD_AXIS))
+        return self._on_worlds(self.env.step, (w, w), w)(es, action)
+
+    def _render_sequence(self, render_inputs: Any) -> jax.Array:
+        """Frames `[K, S*N, H, W, 3]` of stored steps `[K, S*N]`."""
+        if not self.sharded:
+            return self.env.render_sequence(render_inputs)
+        kw = P(None, (SEED_AXIS, WORLD_AXIS))
+        return self._on_worlds(self._render_local, (kw,), kw)(render_inputs)
 
     # ------------------------------------------------------------------ helpers
     @property
@@ -165,12 +290,12 @@ class Experiment:
             logp = value = jnp.zeros((self.S, self.N))
         else:
             action, logp, value = jax.vmap(self.ppo.act)(ppo_state, obs, keys)
-        nes = self.env.step(es, self._flat(self.ppo.env_action(action)))
+        nes = self._env_step(es, self._flat(self.ppo.env_action(action)))
         return nes, obs, action, logp, value
 
     def _frames_of_steps(self, render_inputs: Any, lowdim: jax.Array) -> tuple[jax.Array, jax.Array]:
         """Render stored steps `[K, S*N]` -> per-seed frames `[S, K*N, H, W, 3]` and states."""
-        frames = self.env.render_sequence(render_inputs)  # [K, S*N, H, W, 3]
+        frames = self._render_sequence(render_inputs)  # [K, S*N, H, W, 3]
         k = frames.shape[0]
         frames = frames.reshape((k, self.S, self.N) + frames.shape[2:]).swapaxes(0, 1)
         lowdim = lowdim.reshape((k, self.S, self.N, -1)).swapaxes(0, 1)
@@ -204,7 +329,7 @@ class Experiment:
         r = starts.shape[0]
         src, valid = jax.vmap(lambda st: sequence.window_indices(done, st, length))(starts)
         src, valid = src.reshape((r * length, -1)), valid.reshape((r * length, -1))
-        frames = self.env.render_sequence(jax.tree.map(lambda x: sequence.gather_steps(x, src), ri))
+        frames = self._render_sequence(jax.tree.map(lambda x: sequence.gather_steps(x, src), ri))
         act = sequence.gather_steps(act, src) * valid[..., None]
 
         def per_seed(x: jax.Array) -> jax.Array:  # [R*L, S*N, ...] -> [S, R*N, L, ...]
@@ -225,7 +350,7 @@ class Experiment:
             keys = jax.random.split(jax.random.fold_in(k_learn, i), self.S)
             learners[name] = jax.vmap(lambda k, l=learner: l.init(k, self.env.frame_shape))(keys)
         ke = jax.random.split(k_env, 4)
-        train_env, curr_env, rand_env = (self.env.reset(k) for k in ke[:3])
+        train_env, curr_env, rand_env = (self._env_reset(k) for k in ke[:3])
         # The reference spread of every state entry, once per run: the random policy's held-out
         # worlds run `reference_steps` steps (pooled over seeds); their π_rand stream goes on from there.
         rand_env, (_, ref_states, _, _) = self._rollout(ppo_state, rand_env, ke[3], c.reference_steps,
@@ -234,7 +359,7 @@ class Experiment:
         # Fill replay with frames of the random policy; retained learners keep a share of them.
         steps = -(-c.replay_capacity // self.N)
         k_fill_reset, k_fill_roll = jax.random.split(k_fill)
-        _, frames, states = self._collect(ppo_state, self.env.reset(k_fill_reset), k_fill_roll, steps,
+        _, frames, states = self._collect(ppo_state, self._env_reset(k_fill_reset), k_fill_roll, steps,
                                           random=True)
         frames, states = frames[:, : c.replay_capacity], states[:, : c.replay_capacity]
         rcfg = replay.ReplayConfig(capacity=c.replay_capacity)
@@ -259,7 +384,7 @@ class Experiment:
         cap = sequence.capacity_in_windows(c.replay_capacity, lw)
         rounds = -(-cap // self.N)
         k_reset, k_roll, k_keep = jax.random.split(key, 3)
-        _, st = self._rollout(ppo_state, self.env.reset(k_reset), k_roll, rounds * lw, random=True)
+        _, st = self._rollout(ppo_state, self._env_reset(k_reset), k_roll, rounds * lw, random=True)
         starts = jnp.broadcast_to((jnp.arange(rounds) * lw)[:, None], (rounds, self.S * self.N))
         w = jax.tree.map(lambda x: x[:, :cap], self._windows(st, starts, lw))
         out = {}
@@ -418,4 +543,6 @@ class Experiment:
         new = RunState(ppo=ppo_state, learners=learners, buffers=buffers, windows=windows,
                        train_env=train_env, curr_env=curr_env, rand_env=rand_env,
                        ref_spread=rs.ref_spread, epoch=rs.epoch + 1)
+        if self.sharded:  # the next epoch gets the layout this one got
+            new = jax.lax.with_sharding_constraint(new, self._state_sh)
         return new, metrics

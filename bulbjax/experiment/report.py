@@ -54,9 +54,31 @@ def write_jsonl(path: str, records: Sequence[dict[str, Any]]) -> None:
             f.write(json.dumps(r, allow_nan=True) + "\n")
 
 
-def read_jsonl(path: str) -> list[dict[str, Any]]:
+def read_jsonl(path: str, tolerate_partial: bool = False) -> list[dict[str, Any]]:
+    """The records of a JSON-lines file; with `tolerate_partial`, a last line still being
+    written (no newline yet, not valid JSON) is skipped."""
     with open(path) as f:
-        return [json.loads(line) for line in f if line.strip()]
+        lines = f.read().split("\n")
+    out = []
+    for i, line in enumerate(lines):
+        if not line.strip():
+            continue
+        try:
+            out.append(json.loads(line))
+        except json.JSONDecodeError:
+            if tolerate_partial and i == len(lines) - 1:
+                break
+            raise
+    return out
+
+
+def write_jsonl_atomic(path: str, records: Sequence[dict[str, Any]]) -> None:
+    """Replace `path` with `records` (a temporary file renamed over it)."""
+    tmp = f"{path}.tmp{os.getpid()}"
+    with open(tmp, "w") as f:
+        for r in records:
+            f.write(json.dumps(r, allow_nan=True) + "\n")
+    os.replace(tmp, path)
 
 
 def ci90(values: np.ndarray, axis: int = 0) -> tuple[np.ndarray, np.ndarray]:
@@ -207,6 +229,70 @@ def table(records: Sequence[dict[str, Any]], spec: Sequence[StateEntry], last: i
     lines.append("")
     lines.append(f"Errors: {NORM_NOTE}; raw MAE in each entry's unit in metrics.jsonl.")
     return "\n".join(lines)
+
+
+def scalars(record: dict[str, Any]) -> dict[str, float]:
+    """Every number of one metrics.jsonl record as `seed<s>/<path>` tags (TensorBoard): RL
+    return, PPO and learner metrics, replay drops, the reference spread and every probe error
+    (per entry, group and overall; units and group names, being text, left out)."""
+    out: dict[str, float] = {}
+
+    def walk(prefix: str, v: Any) -> None:
+        if isinstance(v, dict):
+            for k, x in v.items():
+                walk(f"{prefix}/{k}", x)
+        elif isinstance(v, (list, tuple)):
+            for i, x in enumerate(v):
+                walk(f"{prefix}/{i}", x)
+        elif isinstance(v, (bool, int, float, np.integer, np.floating)) and v is not None:
+            out[prefix] = float(v)
+
+    for k, v in record.items():
+        if k not in ("epoch", "seed"):
+            walk(f"seed{record['seed']}/{k}", v)
+    return out
+
+
+def title_of(cfg: Any, epochs_done: int) -> str:
+    return (f"{cfg.env}{' (multicolour)' if cfg.multicolour else ''}: {cfg.seeds} seeds, "
+            f"{epochs_done} epochs")
+
+
+def write_reports(run_dir: str, records: Sequence[dict[str, Any]], cfg: Any,
+                  spec: Sequence[StateEntry], solved_return: float | None = None,
+                  footer: str = "") -> str:
+    """`fig2.png` and `table.md` of a run from its records (all epochs written so far); returns
+    the table. Epochs whose seeds are not all written yet (a run in progress) are left out."""
+    seeds = sorted({r["seed"] for r in records})
+    per_epoch: dict[int, int] = {}
+    for r in records:
+        per_epoch[r["epoch"]] = per_epoch.get(r["epoch"], 0) + 1
+    records = [r for r in records if per_epoch[r["epoch"]] == len(seeds)]
+    if not probed(records):
+        raise ValueError(f"{run_dir} has no probed epoch yet: nothing to plot (wait for the first epoch)")
+    done = len({r["epoch"] for r in records})
+    title = title_of(cfg, done)
+    plot(records, spec, os.path.join(run_dir, "fig2.png"), title, solved_return=solved_return)
+    tab = table(records, spec, last=min(3, len(probed(records)) // len(seeds)))
+    with open(os.path.join(run_dir, "table.md"), "w") as f:
+        f.write(f"# {title}\n\n{tab}\n" + (f"\n{footer}\n" if footer else ""))
+    return tab
+
+
+def redraw(run_dir: str) -> str:
+    """`bulbjax report RUN_DIR`: fig2.png and table.md again from config.json and metrics.jsonl
+    (also while the run is still writing them: incomplete epochs are left out)."""
+    from bulbjax.envs.registry import env_class
+    from bulbjax.experiment.config import read_run_config
+
+    cfg, _ = read_run_config(run_dir)
+    path = os.path.join(run_dir, "metrics.jsonl")
+    if not os.path.exists(path):
+        raise ValueError(f"{path} does not exist: is {run_dir} the --out folder of a `bulbjax run`?")
+    records = read_jsonl(path, tolerate_partial=True)
+    cls = env_class(cfg.env)
+    return write_reports(run_dir, records, cfg, cls.state_spec, cls.solved_return,
+                         footer=f"redrawn by `bulbjax report` from {len(records)} records")
 
 
 def _to_numpy(tree: Any) -> Any:

@@ -1,0 +1,116 @@
+"""Epoch throughput of one experiment on all local devices against one device.
+
+For each seed count of `--seeds` (default 6 and 12) and each device count of `--devices`
+(default 1 and all), builds `Experiment(preset, devices=first n)`, times `init`, the first epoch
+(compile included) and then `--epochs` epochs one by one (each `block_until_ready`), and reports
+the median epoch time, epochs/s, seed-epochs/s and the speedup over one device (goal on 2 GPUs:
+>= 1.8x). The seed axis is sharded over the devices (`bulbjax.experiment.loop.make_mesh`; with
+fewer seeds than devices the worlds are split too).
+
+Written after every measurement (a run cut short keeps what it had) to
+`<out-dir>/multigpu_<device>_<timestamp>.json`: command line, settings, provenance (versions,
+git commit, device kind and count) and the figures.
+
+GPU (2 GPUs; 4 compiles of the six-learner preset, so split across calls if one is too long):
+    python benchmarks/bench_multigpu.py --preset fig2-cartpole --bf16
+    python benchmarks/bench_multigpu.py --seeds 6 --bf16 ; python benchmarks/bench_multigpu.py --seeds 12 --bf16
+CPU smoke run (2 host devices):
+    XLA_FLAGS=--xla_force_host_platform_device_count=2 python benchmarks/bench_multigpu.py --small \
+        --learners vae --seeds 2 --epochs 2
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import datetime as dt
+import json
+import os
+import re
+import statistics
+import sys
+import time
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+sys.path.insert(0, os.path.dirname(HERE))  # this working tree's bulbjax
+
+import jax  # noqa: E402
+
+from bulbjax.experiment import Experiment  # noqa: E402
+from bulbjax.experiment.config import preset, small_config  # noqa: E402
+from bulbjax.experiment.run import provenance  # noqa: E402
+
+
+def measure(cfg, devices, epochs: int) -> dict:
+    """Init, first epoch (compile) and `epochs` timed epochs of `cfg` on `devices`."""
+    t = time.perf_counter()
+    exp = Experiment(cfg, devices=devices)
+    rs = exp.init(exp.put_key(jax.random.PRNGKey(0)))
+    jax.block_until_ready(rs)
+    t_init = time.perf_counter() - t
+    key = exp.put_key(jax.random.PRNGKey(1))
+    times = []
+    for i in range(epochs + 1):
+        key, k = jax.random.split(key)
+        t = time.perf_counter()
+        rs, m = exp.epoch(rs, k)
+        jax.block_until_ready((rs, m))
+        times.append(time.perf_counter() - t)
+    med = statistics.median(times[1:])
+    return {"devices": len(devices), "mesh": dict(exp.mesh.shape), "seeds": cfg.seeds,
+            "build_init_s": t_init, "first_epoch_s": times[0], "epoch_s": times[1:],
+            "median_epoch_s": med, "epochs_per_s": 1.0 / med, "seed_epochs_per_s": cfg.seeds / med}
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--preset", default="fig2-cartpole", help="six-learner preset (default fig2-cartpole)")
+    p.add_argument("--seeds", default="6,12", help="seed counts, comma-separated")
+    p.add_argument("--devices", default=None, help="device counts, comma-separated (default 1 and all)")
+    p.add_argument("--epochs", type=int, default=5, help="timed epochs after the first (compile) one")
+    p.add_argument("--learners", default=None, help="override the preset's learners (smoke runs)")
+    p.add_argument("--bf16", action="store_true", help="bf16 learner compute (GPU)")
+    p.add_argument("--small", action="store_true", help="CPU-sized settings (not the paper's)")
+    p.add_argument("--out-dir", default=os.path.join(HERE, "results"))
+    args = p.parse_args(argv)
+
+    all_devs = jax.local_devices()
+    counts = ([int(x) for x in args.devices.split(",")] if args.devices
+              else sorted({1, len(all_devs)}))
+    if max(counts) > len(all_devs):
+        raise SystemExit(f"--devices {args.devices}: only {len(all_devs)} local devices")
+    base = preset(args.preset)
+    if args.learners:
+        base = base.replace(learners=tuple(args.learners.split(",")))
+    if args.small:
+        base = small_config(base)
+    if args.bf16:
+        base = base.replace(learner=dataclasses.replace(base.learner, compute_dtype="bfloat16"))
+    kind = all_devs[0].device_kind
+    stamp = dt.datetime.now().strftime("%Y%m%d_%H%M%S")
+    os.makedirs(args.out_dir, exist_ok=True)
+    path = os.path.join(args.out_dir, f"multigpu_{re.sub(r'[^a-z0-9]+', '_', kind.lower())}_{stamp}.json")
+    out = {"settings": vars(args), "config": dataclasses.asdict(base), "provenance": provenance(),
+           "results": []}
+    for seeds in [int(s) for s in args.seeds.split(",")]:
+        cfg = base.replace(seeds=seeds)
+        one = None
+        for n in counts:
+            try:
+                r = measure(cfg, all_devs[:n], args.epochs)
+            except Exception as err:  # recorded, the other cases go on
+                r = {"devices": n, "seeds": seeds, "error": f"{type(err).__name__}: {err}"}
+            if n == 1 and "error" not in r:
+                one = r
+            if one is not None and "error" not in r:
+                r["speedup_vs_1"] = one["median_epoch_s"] / r["median_epoch_s"]
+            out["results"].append(r)
+            print(json.dumps({k: v for k, v in r.items() if k != "epoch_s"}), flush=True)
+            with open(path, "w") as f:
+                json.dump(out, f, indent=1)
+    print(f"written {path}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,363 @@
+"""The run loop of `bulbjax run`: epochs, checkpoints, logs, reports, resume.
+
+A run folder holds `config.json` (the ExperimentConfig, the options that change results, the
+provenance of every stretch), `metrics.jsonl` (one record per epoch and seed), `checkpoints/`
+(orbax, the last K), `fig2.png`, `table.md` and, with `--tensorboard`, `tb/` event files.
+
+Resuming is exact: a checkpoint holds the whole `RunState` and the host-side key chain, the
+epoch after it draws the same key as in an uninterrupted run, and `metrics.jsonl` is cut back
+to the checkpoint's epoch, so 2 epochs + resume + 2 epochs write the records of 4 epochs straight.
+Checkpoints are taken only between jitted calls (today one epoch per call; a chunked multi-epoch
+call would checkpoint at chunk ends) and when the run stops: at its last epoch, at
+`--max-minutes`, after `stop_after` epochs, or at the end of the epoch in which SIGINT/SIGTERM
+arrived (a second SIGINT interrupts at once).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import datetime
+import importlib.metadata
+import json
+import os
+import platform
+import shlex
+import shutil
+import signal
+import subprocess
+import sys
+import time
+from dataclasses import dataclass
+from typing import Any, Callable, Sequence
+
+import jax
+import numpy as np
+
+from bulbjax.experiment import report
+from bulbjax.experiment.checkpoint import CHECKPOINT_DIR, Checkpointer
+from bulbjax.experiment.config import ExperimentConfig, read_run_config
+from bulbjax.experiment.loop import Experiment
+
+VERSIONED = ("jax", "jaxlib", "flax", "optax", "orbax-checkpoint", "mujoco", "mujoco-mjx",
+             "mujoco-warp", "warp-lang", "numpy", "bulbjax")
+TB_DIR = "tb"
+
+
+@dataclass(frozen=True)
+class RunOptions:
+    """How a run is driven. `seed` and `probe_every` change what it computes and are fixed at its
+    start (a resume must keep them); the others may change from one stretch to the next."""
+
+    seed: int = 0
+    probe_every: int = 1  # probe every k epochs, and at the first and the last
+    checkpoint_every: int = 0  # also checkpoint every N epochs (0: only when the run stops)
+    keep: int = 2  # checkpoints kept
+    max_minutes: float = 0.0  # stop this stretch after this wall time (0: no limit)
+    stop_after: int = 0  # stop this stretch after this many epochs (0: no limit)
+    tensorboard: bool = False  # TensorBoard event files under RUN_DIR/tb
+
+    def __post_init__(self) -> None:
+        for name in ("probe_every", "keep"):
+            if getattr(self, name) < 1:
+                raise ValueError(f"--{name.replace('_', '-')} must be >= 1, got {getattr(self, name)}")
+        for name in ("checkpoint_every", "stop_after", "max_minutes"):
+            if getattr(self, name) < 0:
+                raise ValueError(f"--{name.replace('_', '-')} must be >= 0, got {getattr(self, name)}")
+
+
+IDENTITY = ("seed", "probe_every")  # RunOptions fields a resume must keep
+
+
+@dataclass
+class RunResult:
+    epochs_done: int
+    stopped: str  # "done", "max-minutes", "stop-after", "signal SIGTERM", ...
+    records: list[dict[str, Any]]
+    checkpoint: int | None  # epoch of the newest checkpoint
+
+
+# ---------------------------------------------------------------------------- provenance
+def provenance(argv: Sequence[str] | None = None, experiment: Experiment | None = None) -> dict[str, Any]:
+    """Where and how a stretch of the run was made: command line, package versions, git commit
+    of the bulbjax checkout (and whether it had uncommitted changes), devices, host, time."""
+    versions = {}
+    for pkg in VERSIONED:
+        try:
+            versions[pkg] = importlib.metadata.version(pkg)
+        except importlib.metadata.PackageNotFoundError:
+            versions[pkg] = None
+    devs = jax.devices()
+    out = {
+        "command": shlex.join(sys.argv if argv is None else argv),
+        "cwd": os.getcwd(),
+        "time_utc": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
+        "versions": versions,
+        "python": platform.python_version(),
+        "host": platform.node(),
+        "backend": jax.default_backend(),
+        "device_kind": devs[0].device_kind,
+        "device_count": len(devs),
+        **git_state(),
+    }
+    if experiment is not None:
+        out["mesh"] = dict(experiment.mesh.shape)
+    return out
+
+
+def git_state() -> dict[str, Any]:
+    """Commit and dirty flag of the git checkout bulbjax is imported from (None outside git)."""
+    root = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+
+    def git(*args: str) -> str | None:
+        try:
+            r = subprocess.run(["git", "-C", root, *args], capture_output=True, text=True, timeout=20)
+        except (OSError, subprocess.SubprocessError):
+            return None
+        return r.stdout.strip() if r.returncode == 0 else None
+
+    commit = git("rev-parse", "HEAD")
+    status = git("status", "--porcelain", "--untracked-files=no") if commit else None
+    return {"git_commit": commit, "git_dirty": None if status is None else bool(status)}
+
+
+# ---------------------------------------------------------------------------- config.json
+def _write_json_atomic(path: str, obj: Any) -> None:
+    tmp = f"{path}.tmp{os.getpid()}"
+    with open(tmp, "w") as f:
+        json.dump(obj, f, indent=1)
+    os.replace(tmp, path)
+
+
+def run_options_of(raw: dict[str, Any]) -> dict[str, Any]:
+    """The identity options saved in a config.json (defaults for runs that predate them)."""
+    base = dataclasses.asdict(RunOptions())
+    return {k: raw.get("run", {}).get(k, base[k]) for k in IDENTITY}
+
+
+def config_differences(saved: ExperimentConfig, saved_run: dict[str, Any], cfg: ExperimentConfig,
+                       opts: RunOptions) -> list[str]:
+    """What a resume would change: every differing config field (nested ones by dotted path,
+    `epochs` excepted: a run may be extended) and identity option, as 'field: saved X, given Y'."""
+    out = []
+
+    def walk(prefix: str, a: Any, b: Any) -> None:
+        if isinstance(a, dict) and isinstance(b, dict):
+            for k in sorted(set(a) | set(b)):
+                walk(f"{prefix}{k}" if not prefix else f"{prefix}.{k}", a.get(k), b.get(k))
+        elif a != b and prefix != "epochs":
+            out.append(f"{prefix}: saved {a!r}, given {b!r}")
+
+    walk("", dataclasses.asdict(saved), dataclasses.asdict(cfg))
+    for k in IDENTITY:
+        if saved_run[k] != getattr(opts, k):
+            out.append(f"{k}: saved {saved_run[k]!r}, given {getattr(opts, k)!r}")
+    return out
+
+
+def check_resume(run_dir: str, cfg: ExperimentConfig, opts: RunOptions) -> None:
+    """Raise ValueError when `cfg`/`opts` would change what the run in `run_dir` computes."""
+    saved, raw = read_run_config(run_dir)
+    diff = config_differences(saved, run_options_of(raw), cfg, opts)
+    if diff:
+        raise ValueError(f"--resume {run_dir}: the given settings differ from the run's config.json: "
+                         + "; ".join(diff) + ". Resume without those flags (the run keeps its own "
+                         "settings; only --epochs may grow), or start a new run with another --out")
+
+
+# ---------------------------------------------------------------------------- signals
+class StopSignal:
+    """SIGINT/SIGTERM handler: the first signal asks the loop to stop at the end of the current
+    epoch (and checkpoint); a second SIGINT interrupts at once."""
+
+    def __init__(self, log: Callable[[str], None] = print):
+        self.signum: int | None = None
+        self.log = log
+        self._old: dict[int, Any] = {}
+
+    def __call__(self, signum: int, frame: Any = None) -> None:
+        if self.signum is not None and signum == signal.SIGINT:
+            raise KeyboardInterrupt
+        self.signum = signum
+        self.log(f"{signal.Signals(signum).name}: stopping at the end of this epoch and checkpointing "
+                 "(SIGINT again to interrupt now)")
+
+    def __enter__(self) -> "StopSignal":
+        for s in (signal.SIGINT, signal.SIGTERM):
+            try:
+                self._old[s] = signal.signal(s, self)
+            except ValueError:  # not the main thread: no handlers, the loop runs to its end
+                pass
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        for s, h in self._old.items():
+            signal.signal(s, h)
+
+
+# ---------------------------------------------------------------------------- the loop
+def _probe_now(epoch: int, cfg: ExperimentConfig, opts: RunOptions) -> bool:
+    return epoch % opts.probe_every == 0 or epoch == cfg.epochs - 1
+
+
+def _start_fresh(run_dir: str, log: Callable[[str], None]) -> None:
+    """Remove what an earlier run left in `run_dir` (metrics, checkpoints, TensorBoard events)."""
+    for name in ("metrics.jsonl", "fig2.png", "table.md"):
+        p = os.path.join(run_dir, name)
+        if os.path.exists(p):
+            os.remove(p)
+    for name in (CHECKPOINT_DIR, TB_DIR):
+        p = os.path.join(run_dir, name)
+        if os.path.isdir(p):
+            log(f"starting afresh: removing {p} of an earlier run in {run_dir} (use --resume to continue it)")
+            shutil.rmtree(p)
+
+
+def _metrics_up_to(path: str, epoch: int, seeds: int) -> list[dict[str, Any]]:
+    """The records of epochs < `epoch` (later ones, written after the checkpoint, are cut off
+    and the file rewritten); an error if any of them is missing."""
+    records = report.read_jsonl(path, tolerate_partial=True) if os.path.exists(path) else []
+    keep = [r for r in records if r["epoch"] < epoch]
+    have = {(r["epoch"], r["seed"]) for r in keep}
+    missing = sorted({e for e in range(epoch) for s in range(seeds) if (e, s) not in have})
+    if missing:
+        raise ValueError(f"{path} lacks the records of epochs {missing[:5]}{'...' if len(missing) > 5 else ''} "
+                         f"that the checkpoint of epoch {epoch} has passed; the metrics cannot be continued "
+                         "without a gap. Start a new run")
+    if len(keep) != len(records):
+        report.write_jsonl_atomic(path, keep)
+    return keep
+
+
+class _TensorBoard:
+    """The scalars of metrics.jsonl as TensorBoard events (tensorboardX, optional extra)."""
+
+    def __init__(self, run_dir: str, purge_step: int | None):
+        try:
+            from tensorboardX import SummaryWriter
+        except ImportError as err:
+            raise ValueError("--tensorboard needs tensorboardX: pip install 'bulbjax[tensorboard]'") from err
+        self.writer = SummaryWriter(os.path.join(run_dir, TB_DIR), purge_step=purge_step)
+
+    def write(self, records: Sequence[dict[str, Any]]) -> None:
+        for r in records:
+            for tag, v in report.scalars(r).items():
+                self.writer.add_scalar(tag, v, global_step=r["epoch"])
+        self.writer.flush()
+
+    def close(self) -> None:
+        self.writer.close()
+
+
+def run(cfg: ExperimentConfig, opts: RunOptions, run_dir: str, *, resume: bool = False,
+        devices: Sequence[jax.Device] | None = None,
+        experiment: Experiment | None = None, argv: Sequence[str] | None = None,
+        log: Callable[[str], None] = print, progress: bool = True,
+        on_epoch: Callable[[int], None] | None = None) -> RunResult:
+    """Run (or, with `resume`, continue) the experiment `cfg` in `run_dir`; see the module doc.
+    `devices` (default: all local devices) are the mesh of `Experiment`; `experiment` reuses a built `Experiment(cfg)` (tests: one compile for several runs);
+    `on_epoch(epochs_done)` is called after each epoch's metrics are written (tests)."""
+    from tqdm import tqdm
+
+    from bulbjax.learners import check_finite
+
+    t0 = time.time()
+    os.makedirs(run_dir, exist_ok=True)
+    metrics_path = os.path.join(run_dir, "metrics.jsonl")
+    config_path = os.path.join(run_dir, "config.json")
+    if resume:
+        check_resume(run_dir, cfg, opts)
+        _, raw = read_run_config(run_dir)
+    else:
+        _start_fresh(run_dir, log)
+        raw = {"experiment": dataclasses.asdict(cfg),
+               "run": {k: getattr(opts, k) for k in IDENTITY}}
+    if experiment is not None and experiment.config != cfg:
+        raise ValueError("run(experiment=...) was built for another config")
+    exp = experiment or Experiment(cfg, devices=jax.local_devices() if devices is None else devices)
+    stretch = provenance(argv, exp)
+    if resume:
+        raw.setdefault("resumes", []).append(stretch)
+        raw["experiment"]["epochs"] = cfg.epochs
+    else:
+        raw["provenance"] = stretch
+    ckpt = Checkpointer(run_dir, keep=opts.keep)
+    if resume:
+        like = {"run": exp.abstract_state(), "key": exp.abstract_key()}
+        state, host, start = ckpt.restore(like)
+        rs, key = state["run"], state["key"]
+        if int(rs.epoch) != start or host.get("epoch") != start:
+            raise ValueError(f"checkpoint {start} holds epoch {int(rs.epoch)}: the checkpoint folder is inconsistent")
+        records = _metrics_up_to(metrics_path, start, cfg.seeds)
+        raw["resumes"][-1]["from_epoch"] = start
+        log(f"resuming {run_dir} at epoch {start} (checkpoints: {ckpt.steps()})")
+    else:
+        rs = exp.init(exp.put_key(jax.random.PRNGKey(opts.seed)))
+        key, start, records = exp.put_key(jax.random.PRNGKey(opts.seed + 1)), 0, []
+    _write_json_atomic(config_path, raw)
+    jax.block_until_ready(rs)
+    t_init = time.time() - t0
+    tb = _TensorBoard(run_dir, purge_step=start if resume else None) if opts.tensorboard else None
+
+    epoch, stopped, t_first, saved = start, "done", None, ckpt.latest() if resume else None
+    bar = tqdm(total=cfg.epochs, initial=start, desc=f"{cfg.env} x{cfg.seeds} seeds", unit="epoch",
+               disable=not progress)
+    try:
+        with StopSignal(bar.write) as stop:
+            while epoch < cfg.epochs:
+                if opts.max_minutes and time.time() - t0 > 60 * opts.max_minutes:
+                    stopped = "max-minutes"
+                    break
+                if opts.stop_after and epoch - start >= opts.stop_after:
+                    stopped = "stop-after"
+                    break
+                key, k = jax.random.split(key)
+                rs, m = exp.epoch(rs, k, probe=_probe_now(epoch, cfg, opts))
+                m = jax.device_get(m)
+                if t_first is None:
+                    t_first = time.time() - t0 - t_init
+                for name, lm in m["learners"].items():
+                    check_finite(lm, where=f"learner {name} at epoch {epoch}")
+                recs = report.epoch_records(epoch, m, exp.spec)
+                report.write_jsonl(metrics_path, recs)  # metrics first: a checkpoint never runs ahead
+                if tb:
+                    tb.write(recs)
+                records += recs
+                epoch += 1
+                bar.update(1)
+                if recs[0]["probes"]:
+                    bar.set_postfix(_postfix(recs))
+                if opts.checkpoint_every and epoch % opts.checkpoint_every == 0:
+                    ckpt.save(epoch, {"run": rs, "key": key}, {"epoch": epoch})
+                    saved = epoch
+                if on_epoch is not None:
+                    on_epoch(epoch)
+                if stop.signum is not None:
+                    stopped = f"signal {signal.Signals(stop.signum).name}"
+                    break
+            if saved != epoch:
+                ckpt.save(epoch, {"run": rs, "key": key}, {"epoch": epoch})
+                saved = epoch
+    finally:
+        bar.close()
+        ckpt.close()
+        if tb:
+            tb.close()
+    if stopped != "done":
+        log(f"stopped after epoch {epoch} ({stopped}); continue with: bulbjax run --resume {run_dir}")
+    wall = time.time() - t0
+    first = f", first epoch incl. compile {t_first:.1f} s" if t_first is not None else ""
+    timing = (f"wall time of the last stretch {wall:.1f} s (build+init/restore {t_init:.1f} s{first}) "
+              f"on {exp.mesh.size} x {jax.devices()[0].device_kind}")
+    if records:
+        tab = report.write_reports(run_dir, records, cfg, exp.spec, exp.env.solved_return, footer=timing)
+        log(f"\n{tab}\n\n{timing}\nplot: {os.path.join(run_dir, 'fig2.png')}\nmetrics: {metrics_path}")
+    return RunResult(epochs_done=epoch, stopped=stopped, records=records, checkpoint=saved)
+
+
+def _postfix(recs: list[dict]) -> dict[str, str]:
+    out = {"return": f"{np.nanmean([r['rl_return'] for r in recs]):.1f}"}
+    for name in recs[0]["probes"]:
+        for stream in ("curr", "rand"):
+            v = np.nanmean([r["probes"][name][stream]["overall"]["mae_norm"] for r in recs])
+            out[f"{name}/{stream}"] = f"{v:.2f}"
+    return out

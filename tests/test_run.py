@@ -1,0 +1,203 @@
+"""The run loop (`bulbjax.experiment.run`): checkpoints and exact resume, keep-K, SIGTERM,
+config mismatches, provenance, TensorBoard events and `bulbjax report`, on a tiny CPU config
+with a frame learner that retains replay and a sequential learner (window buffers)."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import os
+import signal
+import struct
+
+import jax
+import numpy as np
+import pytest
+
+from bulbjax.eval.probe import ProbeConfig
+from bulbjax.experiment import Experiment, ExperimentConfig, report
+from bulbjax.experiment.checkpoint import Checkpointer
+from bulbjax.experiment.config import PRESETS, config_from_dict, small_config
+from bulbjax.experiment.run import RunOptions, check_resume, run
+from bulbjax.learners import LearnerConfig
+from bulbjax.rl.ppo import PPOConfig
+
+
+def tiny() -> ExperimentConfig:
+    return ExperimentConfig(
+        env="CartPole", learners=("vae_rpl", "svae"), seeds=2, epochs=4, num_envs=4, resolution=32,
+        ppo=PPOConfig(num_envs=4, num_steps=8, num_minibatches=2, update_epochs=1),
+        ppo_updates_per_epoch=1, frames_per_epoch=8, replay_capacity=32, sequence_length=4,
+        learner=LearnerConfig(batch_size=8, conv_features=(8, 8, 8, 8), hidden=16, lr=1e-3),
+        learner_batches=1, eval_frames=8, probe_train_frames=16,
+        probe=ProbeConfig(hidden=(16,), steps=20, batch_size=16), reference_steps=16)
+
+
+@pytest.fixture(scope="module")
+def exp():
+    return Experiment(tiny())  # one compile serves every run below
+
+
+@pytest.fixture(scope="module")
+def straight(exp, tmp_path_factory):
+    """4 epochs in one go, a checkpoint every epoch, 2 kept, TensorBoard on."""
+    d = str(tmp_path_factory.mktemp("straight"))
+    res = run(exp.config, RunOptions(checkpoint_every=1, keep=2, tensorboard=True), d,
+              experiment=exp, progress=False, log=lambda s: None, argv=["bulbjax", "run", "--test"])
+    return d, res
+
+
+def _lines(d: str) -> list[str]:
+    with open(os.path.join(d, "metrics.jsonl")) as f:
+        return f.read().splitlines()
+
+
+def test_resume_is_bit_identical(exp, straight, tmp_path):
+    d0, res0 = straight
+    assert res0.epochs_done == 4 and res0.stopped == "done"
+    d = str(tmp_path / "resumed")
+    first = run(exp.config, RunOptions(stop_after=2), d, experiment=exp, progress=False, log=lambda s: None)
+    assert (first.epochs_done, first.stopped, first.checkpoint) == (2, "stop-after", 2)
+    assert len(_lines(d)) == 2 * 2
+    # an epoch written after the checkpoint (killed before the next one): cut off on resume
+    with open(os.path.join(d, "metrics.jsonl"), "a") as f:
+        f.write(json.dumps({"epoch": 2, "seed": 0, "rl_return": -1.0, "probes": {}}) + "\n")
+        f.write('{"epoch": 2, "seed": 1, "rl_ret')  # half-written line
+    second = run(exp.config, RunOptions(), d, resume=True, experiment=exp, progress=False, log=lambda s: None)
+    assert (second.epochs_done, second.stopped) == (4, "done")
+    a, b = _lines(d0), _lines(d)
+    assert len(a) == len(b) == 4 * 2
+    assert [json.loads(x)["epoch"] for x in b] == [0, 0, 1, 1, 2, 2, 3, 3]
+    assert a == b  # every float of every record, bit for bit (JSON round-trips float64 exactly)
+    cfg = json.load(open(os.path.join(d, "config.json")))
+    assert cfg["resumes"][0]["from_epoch"] == 2 and cfg["run"] == {"seed": 0, "probe_every": 1}
+    assert os.path.getsize(os.path.join(d, "fig2.png")) > 10_000
+
+
+def test_keep_k_and_checkpoint_contents(exp, straight):
+    d, _ = straight
+    ck = Checkpointer(d, keep=2)
+    assert ck.steps() == [3, 4]  # a checkpoint every epoch, the last 2 kept
+    like = {"run": exp.abstract_state(), "key": exp.abstract_key()}
+    state, host, epoch = ck.restore(like)
+    assert epoch == 4 and host == {"epoch": 4} and int(state["run"].epoch) == 4
+    rs = state["run"]
+    # zero-size leaves (mjx.Data of CartPole has many) come back with their shapes
+    shapes = jax.tree.map(lambda x: x.shape, like)
+    assert jax.tree.map(lambda x: x.shape, state) == shapes
+    assert rs.windows and rs.buffers  # window and frame buffers are in the checkpoint
+    state3, _, e3 = ck.restore(like, epoch=3)
+    assert e3 == 3 and not np.array_equal(np.asarray(state3["key"]), np.asarray(state["key"]))
+    ck.close()
+    # a state of another layout is refused, naming the difference
+    with pytest.raises(ValueError, match="does not fit"):
+        Checkpointer(d).restore({"run": exp.abstract_state().replace(learners={}), "key": exp.abstract_key()})
+
+
+def test_sigterm_stops_at_epoch_end_with_a_checkpoint(exp, tmp_path):
+    d = str(tmp_path / "term")
+    before = signal.getsignal(signal.SIGTERM)
+
+    def on_epoch(done: int) -> None:
+        if done == 1:
+            os.kill(os.getpid(), signal.SIGTERM)  # a real SIGTERM, mid-run
+
+    res = run(exp.config, RunOptions(), d, experiment=exp, progress=False, log=lambda s: None, on_epoch=on_epoch)
+    assert (res.epochs_done, res.stopped, res.checkpoint) == (1, "signal SIGTERM", 1)
+    assert signal.getsignal(signal.SIGTERM) is before  # the run's handler is gone again
+    state, _, epoch = Checkpointer(d).restore({"run": exp.abstract_state(), "key": exp.abstract_key()})
+    assert epoch == 1 and int(state["run"].epoch) == 1
+    assert len(_lines(d)) == 2  # one epoch of two seeds
+
+
+def test_config_mismatch_on_resume_is_an_error(exp, straight):
+    d, _ = straight
+    with pytest.raises(ValueError, match=r"learners: saved \('vae_rpl', 'svae'\), given \('vae',\)"):
+        check_resume(d, exp.config.replace(learners=("vae",)), RunOptions())
+    with pytest.raises(ValueError, match="learner.lr"):
+        check_resume(d, exp.config.replace(learner=dataclasses.replace(exp.config.learner, lr=1.0)), RunOptions())
+    with pytest.raises(ValueError, match="seed: saved 0, given 3"):
+        check_resume(d, exp.config, RunOptions(seed=3))
+    check_resume(d, exp.config.replace(epochs=10), RunOptions(keep=5, max_minutes=3))  # allowed
+    from bulbjax.cli import main
+    assert main(["run", "--resume", d, "--learners", "vae"]) == 2
+    assert main(["run", "--resume", d, "--seeds", "3"]) == 2
+    assert main(["run", "--resume", d, "--out", d + "_other"]) == 2
+
+
+def test_provenance_in_config_json(straight):
+    d, _ = straight
+    raw = json.load(open(os.path.join(d, "config.json")))
+    p = raw["provenance"]
+    assert p["command"] == "bulbjax run --test"
+    for pkg in ("jax", "jaxlib", "flax", "optax", "mujoco", "mujoco-mjx", "warp-lang"):
+        assert p["versions"][pkg], pkg
+    assert p["versions"]["jax"] == jax.__version__
+    assert len(p["git_commit"]) == 40 and isinstance(p["git_dirty"], bool)
+    assert p["device_count"] == jax.device_count() and p["device_kind"] and p["mesh"] == {"seeds": 1, "worlds": 1}
+    assert config_from_dict(raw["experiment"]) == tiny()
+
+
+def _tb_scalars(folder: str) -> dict[tuple[str, int], float]:
+    """Scalars of TensorBoard event files (TFRecord framing around Event protos)."""
+    from tensorboardX.proto import event_pb2
+    out = {}
+    for name in sorted(os.listdir(folder)):
+        with open(os.path.join(folder, name), "rb") as f:
+            data = f.read()
+        i = 0
+        while i < len(data):
+            (n,) = struct.unpack("<Q", data[i:i + 8])
+            ev = event_pb2.Event.FromString(data[i + 12:i + 12 + n])
+            i += 12 + n + 4
+            for v in ev.summary.value:
+                out[(v.tag, ev.step)] = v.simple_value
+    return out
+
+
+def test_tensorboard_has_the_metrics(straight):
+    d, res = straight
+    tb = _tb_scalars(os.path.join(d, "tb"))
+    recs = report.read_jsonl(os.path.join(d, "metrics.jsonl"))
+    r = recs[-1]
+    assert tb[("seed1/rl_return", 3)] == pytest.approx(r["rl_return"], rel=1e-6)
+    mae = r["probes"]["svae"]["rand"]["overall"]["mae_norm"]
+    assert tb[("seed1/probes/svae/rand/overall/mae_norm", 3)] == pytest.approx(mae, rel=1e-6)
+    assert len(report.scalars(r)) == len([k for k in tb if k[1] == 3 and k[0].startswith("seed1/")])
+
+
+def test_report_redraws_a_run_in_progress(straight, tmp_path):
+    d, _ = straight
+    import shutil
+    run_dir = tmp_path / "copy"
+    run_dir.mkdir()
+    for name in ("config.json", "metrics.jsonl"):
+        shutil.copy(os.path.join(d, name), run_dir / name)
+    lines = _lines(d)
+    # in progress: the last epoch has one seed written and the next line is half written
+    (run_dir / "metrics.jsonl").write_text("\n".join(lines[:-1]) + "\n" + lines[-1][:40])
+    from bulbjax.cli import main
+    assert main(["report", str(run_dir)]) == 0
+    assert os.path.getsize(run_dir / "fig2.png") > 10_000
+    tab = (run_dir / "table.md").read_text()
+    assert "3 epochs" in tab and "epoch 0, 1, 2;" in tab  # epoch 3 (incomplete) left out
+    assert main(["report", str(tmp_path / "nothing")]) == 2
+
+
+def test_report_reads_old_run_folders(tmp_path):
+    """Runs written before config.json had sections (docs/results) redraw too."""
+    import shutil
+    src = os.path.join(os.path.dirname(__file__), "..", "docs", "results", "fig2_invpend_h100")
+    if not os.path.isdir(src):
+        pytest.skip("no docs/results/fig2_invpend_h100")
+    for name in ("config.json", "metrics.jsonl"):
+        shutil.copy(os.path.join(src, name), tmp_path / name)
+    tab = report.redraw(str(tmp_path))
+    assert "| pred | π_rand |" in tab
+
+
+def test_config_json_round_trip():
+    for c in [*PRESETS.values(), small_config(PRESETS["fig2-cartpole"]), tiny()]:
+        assert config_from_dict(json.loads(json.dumps(dataclasses.asdict(c)))) == c
+    with pytest.raises(ValueError, match="another version"):
+        config_from_dict({"envv": "CartPole"})
