@@ -61,6 +61,9 @@ Known differences from bulb:
   floor, the Franka does.
 - bulb's Franka skips `stepSimulation` entirely when the commanded torque is all zeros (an
   `allclose(torque, 0)` early return); here physics always steps.
+- During the reset's settle, object speeds are capped at 1 m/s and 10 rad/s (MuJoCo pushes
+  objects that start inside each other apart faster than Bullet; uncapped, light spheres could
+  be thrown off the table).
 - Every reset of a batch runs the settle (30 env steps of physics) for all worlds whenever any
   world resets, as MJX steps all worlds together.
 """
@@ -94,6 +97,8 @@ BULLET_DT = 0.01
 BULLET_SUBSTEPS = 2
 SETTLE_STEPS = 20  # bulb: stepSimulation x 20 "to let the objects emerge from problematic poses"
 RANDOM_TORQUE_STEPS = 10  # then 10 steps of random torques in +-max_torque / 2
+SETTLE_MAX_SPEED = 1.0  # m/s, objects' speed cap during the settle (see `_cap_speeds`)
+SETTLE_MAX_SPIN = 10.0  # rad/s
 OBJ_XYZ_MIN = np.array([-0.45, -0.45, -0.05])
 OBJ_XYZ_MAX = np.array([0.45, 0.45, 0.20])
 EE_XY_MAX = 0.5
@@ -559,26 +564,48 @@ class Rearrange(MjxPixelEnv):
         return self._data0.replace(qpos=qpos, qvel=jnp.zeros(self.mj_model.nv))
 
     def _settle(self, data: mjx.Data, draws: dict[str, jax.Array]) -> mjx.Data:
-        """bulb's 20 free steps, then 10 steps of the drawn random torques."""
+        """bulb's 20 free steps, then 10 steps of the drawn random torques (one scan)."""
         params = {"version": draws["version"]}
         mx = self._world_model(params)
         data = jax.vmap(mjx.forward, in_axes=(None, 0))(mx, data)  # bias forces for the first torques
-        zero = jnp.zeros((self.num_envs, self.controlled))
-        data = jax.lax.scan(lambda d, _: (self.physics(d, zero, params), None), data, None, length=SETTLE_STEPS)[0]
-        torques = jnp.swapaxes(draws["torques"], 0, 1)  # [10, N, A]
-        return jax.lax.scan(lambda d, a: (self.physics(d, a, params), None), data, torques)[0]
+        zero = jnp.zeros((SETTLE_STEPS, self.num_envs, self.controlled))
+        actions = jnp.concatenate([zero, jnp.swapaxes(draws["torques"], 0, 1)])  # [30, N, A]
+        return jax.lax.scan(lambda d, a: (self._cap_speeds(self.physics(d, a, params)), None), data, actions)[0]
+
+    def _cap_speeds(self, data: mjx.Data) -> mjx.Data:
+        """Objects' speeds capped during the settle: MuJoCo's soft contacts push objects that
+        start deep in each other (or in the arm) apart faster than Bullet's capped penetration
+        recovery does, and a light sphere could fly off the table."""
+        idx = self._slot_vadr[:, None] + jnp.arange(6)  # [S, 6]
+
+        def cap(v):  # [..., S, 6]
+            lin, ang = v[..., :3], v[..., 3:]
+            scale = lambda x, m: x * jnp.minimum(1.0, m / jnp.maximum(jnp.linalg.norm(x, axis=-1, keepdims=True), 1e-9))
+            return jnp.concatenate([scale(lin, SETTLE_MAX_SPEED), scale(ang, SETTLE_MAX_SPIN)], axis=-1)
+        qvel = data.qvel.at[:, idx].set(cap(data.qvel[:, idx]))
+        return data.replace(qvel=qvel)
 
     def _reset_batch(self, keys: jax.Array, done: jax.Array, forward: bool = True):
+        """bulb's reset of the worlds in `done`: draws, placement, settle; a world whose settle
+        went non-finite (objects started deep in each other) is drawn again (at most
+        `NAN_RETRIES` times). One settle in the graph (a while loop), none run when no world
+        is done."""
         draws = self._draws_fixed(keys)
         data = jax.vmap(self._place)(draws)
-        data = jax.lax.cond(done.any(), lambda d: self._settle(d, draws), lambda d: d, data)
-        for _ in range(NAN_RETRIES):
-            # a world whose settle went non-finite (objects started deep in each other) is drawn again
-            bad = done & ~jnp.isfinite(data.qpos).all(axis=1)
+
+        def attempt(carry):
+            i, draws, data, todo = carry
+            settled = self._settle(jax.vmap(self._place)(draws), draws)
+            data = _where_tree(todo, settled, data)
+            bad = todo & ~jnp.isfinite(data.qpos).all(axis=1)
             draws = _where_tree(bad, self._draws_fixed(draws["key"]), draws)
-            placed = jax.vmap(self._place)(draws)
-            data = jax.lax.cond(bad.any(), lambda d: _where_tree(bad, self._settle(placed, draws), d),
-                                lambda d: d, data)
+            return i + 1, draws, data, bad
+
+        def more(carry):
+            i, _, _, todo = carry
+            return (i <= NAN_RETRIES) & todo.any()
+
+        _, draws, data, _ = jax.lax.while_loop(more, attempt, (jnp.int32(0), draws, data, done))
         params = {"version": draws["version"]}
         if forward:
             data = jax.vmap(mjx.forward, in_axes=(None, 0))(self._world_model(params), data)
@@ -655,6 +682,7 @@ IK_CANDIDATES = 4
 IK_DAMPING = 1e-2
 IK_ROT_WEIGHT = 0.3  # metres per unit of rotation-matrix error
 IK_MIN_LINK_Z = 0.01  # a pose is kept when every link frame past the base is this far above the floor
+FINGERTIP_OFFSET = 0.11  # m along the hand's z axis (panda.urdf: fingers at 0.0584, 0.054 long)
 
 
 def _axis_angle_mat(axis: jax.Array, angle: jax.Array) -> jax.Array:
@@ -685,8 +713,9 @@ class FrankaRearrange(Rearrange):
     pushed to |roll| >= pi/2 and pitch, yaw clipped to +-pi/2: the gripper points mostly down)
     and solves PyBullet's IK from the rest pose, retrying while a link touches the floor. Here:
     damped least squares on the hand's position and orientation in JAX (60 iterations from the
-    rest pose, joint ranges enforced), 4 targets per world, the first whose link frames all
-    clear the floor kept (else the last)."""
+    rest pose, joint ranges enforced), 4 targets per world, the first whose link frames and
+    fingertips all clear the floor kept (else the last). pybullet_data's fingers are longer than
+    bulb's `franka_small_fingers.urdf`: at bulb's rest pose their tips touch the floor."""
 
     joint_names = tuple(f"panda_joint{i}" for i in range(1, 8))
     fixed_joint_qpos = (0.0, 0.0)  # the fingers, closed
@@ -744,7 +773,8 @@ class FrankaRearrange(Rearrange):
     # ----- reset pose -----
     def hand_pose(self, q: jax.Array) -> tuple[jax.Array, jax.Array, jax.Array]:
         """World position and rotation of the hand's frame at arm angles `q` [7], and the z of
-        every link frame of the chain (pure JAX forward kinematics of the compiled model)."""
+        every link frame of the chain and of the fingertips (pure JAX forward kinematics of the
+        compiled model)."""
         pos, rot = jnp.zeros(3), jnp.eye(3)
         zs = []
         for p, quat, j, axis in zip(self._chain_pos, self._chain_quat, self._chain_joint, self._chain_axis):
@@ -753,6 +783,7 @@ class FrankaRearrange(Rearrange):
             if j >= 0:
                 rot = rot @ _axis_angle_mat(jnp.asarray(axis, jnp.float32), q[j])
             zs.append(pos[2])
+        zs.append(pos[2] + rot[2, 2] * FINGERTIP_OFFSET)  # the fingertips, below the hand
         return pos, rot, jnp.stack(zs)
 
     def solve_ik(self, target_pos: jax.Array, target_rot: jax.Array) -> jax.Array:
