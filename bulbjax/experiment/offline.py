@@ -360,32 +360,9 @@ def write_outputs(fit: OfflineFit, records: list[dict], states: dict, held: Wind
 
 
 def save_recon_grid(fit: OfflineFit, states: dict, held: Windows, path: str, n: int = 8) -> None:
-    """Row 0: `n` consecutive held-out frames (one window); then one row per learner (seed 0)."""
-    w = jax.tree.map(lambda x: x[:1], held)
-    frames = w.frames[0, :n]
-    rows = [np.asarray(frames, np.float32) / 255.0]
-    labels = ["held-out"]
-    for name, l in fit.learners.items():
-        params = jax.tree.map(lambda x: x[0], states[name].params)
-        if is_sequential(l):
-            rec = l.reconstruct(params, w)[0, : frames.shape[0]]
-        else:
-            rec = l.reconstruct(params, frames)
-        rows.append(np.asarray(rec))
-        labels.append(name)
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    k = rows[0].shape[0]
-    fig, axes = plt.subplots(len(rows), k, figsize=(1.1 * k, 1.2 * len(rows)), squeeze=False)
-    for i, row in enumerate(rows):
-        for j in range(k):
-            ax = axes[i, j]
-            if j < row.shape[0]:
-                ax.imshow(np.clip(row[j], 0, 1))
-            ax.set_xticks([])
-            ax.set_yticks([])
-        axes[i, 0].set_ylabel(labels[i], fontsize=8)
-    fig.tight_layout()
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
+    """Row 0: `n` consecutive held-out frames (one window); then one row per learner (seed 0).
+    Drawn by `bulbjax.experiment.figures` (the paper's Fig. 4 layout)."""
+    from bulbjax.experiment import figures
+
+    figures.recon_figure(path, fit.learners, figures.seed_params(states, 0), held,
+                         figures.FigureConfig(frames=n), title=f"{fit.source.name}: held-out frames, seed 0")
