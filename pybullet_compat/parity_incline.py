@@ -396,9 +396,58 @@ def analytic_check(mirror: InclineMirror, cfg: InclineParityConfig, steps: int =
     return out
 
 
+# ---------------------------------------------------------------------------------- frames
+def compare_frames(cfg: InclineParityConfig, seed: int = 0, keep_frames: bool = False) -> dict[str, Any]:
+    """Frames of the same states in both renderers: the MJX env (rendering on) resets `worlds`
+    bulb draws, PyBullet is put in each post-reset state; the object's pixels (PyBullet's
+    segmentation; MJX: pixels that change when the object is parked out of view) compared by
+    IoU and centroid distance, and the whole frames by mean absolute RGB difference (lighting and
+    the renderers differ; the plane/incline/object colours are the same numbers)."""
+    import jax
+    import jax.numpy as jnp
+
+    import bulbjax
+
+    env = bulbjax.make(cfg.name, num_envs=cfg.worlds, version=cfg.version, render=True,
+                       **({"ycb_dir": cfg.ycb_dir} if cfg.ycb_dir else {}))
+    rng = np.random.default_rng(seed + 11)
+    params = [pbi.draw_params(rng) for _ in range(cfg.worlds)]
+    fixed = {k: jnp.asarray([getattr(p, k) for p in params]) for k in pbi.RESET_FIELDS}
+    fixed["texture"] = fixed["texture"].astype(jnp.int32)
+    state = jax.jit(lambda k, fx: env.reset_with(k, **fx))(jax.random.PRNGKey(seed), fixed)
+    ri = state.render_input
+    parked = ri.replace(qpos=jnp.broadcast_to(env._qpos_park, ri.qpos.shape))
+    render = jax.jit(env.render_frames)
+    mj_frames = np.asarray(render(ri)).astype(int)
+    mj_mask = np.abs(mj_frames - np.asarray(render(parked)).astype(int)).sum(-1) > 30
+    raw = np.asarray(state.info["lowdim_raw"], np.float64)
+    side = pbi.InclineBulletEnv(cfg.name, cfg.version, resolution=env.resolution, ycb_dir=cfg.ycb_dir,
+                                cache_dir=cfg.cache_dir)
+    rows, pb_frames = [], []
+    for i, pr in enumerate(params):
+        side.place(pr)
+        side.set_pose_velocity(raw[i, :3], raw[i, 3:7], raw[i, 7:10], raw[i, 10:13])
+        pb_frame = side.render().astype(int)
+        pb_frames.append(pb_frame)
+        pb_mask = side.object_mask()
+        inter, union = (pb_mask & mj_mask[i]).sum(), (pb_mask | mj_mask[i]).sum()
+        c_pb = np.argwhere(pb_mask).mean(0) if pb_mask.any() else np.full(2, np.nan)
+        c_mj = np.argwhere(mj_mask[i]).mean(0) if mj_mask[i].any() else np.full(2, np.nan)
+        rows.append({"iou": float(inter / max(union, 1)), "centroid_px": float(np.linalg.norm(c_pb - c_mj)),
+                     "pixels_pybullet": int(pb_mask.sum()), "pixels_mjx": int(mj_mask[i].sum()),
+                     "mean_abs_rgb": float(np.abs(pb_frame - mj_frames[i]).mean())})
+    side.close()
+    out = {"worlds": rows, "mean_iou": float(np.mean([r["iou"] for r in rows])),
+           "max_centroid_px": float(np.nanmax([r["centroid_px"] for r in rows])),
+           "mean_abs_rgb": float(np.mean([r["mean_abs_rgb"] for r in rows]))}
+    if keep_frames:  # [N, H, W, 3] uint8 each, for looking at them
+        out["_frames"] = {"pybullet": np.stack(pb_frames).astype(np.uint8), "mjx": mj_frames.astype(np.uint8)}
+    return out
+
+
 # ---------------------------------------------------------------------------------- report
-def run(cfg: InclineParityConfig, log: Callable[[str], None] = print) -> dict[str, Any]:
-    """Every comparison for one Incline domain/version."""
+def run(cfg: InclineParityConfig, log: Callable[[str], None] = print, frames: bool = False) -> dict[str, Any]:
+    """Every comparison for one Incline domain/version (`frames`: also `compare_frames`)."""
     t0 = time.time()
     mirror = InclineMirror(cfg)
     report: dict[str, Any] = {"config": asdict(cfg), "dt": pbi.BULLET_DT * pbi.STEPS_PER_ACTION}
@@ -420,6 +469,11 @@ def run(cfg: InclineParityConfig, log: Callable[[str], None] = print) -> dict[st
     for param in ("friction", "mass", "theta"):
         log(f"sweep {param}: " + sweep_line(report["sweeps"][param]))
     bullet.close()
+    if frames:
+        report["frames"] = compare_frames(cfg)
+        f = report["frames"]
+        log(f"frames: object mask IoU {f['mean_iou']:.2f} (mean), centroids within {f['max_centroid_px']:.1f} px, "
+            f"mean |RGB difference| {f['mean_abs_rgb']:.1f}")
     report["seconds_taken"] = round(time.time() - t0, 1)
     return report
 
@@ -494,10 +548,17 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--ycb-dir", default=None)
     ap.add_argument("--cache-dir", default=None)
     ap.add_argument("--json", default=DEFAULT_JSON)
+    ap.add_argument("--frames", action="store_true", help="also compare frames of the same states (Warp render)")
+    ap.add_argument("--frames-only", action="store_true", help="only the frame comparison")
     a = ap.parse_args(argv)
     cfg = InclineParityConfig(name=a.name, version=a.version, worlds=a.worlds, steps=a.steps, seed=a.seed,
                               ycb_dir=a.ycb_dir, cache_dir=a.cache_dir)
-    report = {"versions": _versions(), "runs": {f"{cfg.name}-v{cfg.version}": run(cfg, lambda s: print(s, flush=True))}}
+    if a.frames_only:
+        f = compare_frames(cfg)
+        print(json.dumps({k: v for k, v in f.items() if k != "worlds"}))
+        return 0
+    report = {"versions": _versions(),
+              "runs": {f"{cfg.name}-v{cfg.version}": run(cfg, lambda s: print(s, flush=True), frames=a.frames)}}
     if os.path.exists(a.json):  # keep other domains/versions already in the report
         try:
             with open(a.json) as f:
