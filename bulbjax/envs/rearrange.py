@@ -47,6 +47,13 @@ Known differences from bulb:
   mass assumed, see `mjcf_assets/reacher_rearrange.xml`); cube = bulb's block (box 0.05 x 0.10 x
   0.15 m, 0.05 kg), cylinder radius 0.06, half-height 0.06, 0.2 kg; its contact parameters
   (restitution 0, lateral friction 0.5) assumed; tray colours are the textures' mean colours.
+- The reacher follows the reference's numbers (2 kg links, armature 1, damping 1: a slow arm,
+  ~0.4 rad in 0.6 s at full torque). bulb loaded its `reacher.xml` with PyBullet's `loadMJCF`,
+  which ignores geom masses, joint damping and armature (measured on this file:
+  `pybullet_compat/rearrange.py`, `docs/parity/rearrange_report.json`), so bulb's arm may have
+  been far lighter and faster than the numbers say.
+- The Panda is `pybullet_data`'s (bulb used its own `franka_small_fingers.urdf`, not stored):
+  its fingers are longer, and at bulb's rest pose their tips touch the floor.
 - bulb's rotation-matrix entries come from `quat2mat` applied to PyBullet's (x, y, z, w)
   quaternion, which that function reads as (w, x, y, z): bulb's nine numbers are the matrix of a
   permuted quaternion. Here they are the object's true rotation matrix.
