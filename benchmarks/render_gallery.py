@@ -1,7 +1,9 @@
 """Frames of every version of the multi-object domains, for the docs: one PNG per domain, a row
-per version (0-5), a column per step of one episode under zero push (every `--every` steps).
+per version (Incline 0-5, Rearrange 0-11), a column per step of one episode under zero action
+(every `--every` steps).
 
     python benchmarks/render_gallery.py --envs GeomOnIncline,YcbOnIncline --out docs/images
+    python benchmarks/render_gallery.py --envs ReacherRearrangeGeom,FrankaRearrangeYcb --steps 6 --out docs/images
 """
 
 from __future__ import annotations
@@ -16,16 +18,21 @@ from PIL import Image
 
 import bulbjax
 from bulbjax.envs.incline import NUM_VERSIONS
+from bulbjax.envs.rearrange import NUM_VERSIONS as REARRANGE_VERSIONS
+from bulbjax.envs.rearrange import Rearrange
 
 
 def gallery(name: str, steps: int, every: int, scale: int, seed: int) -> np.ndarray:
-    env = bulbjax.make(name, num_envs=NUM_VERSIONS, version="random")
-    versions = jnp.arange(NUM_VERSIONS)
-    state = jax.jit(lambda k: env.reset_with(k, version=versions, texture=versions))(jax.random.PRNGKey(seed))
+    rearrange = issubclass(bulbjax.envs.registry.env_class(name), Rearrange)
+    n = REARRANGE_VERSIONS if rearrange else NUM_VERSIONS
+    env = bulbjax.make(name, num_envs=n, version="random")
+    versions = jnp.arange(n)
+    fixed = {"version": versions} if rearrange else {"version": versions, "texture": versions}
+    state = jax.jit(lambda k: env.reset_with(k, **fixed))(jax.random.PRNGKey(seed))
     step = jax.jit(env.step)
     columns = [np.asarray(state.pixels)]
     for t in range(1, steps + 1):
-        state = step(state, jnp.zeros((NUM_VERSIONS, 1)))
+        state = step(state, jnp.zeros((n, env.action_size)))
         if t % every == 0:
             columns.append(np.asarray(state.pixels))
     grid = np.concatenate([np.concatenate(list(col), axis=0) for col in columns], axis=1)
@@ -45,7 +52,7 @@ def main() -> None:
     for name in args.envs.split(","):
         path = os.path.join(args.out, f"{name}.png")
         Image.fromarray(gallery(name, args.steps, args.every, args.scale, args.seed)).save(path)
-        print(f"{name}: versions 0-5 (rows, texture id = version) over {args.steps} steps -> {path}")
+        print(f"{name}: every version (rows) over {args.steps} steps -> {path}")
 
 
 if __name__ == "__main__":
