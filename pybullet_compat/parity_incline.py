@@ -445,6 +445,56 @@ def compare_frames(cfg: InclineParityConfig, seed: int = 0, keep_frames: bool = 
     return out
 
 
+# ---------------------------------------------------------------------------------- policy transfer
+def paired_policy_returns(cfg: InclineParityConfig, policy: Callable[[Any, Any], Any], episodes: int | None = None,
+                          seed: int = 1) -> dict[str, Any]:
+    """Returns of a deterministic policy `(states [N, D], key) -> actions [N, 1]` (jittable, e.g.
+    `pybullet_compat.transfer.policy_fn`) over the same `episodes` bulb draws in both simulators
+    (PyBullet: `reset(**draws)`; MJX: `reset_with` the same draws), each closed loop on its own
+    state until its episode ends: a paired transfer comparison."""
+    import jax
+    import jax.numpy as jnp
+
+    import bulbjax
+
+    n = episodes or cfg.worlds
+    rng = np.random.default_rng(seed + 23)
+    params = [pbi.draw_params(rng) for _ in range(n)]
+    env = bulbjax.make(cfg.name, num_envs=n, version=cfg.version, render=False,
+                       **({"ycb_dir": cfg.ycb_dir} if cfg.ycb_dir else {}))
+    fixed = {k: jnp.asarray([getattr(p, k) for p in params]) for k in pbi.RESET_FIELDS}
+    fixed["texture"] = fixed["texture"].astype(jnp.int32)
+    steps = env.episode_length
+
+    @jax.jit
+    def run_mjx(key: jax.Array, fx: dict[str, jax.Array]) -> tuple[jax.Array, jax.Array]:
+        def body(es, k):
+            es = env.step(es, policy(es.obs, k))
+            return es, (es.done, es.info["episode_return"])
+        k0, k1 = jax.random.split(key)
+        return jax.lax.scan(body, env.reset_with(k0, **fx), jax.random.split(k1, steps))[1]
+
+    done, ret = (np.asarray(x) for x in run_mjx(jax.random.PRNGKey(seed), fixed))
+    mj = ret[np.argmax(done > 0, axis=0), np.arange(n)]
+    pi = jax.jit(policy)
+    side = pbi.InclineBulletEnv(cfg.name, cfg.version, render=False, ycb_dir=cfg.ycb_dir, cache_dir=cfg.cache_dir)
+    pb = []
+    for pr in params:
+        _, s = side.reset(**asdict(pr))
+        while True:
+            r = side.step(np.asarray(pi(jnp.asarray(s[None]), jax.random.PRNGKey(0)))[0])
+            s = r.state
+            if r.terminated or r.truncated:
+                pb.append(r.info["episode_return"])
+                break
+    side.close()
+    pb_a = np.asarray(pb)
+    return {"episodes": n, "pybullet": pb_a.round(3).tolist(), "mjx": mj.round(3).tolist(),
+            "pybullet_mean": float(pb_a.mean()), "mjx_mean": float(mj.mean()),
+            "mean_abs_paired_diff": float(np.abs(pb_a - mj).mean()),
+            "corr": float(np.corrcoef(pb_a, mj)[0, 1]) if pb_a.std() > 0 and mj.std() > 0 else None}
+
+
 # ---------------------------------------------------------------------------------- report
 def run(cfg: InclineParityConfig, log: Callable[[str], None] = print, frames: bool = False) -> dict[str, Any]:
     """Every comparison for one Incline domain/version (`frames`: also `compare_frames`)."""
