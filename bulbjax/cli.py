@@ -83,7 +83,7 @@ def resume_settings(args: argparse.Namespace):
 
 def _stretch_options(args: argparse.Namespace) -> dict:
     return dict(checkpoint_every=args.checkpoint_every, keep=args.keep, max_minutes=args.max_minutes,
-                stop_after=args.stop_after, tensorboard=args.tensorboard)
+                stop_after=args.stop_after, tensorboard=args.tensorboard, recon_every=args.recon_every)
 
 
 def cmd_run(args: argparse.Namespace) -> int:
@@ -105,6 +105,17 @@ def cmd_run(args: argparse.Namespace) -> int:
             raise ValueError(f"--devices {args.devices}: this machine has {len(devices)} local devices")
         devices = devices[: args.devices]
     run(cfg, opts, out, resume=bool(args.resume), devices=devices, argv=["bulbjax", *getattr(args, "argv", [])])
+    return 0
+
+
+def cmd_recon(args: argparse.Namespace) -> int:
+    """`bulbjax recon RUN_DIR`: the run's figures from its newest (or --epoch) checkpoint."""
+    from bulbjax.experiment.figures import FigureConfig
+    from bulbjax.experiment.recon import redraw
+
+    learners = [s.strip() for s in args.learners.split(",") if s.strip()] if args.learners else None
+    redraw(args.run_dir, epoch=args.epoch, learners=learners,
+           config=FigureConfig(frames=args.frames, seed=args.seed), out_dir=args.out)
     return 0
 
 
@@ -238,7 +249,18 @@ def main(argv: Sequence[str] | None = None) -> int:
                    help="use the first D local devices (default all): seeds (then worlds) sharded over them")
     r.add_argument("--tensorboard", action="store_true",
                    help="also write the metrics as TensorBoard events under RUN_DIR/tb (needs tensorboardX)")
+    r.add_argument("--recon-every", type=int, default=0, metavar="N",
+                   help="write recon_<epoch>.png (held-out frames above every learner's reconstruction, "
+                        "seed 0) and, with spair, boxes_<epoch>.png every N epochs and at the end (0: none)")
     r.set_defaults(fn=cmd_run)
+    rc = sub.add_parser("recon", help="redraw a run's reconstruction (and SPAIR box) figures from a checkpoint")
+    rc.add_argument("run_dir", metavar="RUN_DIR")
+    rc.add_argument("--epoch", type=int, default=None, help="the checkpoint of E epochs done (default the newest)")
+    rc.add_argument("--learners", default=None, help="comma-separated subset of the run's learners (default all)")
+    rc.add_argument("--seed", type=int, default=0, help="whose learners (seed index of the run, default 0)")
+    rc.add_argument("--frames", type=int, default=8, help="frames per row (default 8)")
+    rc.add_argument("--out", default=None, help="folder of the PNGs (default RUN_DIR)")
+    rc.set_defaults(fn=cmd_recon)
     rp = sub.add_parser("report", help="redraw fig2.png and table.md of a run folder from its metrics.jsonl")
     rp.add_argument("run_dir", metavar="RUN_DIR")
     rp.set_defaults(fn=cmd_report)

@@ -48,8 +48,10 @@ def object_scores(
     }
 
 
-def summarise(scores: dict[str, jax.Array], names: Sequence[str] | None = None) -> dict[str, object]:
-    """Host-side summary of `object_scores` (any leading axes before [B, M] are pooled).
+def summarise(scores: dict[str, jax.Array], names: Sequence[str] | None = None,
+              valid: np.ndarray | None = None) -> dict[str, object]:
+    """Host-side summary of `object_scores` (any leading axes before [B, M] are pooled; with
+    `valid` (bool, the scores' leading shape) only those frames count).
 
     Returns `error` (mean distance in px over frames where a box is present) and `found`
     (share found within the radius) per object (keyed by `names`, default "object0", ...) and
@@ -59,6 +61,11 @@ def summarise(scores: dict[str, jax.Array], names: Sequence[str] | None = None) 
     found = np.asarray(jax.device_get(scores["found"]), np.float64)
     m = dist.shape[-1]
     dist, found = dist.reshape(-1, m), found.reshape(-1, m)
+    spurious = np.asarray(jax.device_get(scores["spurious"]), np.float64).reshape(-1)
+    present = np.asarray(jax.device_get(scores["present"]), np.float64).reshape(-1)
+    if valid is not None:
+        keep = np.asarray(valid, bool).reshape(-1)
+        dist, found, spurious, present = dist[keep], found[keep], spurious[keep], present[keep]
     names = list(names) if names is not None else [f"object{i}" for i in range(m)]
     if len(names) != m:
         raise ValueError(f"{len(names)} names for {m} objects")
@@ -76,6 +83,117 @@ def summarise(scores: dict[str, jax.Array], names: Sequence[str] | None = None) 
         "error_mean": mean_err(dist, finite),
         "found_share": float(found.mean()),
         "missing": float(1.0 - finite.mean()),
-        "spurious_per_frame": float(np.asarray(scores["spurious"], np.float64).mean()),
-        "present_per_frame": float(np.asarray(scores["present"], np.float64).mean()),
+        "spurious_per_frame": float(spurious.mean()),
+        "present_per_frame": float(present.mean()),
     }
+
+
+# ---------------------------------------------------------------------------- true positions
+def project_points(points: jax.Array, cam_pos: jax.Array, cam_mat: jax.Array, fovy_deg: float,
+                   resolution: int) -> jax.Array:
+    """World points [..., 3] -> image positions [..., 2] in pixels, (x, y) from the frame's
+    top-left corner (a pixel's centre at +0.5), for a square frame of `resolution` pixels seen by
+    a pinhole camera at `cam_pos` [3] with orientation `cam_mat` [3, 3] (columns: the camera's
+    x right, y up, z backwards, MuJoCo's `cam_xmat`) and vertical field of view `fovy_deg`: the
+    convention of the renderer's rays (`bulbjax.envs.render.camera_rays`). Jittable."""
+    local = (points - cam_pos) @ cam_mat  # camera frame
+    half = np.tan(np.deg2rad(fovy_deg) / 2.0)
+    depth = -local[..., 2]
+    u = local[..., 0] / (depth * half)
+    v = local[..., 1] / (depth * half)
+    return jnp.stack([(1.0 + u) * resolution / 2.0, (1.0 - v) * resolution / 2.0], axis=-1)
+
+
+def world_camera(mj_model, camera: str = "bulb") -> tuple[np.ndarray, np.ndarray, float]:
+    """(position [3], orientation [3, 3], fovy in degrees) of a camera fixed in the world
+    (host-side, from the model at its reference pose); other cameras move with their body and
+    are refused."""
+    import mujoco
+
+    cid = mujoco.mj_name2id(mj_model, mujoco.mjtObj.mjOBJ_CAMERA, camera)
+    if cid < 0:
+        raise ValueError(f"no camera {camera!r} in the model")
+    if mj_model.cam_bodyid[cid] != 0 or mj_model.cam_mode[cid] != mujoco.mjtCamLight.mjCAMLIGHT_FIXED:
+        raise ValueError(f"camera {camera!r} moves with its body: object pixels need a world-fixed camera")
+    data = mujoco.MjData(mj_model)
+    mujoco.mj_kinematics(mj_model, data)
+    mujoco.mj_camlight(mj_model, data)
+    return (np.array(data.cam_xpos[cid], np.float32), np.array(data.cam_xmat[cid], np.float32).reshape(3, 3),
+            float(mj_model.cam_fovy[cid]))
+
+
+def object_pixels(env) -> tuple[list[str], "callable"] | None:
+    """For domains whose true state holds object positions (the Rearrange domains: entries
+    `obj<i>_x/y/z` of group `object_position`, each in [-1, 1] of the tray's box): the object
+    names and a jittable map states [..., D] -> image positions [..., M, 2] (px, (x, y)) through
+    the domain's world-fixed camera. None for other domains (no objects in the state)."""
+    spec = list(env.state_spec)
+    names = [e.name for e in spec]
+    objs = object_names(spec)
+    if not objs:
+        return None
+    from bulbjax.envs import rearrange
+
+    if not isinstance(env, rearrange.Rearrange):
+        return None  # other scalings of object positions are not known here
+    idx = np.array([[names.index(f"{o}_{a}") for a in "xyz"] for o in objs])  # [M, 3]
+    lo, hi = np.asarray(rearrange.OBJ_XYZ_MIN, np.float32), np.asarray(rearrange.OBJ_XYZ_MAX, np.float32)
+    pos, mat, fovy = world_camera(env.mj_model)
+    res = env.resolution
+
+    def pixels(states: jax.Array) -> jax.Array:
+        world = (states[..., idx] + 1.0) / 2.0 * (hi - lo) + lo  # [..., M, 3] metres
+        return project_points(world, pos, mat, fovy, res)
+
+    return objs, pixels
+
+
+# ---------------------------------------------------------------------------- in the experiment
+def default_radius(resolution: int) -> float:
+    """The radius (px) within which a present box counts as finding an object: a tenth of the
+    frame (6.4 px at 64 px, about half the size of a Rearrange object in the image)."""
+    return resolution / 10.0
+
+
+def object_names(spec: Sequence) -> list[str]:
+    """Objects whose x, y, z are state entries `<name>_x/_y/_z` of group `object_position`."""
+    names = {e.name for e in spec}
+    objs = sorted({e.name.rsplit("_", 1)[0] for e in spec
+                   if e.group == "object_position" and e.name.rsplit("_", 1)[-1] in ("x", "y", "z")})
+    return [o for o in objs if all(f"{o}_{a}" in names for a in "xyz")]
+
+
+def table(records: Sequence[dict], last: int = 1) -> str:
+    """Markdown table of the object-level probe in metrics.jsonl records (`record["objects"]
+    [learner][stream]`, from `summarise`): mean error (px) and share found per object and
+    averaged, mean over seeds and the `last` epochs that have it. Empty without such records."""
+    recs = [r for r in records if r.get("objects")]
+    if not recs:
+        return ""
+    epochs = sorted({r["epoch"] for r in recs})[-last:]
+    recs = [r for r in recs if r["epoch"] in epochs]
+    first = recs[0]["objects"]
+    learner = next(iter(first))
+    stream = next(iter(first[learner]))
+    objs = list(first[learner][stream]["per_object"])
+    head = "| learner | stream | mean error (px) | found | " + " | ".join(f"{o} (px)" for o in objs) + " | spurious/frame |"
+    lines = [head, "|" + "---|" * (5 + len(objs))]
+
+    def avg(vals: list[float]) -> str:
+        v = np.asarray(vals, np.float64)
+        v = v[np.isfinite(v)]
+        return f"{v.mean():.2f}" if v.size else "–"
+
+    for name in first:
+        for st in first[name]:
+            rows = [r["objects"][name][st] for r in recs]
+            cells = [avg([x["error_mean"] for x in rows]), avg([x["found_share"] for x in rows])]
+            cells += [avg([x["per_object"][o]["error"] for x in rows]) for o in objs]
+            cells.append(avg([x["spurious_per_frame"] for x in rows]))
+            lines.append(f"| {name} | {st} | " + " | ".join(cells) + " |")
+    seeds = len({r["seed"] for r in recs})
+    lines.append("")
+    lines.append(f"Object-level probe: distance from each true object's image position to the nearest "
+                 f"present box centre; found = within the radius; epochs {', '.join(map(str, epochs))}, "
+                 f"mean over {seeds} seeds.")
+    return "\n".join(lines)

@@ -55,12 +55,13 @@ class RunOptions:
     max_minutes: float = 0.0  # stop this stretch after this wall time (0: no limit)
     stop_after: int = 0  # stop this stretch after this many epochs (0: no limit)
     tensorboard: bool = False  # TensorBoard event files under RUN_DIR/tb
+    recon_every: int = 0  # recon_<epoch>.png (+ boxes_<epoch>.png with SPAIR) every N epochs and at the end (0: none)
 
     def __post_init__(self) -> None:
         for name in ("probe_every", "keep"):
             if getattr(self, name) < 1:
                 raise ValueError(f"--{name.replace('_', '-')} must be >= 1, got {getattr(self, name)}")
-        for name in ("checkpoint_every", "stop_after", "max_minutes"):
+        for name in ("checkpoint_every", "stop_after", "max_minutes", "recon_every"):
             if getattr(self, name) < 0:
                 raise ValueError(f"--{name.replace('_', '-')} must be >= 0, got {getattr(self, name)}")
 
@@ -210,6 +211,10 @@ def _start_fresh(run_dir: str, log: Callable[[str], None]) -> None:
         if os.path.isdir(p):
             log(f"starting afresh: removing {p} of an earlier run in {run_dir} (use --resume to continue it)")
             shutil.rmtree(p)
+    from bulbjax.experiment.recon import figure_files
+
+    for p in figure_files(run_dir):
+        os.remove(p)
 
 
 def _metrics_up_to(path: str, epoch: int, seeds: int) -> list[dict[str, Any]]:
@@ -297,6 +302,11 @@ def run(cfg: ExperimentConfig, opts: RunOptions, run_dir: str, *, resume: bool =
     jax.block_until_ready(rs)
     t_init = time.time() - t0
     tb = _TensorBoard(run_dir, purge_step=start if resume else None) if opts.tensorboard else None
+    figs, drawn = None, None
+    if opts.recon_every:
+        from bulbjax.experiment.recon import RunFigures
+
+        figs = RunFigures(exp, run_seed=opts.seed)
 
     epoch, stopped, t_first, saved = start, "done", None, ckpt.latest() if resume else None
     bar = tqdm(total=cfg.epochs, initial=start, desc=f"{cfg.env} x{cfg.seeds} seeds", unit="epoch",
@@ -329,6 +339,9 @@ def run(cfg: ExperimentConfig, opts: RunOptions, run_dir: str, *, resume: bool =
                 if opts.checkpoint_every and epoch % opts.checkpoint_every == 0:
                     ckpt.save(epoch, {"run": rs, "key": key}, {"epoch": epoch})
                     saved = epoch
+                if figs is not None and epoch % opts.recon_every == 0:
+                    figs.draw(rs, run_dir, epoch)
+                    drawn = epoch
                 if on_epoch is not None:
                     on_epoch(epoch)
                 if stop.signum is not None:
@@ -342,6 +355,8 @@ def run(cfg: ExperimentConfig, opts: RunOptions, run_dir: str, *, resume: bool =
         ckpt.close()
         if tb:
             tb.close()
+    if figs is not None and epoch > start and drawn != epoch:  # and at the end
+        figs.draw(rs, run_dir, epoch)
     if stopped != "done":
         log(f"stopped after epoch {epoch} ({stopped}); continue with: bulbjax run --resume {run_dir}")
     wall = time.time() - t0
