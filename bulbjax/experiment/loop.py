@@ -174,7 +174,11 @@ class Experiment:
         self._state_sh = self.state_shardings(jax.eval_shape(self._init, jax.random.PRNGKey(0)))
         self.init = jax.jit(self._init, out_shardings=self._state_sh)
         # `epoch(rs, key, probe=False)` skips the held-out rollouts and probes (`--probe-every`).
-        self.epoch = jax.jit(self._epoch, donate_argnums=0, static_argnames="probe")
+        # Outputs laid out exactly as the inputs (state as `init` gives it, metrics replicated):
+        # an equivalent but differently written sharding (XLA drops size-1 mesh axes) would
+        # make the second call compile the epoch again.
+        self.epoch = jax.jit(self._epoch, donate_argnums=0, static_argnames="probe",
+                             out_shardings=(self._state_sh, self._rep))
 
     # ------------------------------------------------------------------ devices
     def _per_device_renderer(self) -> None:
