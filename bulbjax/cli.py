@@ -43,6 +43,8 @@ def build_config(args: argparse.Namespace, base=None, domain_ppo: bool = True):
         given["learners"] = _parse_learners(args.learners)
     if args.multicolour:
         given["multicolour"] = True
+    if getattr(args, "rl_input", None) is not None:
+        given["rl_input"] = args.rl_input
     cfg = base.replace(**given)
     if domain_ppo:
         cfg = _domain_ppo(cfg)
@@ -122,8 +124,17 @@ def cmd_recon(args: argparse.Namespace) -> int:
 def cmd_report(args: argparse.Namespace) -> int:
     from bulbjax.experiment import report
 
-    tab = report.redraw(args.run_dir)
-    print(f"{tab}\nplot: {os.path.join(args.run_dir, 'fig2.png')}\ntable: {os.path.join(args.run_dir, 'table.md')}")
+    if args.compare_rl:
+        out = args.out or os.path.dirname(os.path.normpath(args.run_dirs[0])) or "."
+        tab = report.rl_compare(args.run_dirs, out)
+        print(f"{tab}\nplot: {os.path.join(out, 'rl_compare.png')}\ntable: {os.path.join(out, 'rl_compare.md')}")
+        return 0
+    if len(args.run_dirs) != 1:
+        raise ValueError("`bulbjax report` redraws one run; to compare PPO returns of several runs "
+                         "add --compare-rl")
+    run_dir = args.run_dirs[0]
+    tab = report.redraw(run_dir)
+    print(f"{tab}\nplot: {os.path.join(run_dir, 'fig2.png')}\ntable: {os.path.join(run_dir, 'table.md')}")
     return 0
 
 
@@ -230,6 +241,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     r.add_argument("--multicolour", action="store_true", help="bulb's multicolour variant")
     r.add_argument("--small", action="store_true", help="CPU-sized settings (not the paper's)")
     r.add_argument("--bf16", action="store_true", help="bf16 compute in the learners (GPU)")
+    r.add_argument("--rl-input", default=None,
+                   help="what PPO observes: state (default), latent:<learner> (a frame learner's latent "
+                        "of the current frame, its current parameters, no gradient into it), or pixels "
+                        "(the frame through a conv encoder PPO trains end to end)")
     r.add_argument("--ppo-updates", type=int, default=None, help="PPO updates per epoch")
     r.add_argument("--lr", type=float, default=None, help="learners' Adam learning rate (paper: 1e-4)")
     r.add_argument("--max-minutes", type=float, default=0.0,
@@ -262,7 +277,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     rc.add_argument("--out", default=None, help="folder of the PNGs (default RUN_DIR)")
     rc.set_defaults(fn=cmd_recon)
     rp = sub.add_parser("report", help="redraw fig2.png and table.md of a run folder from its metrics.jsonl")
-    rp.add_argument("run_dir", metavar="RUN_DIR")
+    rp.add_argument("run_dirs", metavar="RUN_DIR", nargs="+")
+    rp.add_argument("--compare-rl", action="store_true",
+                    help="PPO return of several runs (state / pixels / latent:<learner>) in one plot, "
+                         "rl_compare.png and rl_compare.md, with the epochs each seed needed to solve")
+    rp.add_argument("--out", default=None, help="folder of the --compare-rl outputs (default: the "
+                                                 "first run's parent folder)")
     rp.set_defaults(fn=cmd_report)
     o = sub.add_parser("fit", help="offline: train learners on one cached random-policy dataset, "
                                    "probe every M updates")
@@ -303,6 +323,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     args = p.parse_args(argv)
     args.argv = argv
+    from bulbjax import compile_cache
+
+    compile_cache.enable()  # reruns of a configuration load its executables ($BULBJAX_COMPILE_CACHE=off: no cache)
     try:
         return args.fn(args)
     except (ValueError, FloatingPointError) as err:

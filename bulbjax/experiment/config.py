@@ -53,6 +53,16 @@ class ExperimentConfig:
     # Window length of the sequential learners; 0 picks the domain's default (24 pendulums,
     # 16 locomotion). It overrides `learner.sequence_length`.
     sequence_length: int = 0
+    # What PPO observes (issue 15): "state" (the true low-dimensional state, the paper's default),
+    # "latent:<learner>": that learner's latent of the current frame, computed in the jitted
+    # epoch with its current parameters (no gradient into the learner from RL; frame learners
+    # only), or "pixels": the current frame through a small conv encoder trained end to end by PPO.
+    rl_input: str = "state"
+
+    @property
+    def rl_learner(self) -> str | None:
+        """The learner whose latent PPO observes, or None for the true state."""
+        return self.rl_input.split(":", 1)[1] if self.rl_input.startswith("latent:") else None
 
     @property
     def seq_len(self) -> int:
@@ -71,6 +81,18 @@ class ExperimentConfig:
         unknown = [n for n in self.learners if n not in LEARNER_NAMES]
         if unknown or not self.learners:
             raise ValueError(f"unknown learners {unknown}; accepted: {', '.join(LEARNER_NAMES)}")
+        if self.rl_input not in ("state", "pixels"):
+            name = self.rl_learner
+            if name is None:
+                raise ValueError(f"rl_input must be 'state', 'pixels' or 'latent:<learner>', "
+                                 f"got {self.rl_input!r}")
+            if name not in self.learners:
+                raise ValueError(f"rl_input {self.rl_input!r} names a learner this run does not train; "
+                                 f"its learners: {', '.join(self.learners)}")
+            if name in SEQUENCE_LEARNER_NAMES:
+                raise ValueError(f"rl_input {self.rl_input!r}: PPO from a sequential learner's latent "
+                                 "(the window ending at each step) is not built yet; use a frame learner "
+                                 "(vae, vae_rpl, beta_vae, spair)")
         for name in ("seeds", "epochs", "num_envs", "ppo_updates_per_epoch", "learner_batches",
                      "reference_steps"):
             if getattr(self, name) < 1:

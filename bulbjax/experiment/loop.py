@@ -159,11 +159,23 @@ class Experiment:
                                  "registered (check with `bulbjax envs`)") from err
             raise
         self.spec = self.env.state_spec
-        self.ppo = PPO.for_env(c.ppo, self.env)
         latent = c.latent_factor * self.env.state_dim
         # Actions as the sequential learners see them: one-hot for discrete, the clipped vector else.
         self.action_dim = self.env.num_actions if self.env.discrete else self.env.action_size
         self.learners = {n: make_learner(n, latent, c.learner, self.action_dim) for n in c.learners}
+        # PPO observes the true state, or (rl_input "latent:<name>") that learner's latent.
+        self.rl_learner = c.rl_learner
+        self.rl_pixels = c.rl_input == "pixels"
+        if self.rl_pixels:
+            self.ppo = PPO(c.ppo, 0, self.env.num_actions if self.env.discrete else None,
+                           self.env.action_size, frame_shape=self.env.frame_shape)
+        elif self.rl_learner is None:
+            self.ppo = PPO.for_env(c.ppo, self.env)
+        else:
+            z = jax.eval_shape(self._encode_frames, self._abstract_learner_params(self.rl_learner),
+                               jax.ShapeDtypeStruct((1,) + self.env.frame_shape, jnp.uint8))
+            self.ppo = PPO(c.ppo, z.shape[-1], self.env.num_actions if self.env.discrete else None,
+                           self.env.action_size)
         self.retention = {n: l.retain_fraction for n, l in self.learners.items()}
         self.sequential = {n: is_sequential(l) for n, l in self.learners.items()}
         self.window_length = c.window_length  # stored windows (0 without sequential learners)
@@ -286,13 +298,41 @@ class Experiment:
         """[S, N, ...] -> [S*N, ...]."""
         return x.reshape((self.S * self.N,) + x.shape[2:])
 
-    def _policy_step(self, ppo_state: PPOState, es: EnvState, key: jax.Array, random: bool):
-        obs = self._per_seed(es.obs)
+    # ------------------------------------------------------------------ PPO's observation
+    def _abstract_learner_params(self, name: str) -> Any:
+        """Shapes of one seed's params of learner `name` (to size PPO's input)."""
+        l = self.learners[name]
+        return jax.eval_shape(lambda k: l.init(k, self.env.frame_shape), jax.random.PRNGKey(0)).params
+
+    def _encode_frames(self, params: Any, frames: jax.Array) -> jax.Array:
+        """The RL learner's latent of uint8 frames `[B, H, W, 3]` (one seed), without gradient
+        into the learner."""
+        return self.learners[self.rl_learner].encode(jax.lax.stop_gradient(params), frames)
+
+    def _policy_obs(self, es: EnvState, learners: dict | None) -> jax.Array:
+        """PPO's observation of every world, per seed `[S, N, ...]`: the true state; with
+        `rl_input="pixels"` the world's current frame (uint8, rendered here); with
+        `rl_input="latent:<name>"` that learner's latent of the current frame, encoded with the
+        seed's current parameters."""
+        if self.rl_learner is None and not self.rl_pixels:
+            return self._per_seed(es.obs)
+        ri = jax.tree.map(lambda x: x[None], es.render_input)
+        frames = self._per_seed(self._render_sequence(ri)[0])  # [S, N, H, W, 3]
+        if self.rl_pixels:
+            return frames
+        if learners is None:
+            raise ValueError("PPO observes a learner's latent: pass the learners' states")
+        return jax.vmap(self._encode_frames)(learners[self.rl_learner].params, frames)
+
+    def _policy_step(self, ppo_state: PPOState, es: EnvState, key: jax.Array, random: bool,
+                     learners: dict | None = None):
         keys = jax.random.split(key, self.S)
-        if random:
+        if random:  # the random policy observes nothing: no frame is rendered for it
+            obs = self._per_seed(es.obs)
             action = jax.vmap(lambda k: self.ppo.random_act(k, self.N))(keys)
             logp = value = jnp.zeros((self.S, self.N))
         else:
+            obs = self._policy_obs(es, learners)
             action, logp, value = jax.vmap(self.ppo.act)(ppo_state, obs, keys)
         nes = self._env_step(es, self._flat(self.ppo.env_action(action)))
         return nes, obs, action, logp, value
@@ -312,11 +352,12 @@ class Experiment:
             return self._flat(jax.nn.one_hot(action, self.action_dim, dtype=jnp.float32))
         return self._flat(self.ppo.env_action(action).astype(jnp.float32))
 
-    def _rollout(self, ppo_state: PPOState, es: EnvState, key: jax.Array, steps: int, random: bool):
+    def _rollout(self, ppo_state: PPOState, es: EnvState, key: jax.Array, steps: int, random: bool,
+                 learners: dict | None = None):
         """Run `steps` steps, storing (render inputs, true states, action features, dones), each
-        `[steps, S*N, ...]`, unrendered."""
+        `[steps, S*N, ...]`, unrendered. `learners`: for a policy that observes a latent."""
         def body(es, k):
-            nes, _, action, _, _ = self._policy_step(ppo_state, es, k, random)
+            nes, _, action, _, _ = self._policy_step(ppo_state, es, k, random, learners)
             return nes, (nes.render_input, nes.lowdim, self._action_features(action), nes.done)
         return jax.lax.scan(body, es, jax.random.split(key, steps))
 
@@ -402,8 +443,10 @@ class Experiment:
         return out
 
     # ------------------------------------------------------------------ epoch phases
-    def rl_phase(self, ppo_state: PPOState, env_state: EnvState, key: jax.Array):
-        """PPO on the true state: rollouts of all seeds' worlds at once, per-seed updates.
+    def rl_phase(self, ppo_state: PPOState, env_state: EnvState, key: jax.Array,
+                 learners: dict | None = None):
+        """PPO on the true state (or on a learner's latent, `learners` given): rollouts of all
+        seeds' worlds at once, per-seed updates.
         Returns the new PPO state, env state, update metrics, per-seed finished-episode return
         sum and count, and the stored steps (render inputs, true states, action features, dones)
         `[U*T, S*N, ...]`."""
@@ -414,7 +457,7 @@ class Experiment:
             k_roll, k_upd = jax.random.split(k)
 
             def step(es, kk):
-                nes, obs, action, logp, value = self._policy_step(ppo_state, es, kk, random=False)
+                nes, obs, action, logp, value = self._policy_step(ppo_state, es, kk, False, learners)
                 tr = Transition(obs, action, self._per_seed(nes.reward), self._per_seed(nes.done),
                                 self._per_seed(nes.truncated), logp, value)
                 ep = (self._per_seed(nes.info["episode_return"] * nes.done).sum(1),
@@ -423,7 +466,7 @@ class Experiment:
 
             es, (traj, ep, stored) = jax.lax.scan(step, es, jax.random.split(k_roll, c.ppo.num_steps))
             traj = jax.tree.map(lambda x: x.swapaxes(0, 1), traj)  # [S, T, N, ...]
-            ppo_state, m = jax.vmap(self.ppo.update)(ppo_state, traj, self._per_seed(es.obs),
+            ppo_state, m = jax.vmap(self.ppo.update)(ppo_state, traj, self._policy_obs(es, learners),
                                                     jax.random.split(k_upd, self.S))
             return (ppo_state, es), (m, ep, stored)
 
@@ -486,7 +529,8 @@ class Experiment:
             metrics[name] = jax.tree.map(lambda x: x.mean(-1), m)
         return out, metrics
 
-    def eval_phase(self, ppo_state: PPOState, curr_env: EnvState, rand_env: EnvState, key: jax.Array):
+    def eval_phase(self, ppo_state: PPOState, curr_env: EnvState, rand_env: EnvState, key: jax.Array,
+                   learners: dict | None = None):
         """Held-out windows (never in replay) from the current and from a random policy: each
         world's rollout of `ceil(eval_frames / N)` steps, rounded up to whole windows of
         `eval_length` steps, cut into consecutive windows (and at episode boundaries)."""
@@ -494,7 +538,8 @@ class Experiment:
         rounds = -(-self.config.eval_frames // (self.N * le))
         starts = jnp.broadcast_to((jnp.arange(rounds) * le)[:, None], (rounds, self.S * self.N))
         k_curr, k_rand = jax.random.split(key)
-        curr_env, cst = self._rollout(ppo_state, curr_env, k_curr, rounds * le, random=False)
+        curr_env, cst = self._rollout(ppo_state, curr_env, k_curr, rounds * le, random=False,
+                                      learners=learners)
         rand_env, rst = self._rollout(ppo_state, rand_env, k_rand, rounds * le, random=True)
         return curr_env, rand_env, {"curr": self._windows(cst, starts, le),
                                     "rand": self._windows(rst, starts, le)}
@@ -527,7 +572,8 @@ class Experiment:
     def _epoch(self, rs: RunState, key: jax.Array, probe: bool = True) -> tuple[RunState, dict[str, Any]]:
         """One epoch; with `probe=False` no held-out rollout or probe (metrics without `probes`)."""
         k_rl, k_rep, k_learn, k_eval, k_probe = jax.random.split(key, 5)
-        ppo_state, train_env, ppo_m, ret_sum, count, steps = self.rl_phase(rs.ppo, rs.train_env, k_rl)
+        ppo_state, train_env, ppo_m, ret_sum, count, steps = self.rl_phase(rs.ppo, rs.train_env, k_rl,
+                                                                           rs.learners)
         buffers = self.replay_phase(rs.buffers, steps, k_rep)
         windows = self.window_phase(rs.windows, steps, jax.random.fold_in(k_rep, 1))
         learners, learn_m = self.learn_phase(rs.learners, buffers, k_learn, windows)
@@ -542,7 +588,7 @@ class Experiment:
         }
         curr_env, rand_env = rs.curr_env, rs.rand_env
         if probe:
-            curr_env, rand_env, held_out = self.eval_phase(ppo_state, curr_env, rand_env, k_eval)
+            curr_env, rand_env, held_out = self.eval_phase(ppo_state, curr_env, rand_env, k_eval, learners)
             metrics["probes"] = self.probe_phase(learners, buffers, held_out, k_probe, windows)
         new = RunState(ppo=ppo_state, learners=learners, buffers=buffers, windows=windows,
                        train_env=train_env, curr_env=curr_env, rand_env=rand_env,

@@ -303,3 +303,68 @@ def _to_numpy(tree: Any) -> Any:
 
 def _f(x: Any) -> float:
     return float(np.asarray(x))
+
+
+def epochs_to_reach(returns: np.ndarray, epochs: np.ndarray, target: float) -> list[int | None]:
+    """Per seed (rows of `[seeds, epochs]`), the first epoch whose PPO return is >= `target`
+    (None if never)."""
+    out: list[int | None] = []
+    for row in returns:
+        hit = np.nonzero(np.nan_to_num(row, nan=-np.inf) >= target)[0]
+        out.append(int(epochs[hit[0]]) if hit.size else None)
+    return out
+
+
+def rl_compare(run_dirs: Sequence[str], out_dir: str, solved_return: float | None = None) -> str:
+    """PPO return curves of several runs in one plot, labelled by what PPO observed
+    (`rl_input`: state, pixels, latent:<learner>), and a table with the final return and, with
+    `solved_return` (default: the env's), the epochs each seed needed to reach it (issue 15).
+    Writes `rl_compare.png` and `rl_compare.md` into `out_dir`; returns the table."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from bulbjax.envs.registry import env_class
+    from bulbjax.experiment.config import read_run_config
+
+    if not run_dirs:
+        raise ValueError("rl_compare needs at least one run folder")
+    os.makedirs(out_dir, exist_ok=True)
+    fig, ax = plt.subplots(figsize=(6, 4))
+    rows = ["| run | PPO observes | seeds | epochs | final return (90% CI) | epochs to reach "
+            f"{'the solved return' if solved_return is None else solved_return} (per seed) |",
+            "|---|---|---|---|---|---|"]
+    envs = set()
+    for d in run_dirs:
+        cfg, _ = read_run_config(d)
+        envs.add(cfg.env)
+        target = solved_return if solved_return is not None else env_class(cfg.env).solved_return
+        records = read_jsonl(os.path.join(d, "metrics.jsonl"), tolerate_partial=True)
+        if not records:
+            raise ValueError(f"{d}/metrics.jsonl has no epoch yet")
+        ep, r = rl_curve(records)
+        mean, half = ci90(r)
+        ok = np.isfinite(mean)
+        label = getattr(cfg, "rl_input", "state")
+        line, = ax.plot(ep[ok], mean[ok], label=label)
+        ax.fill_between(ep[ok], (mean - half)[ok], (mean + half)[ok], color=line.get_color(), alpha=0.2)
+        last = np.nonzero(ok)[0][-1]
+        reach = epochs_to_reach(r, ep, target) if target is not None else []
+        rows.append(f"| {os.path.basename(os.path.normpath(d))} | {label} | {r.shape[0]} | {len(ep)} | "
+                    f"{mean[last]:.1f} ± {np.nan_to_num(half[last]):.1f} | "
+                    f"{', '.join('never' if x is None else str(x) for x in reach) or 'n/a'} |")
+    target = solved_return if solved_return is not None else env_class(next(iter(envs))).solved_return
+    if target is not None:
+        ax.axhline(target, color="k", ls="--", lw=0.8, label="solved")
+    ax.set_xlabel("epoch")
+    ax.set_ylabel("PPO episode return (mean, 90% CI over seeds)")
+    ax.set_title(f"{', '.join(sorted(envs))}: PPO from state, pixels and latents")
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(os.path.join(out_dir, "rl_compare.png"), dpi=120)
+    plt.close(fig)
+    tab = "\n".join(rows)
+    with open(os.path.join(out_dir, "rl_compare.md"), "w") as f:
+        f.write(f"# PPO return by observation ({', '.join(sorted(envs))})\n\n{tab}\n")
+    return tab

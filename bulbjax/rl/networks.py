@@ -62,3 +62,35 @@ class GaussianActorCritic(nn.Module):
         mean = nn.Dense(self.action_size, kernel_init=orthogonal(0.01), bias_init=constant(0.0))(h)
         log_std = self.param("log_std", constant(self.init_log_std), (self.action_size,))
         return mean, jnp.broadcast_to(log_std, mean.shape), Critic(self.hidden)(obs)
+
+
+class PixelTorso(nn.Module):
+    """Small conv encoder of uint8 frames `[..., H, W, 3]` for PPO from pixels (issue 15's
+    baseline): three stride-2 ReLU convolutions (32, 64, 64 channels) and a 256-unit dense layer,
+    trained end to end by the PPO loss. Input is scaled to [-0.5, 0.5] here, so PPO's running
+    observation statistics are not used for frames."""
+
+    features: int = 256
+
+    @nn.compact
+    def __call__(self, frames: jax.Array) -> jax.Array:
+        lead = frames.shape[:-3]
+        x = frames.reshape((-1,) + frames.shape[-3:]).astype(jnp.float32) / 255.0 - 0.5
+        for ch in (32, 64, 64):
+            x = nn.Conv(ch, (4, 4), strides=(2, 2), kernel_init=orthogonal(np.sqrt(2)))(x)
+            x = nn.relu(x)
+        x = x.reshape((x.shape[0], -1))
+        x = nn.relu(nn.Dense(self.features, kernel_init=orthogonal(np.sqrt(2)))(x))
+        return x.reshape(lead + (self.features,))
+
+
+class PixelActorCritic(nn.Module):
+    """An actor-critic (discrete or Gaussian, as `head`) over the features of a shared
+    `PixelTorso`; the torso is shared because separate conv towers double the cost of the
+    policy's forward pass for little gain (the usual Atari/DMC choice)."""
+
+    head: nn.Module
+
+    @nn.compact
+    def __call__(self, frames: jax.Array):
+        return self.head(PixelTorso()(frames))

@@ -25,7 +25,7 @@ import jax.numpy as jnp
 import optax
 from flax import struct
 
-from bulbjax.rl.networks import DiscreteActorCritic, GaussianActorCritic
+from bulbjax.rl.networks import DiscreteActorCritic, GaussianActorCritic, PixelActorCritic
 
 _LOG_2PI = math.log(2.0 * math.pi)
 
@@ -150,7 +150,12 @@ def compute_gae(
 
 
 class PPO:
-    """PPO for one seed. `num_actions` set -> categorical policy; else Gaussian over `action_size` dims."""
+    """PPO for one seed. `num_actions` set -> categorical policy; else Gaussian over `action_size` dims.
+
+    `frame_shape` set (e.g. `(64, 64, 3)`): observations are uint8 frames of that shape, seen
+    through a conv torso trained end to end with the policy (`PixelActorCritic`); no running
+    observation statistics then (the torso scales pixels itself) and `obs_size` is ignored.
+    """
 
     def __init__(
         self,
@@ -158,9 +163,14 @@ class PPO:
         obs_size: int,
         num_actions: Optional[int] = None,
         action_size: int = 1,
+        frame_shape: Optional[tuple[int, int, int]] = None,
     ):
         self.config = config
-        self.obs_size = obs_size
+        self.frame_shape = tuple(frame_shape) if frame_shape is not None else None
+        self.pixels = self.frame_shape is not None
+        if self.pixels and len(self.frame_shape) != 3:
+            raise ValueError(f"frame_shape must be (H, W, C), got {frame_shape}")
+        self.obs_size = 0 if self.pixels else obs_size
         self.num_actions = num_actions
         self.action_size = action_size
         self.discrete = num_actions is not None
@@ -168,6 +178,8 @@ class PPO:
             self.network: nn.Module = DiscreteActorCritic(num_actions, tuple(config.hidden))
         else:
             self.network = GaussianActorCritic(action_size, tuple(config.hidden), config.init_log_std)
+        if self.pixels:
+            self.network = PixelActorCritic(self.network)
         steps_per_update = config.update_epochs * config.num_minibatches
         if config.anneal_updates > 0:
             lr = optax.linear_schedule(config.lr, 0.0, config.anneal_updates * steps_per_update)
@@ -187,12 +199,16 @@ class PPO:
         return _sequential_under_vmap(self._init_one)(key)
 
     def _init_one(self, key: jax.Array) -> PPOState:
-        params = self.network.init(key, jnp.zeros((1, self.obs_size)))
-        return PPOState(params, self.tx.init(params), RunningStats.create(self.obs_size), jnp.zeros((), jnp.int32))
+        dummy = (jnp.zeros((1,) + self.frame_shape, jnp.uint8) if self.pixels
+                 else jnp.zeros((1, self.obs_size)))
+        params = self.network.init(key, dummy)
+        stats = RunningStats.create(max(self.obs_size, 1))  # unused (size 1) for frames
+        return PPOState(params, self.tx.init(params), stats, jnp.zeros((), jnp.int32))
 
     def normalize(self, state: PPOState, obs: jax.Array) -> jax.Array:
-        """Normalise raw observations with the state's running statistics (identity if disabled)."""
-        if not self.config.normalize_obs:
+        """Normalise raw observations with the state's running statistics (identity if disabled,
+        and for frames, which the pixel torso scales)."""
+        if not self.config.normalize_obs or self.pixels:
             return obs
         s = state.obs_stats
         z = (obs - s.mean) / jnp.sqrt(s.var + 1e-8)
@@ -320,7 +336,8 @@ class PPO:
             epoch, (state.params, state.opt_state), jax.random.split(key, cfg.update_epochs)
         )
         metrics = jax.tree.map(jnp.mean, metrics)
-        obs_stats = state.obs_stats.update(traj.obs) if cfg.normalize_obs else state.obs_stats
+        keep = not cfg.normalize_obs or self.pixels
+        obs_stats = state.obs_stats if keep else state.obs_stats.update(traj.obs)
         new_state = PPOState(params, opt_state, obs_stats, state.step + 1)
         return new_state, metrics
 
