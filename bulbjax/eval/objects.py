@@ -88,6 +88,51 @@ def summarise(scores: dict[str, jax.Array], names: Sequence[str] | None = None,
     }
 
 
+def reduce_scores(scores: dict[str, jax.Array], valid: jax.Array | None = None) -> dict[str, jax.Array]:
+    """The numbers of `summarise` as arrays, jittable (in the experiment's epoch, per seed):
+    `error` [M] and `found` [M] per object, `error_mean`, `found_share`, `missing`,
+    `spurious_per_frame`, `present_per_frame` (scalars). Leading axes before [B, M] are pooled;
+    with `valid` (bool, the scores' leading shape) only those frames count. An object never seen
+    next to a present box has error inf (as in `summarise`); no valid frame gives NaN shares."""
+    dist = scores["distance"]
+    m = dist.shape[-1]
+    dist, found = dist.reshape((-1, m)), scores["found"].reshape((-1, m))
+    v = jnp.ones(dist.shape[:1], bool) if valid is None else jnp.asarray(valid, bool).reshape(-1)
+    vf = v.astype(jnp.float32)
+    ok = jnp.isfinite(dist) & v[:, None]  # a present box in a valid frame
+    safe = jnp.where(ok, dist, 0.0)
+    n_obj, n_all = ok.sum(0), ok.sum()
+    frames = vf.sum()
+    per = lambda x: (x.reshape(-1).astype(jnp.float32) * vf).sum() / frames  # noqa: E731
+    found_o = (found & v[:, None]).sum(0).astype(jnp.float32) / frames
+    return {
+        "error": jnp.where(n_obj > 0, safe.sum(0) / jnp.maximum(n_obj, 1), jnp.inf),
+        "found": found_o,
+        "error_mean": jnp.where(n_all > 0, safe.sum() / jnp.maximum(n_all, 1), jnp.inf),
+        "found_share": found_o.mean(),
+        "missing": 1.0 - n_all / (frames * m),
+        "spurious_per_frame": per(scores["spurious"]),
+        "present_per_frame": per(scores["present"]),
+    }
+
+
+def summary_of(reduced: dict, names: Sequence[str] | None = None) -> dict[str, object]:
+    """`reduce_scores`' arrays of one evaluation (host side) as `summarise`'s dict: `per_object`
+    {name: {error, found}}, `error_mean`, `found_share`, `missing`, `spurious_per_frame`,
+    `present_per_frame`, and `radius` (px) where `reduced` carries it."""
+    err = np.asarray(reduced["error"], np.float64).reshape(-1)
+    fnd = np.asarray(reduced["found"], np.float64).reshape(-1)
+    names = list(names) if names is not None else [f"object{i}" for i in range(len(err))]
+    if len(names) != len(err):
+        raise ValueError(f"{len(names)} names for {len(err)} objects")
+    out: dict[str, object] = {
+        "per_object": {n: {"error": float(err[i]), "found": float(fnd[i])} for i, n in enumerate(names)}}
+    for k in ("error_mean", "found_share", "missing", "spurious_per_frame", "present_per_frame", "radius"):
+        if k in reduced:
+            out[k] = float(np.asarray(reduced[k]))
+    return out
+
+
 # ---------------------------------------------------------------------------- true positions
 def project_points(points: jax.Array, cam_pos: jax.Array, cam_mat: jax.Array, fovy_deg: float,
                    resolution: int) -> jax.Array:
@@ -196,4 +241,74 @@ def table(records: Sequence[dict], last: int = 1) -> str:
     lines.append(f"Object-level probe: distance from each true object's image position to the nearest "
                  f"present box centre; found = within the radius; epochs {', '.join(map(str, epochs))}, "
                  f"mean over {seeds} seeds.")
+    return "\n".join(lines)
+
+
+_STREAM_LABELS = {"curr": "π_curr", "rand": "π_rand"}
+
+
+def comparison_table(records: Sequence[dict], spec: Sequence, last: int = 1) -> str:
+    """Markdown table of the object-level probes side by side, one row per learner and stream
+    (mean over seeds and the `last` probed epochs): the standard MLP probe's normalised error on
+    the `object_position` group (every learner; the comparable probe of VAE_rpl & co.) and, for
+    learners with boxes (`record["objects"]`), the box probe's mean distance (px) from each true
+    object to the nearest present box centre, the share found within the radius and spurious
+    boxes per frame; then per object `MLP / boxes`: the MLP's normalised error averaged over the
+    object's x, y, z and the box error (px). Empty for domains without objects in the state."""
+    objs = object_names(spec)
+    recs = [r for r in records if r.get("probes") or r.get("objects")]
+    if not objs or not recs:
+        return ""
+    epochs = sorted({r["epoch"] for r in recs})[-last:]
+    recs = [r for r in recs if r["epoch"] in epochs]
+    learners = list(dict.fromkeys(n for r in recs for n in (*r.get("probes", {}), *r.get("objects", {}))))
+    streams = list(dict.fromkeys(st for r in recs for n in learners
+                                 for st in (*r.get("probes", {}).get(n, {}), *r.get("objects", {}).get(n, {}))))
+
+    def avg(vals: list, digits: int) -> str:
+        v = np.asarray([x for x in vals if x is not None], np.float64)
+        v = v[np.isfinite(v)]
+        return f"{v.mean():.{digits}f}" if v.size else "–"
+
+    def mlp(r: dict, name: str, st: str, obj: str | None) -> float | None:
+        p = r.get("probes", {}).get(name, {}).get(st)
+        if p is None:
+            return None
+        if obj is None:
+            g = p["groups"].get("object_position")
+            return None if g is None else g["mae_norm"]
+        vals = [p["entries"][f"{obj}_{a}"]["mae_norm"] for a in "xyz" if f"{obj}_{a}" in p["entries"]]
+        return float(np.nanmean(vals)) if vals and np.isfinite(vals).any() else None
+
+    def box(r: dict, name: str, st: str, key: str, obj: str | None = None) -> float | None:
+        o = r.get("objects", {}).get(name, {}).get(st)
+        if o is None:
+            return None
+        return o["per_object"].get(obj, {}).get("error") if obj else o.get(key)
+
+    head = ("| learner | stream | MLP: object_position (norm. MAE) | boxes: mean error (px) | boxes: found | "
+            "boxes: spurious/frame | " + " | ".join(f"{o}: MLP / boxes (px)" for o in objs) + " |")
+    lines = [head, "|" + "---|" * (6 + len(objs))]
+    for name in learners:
+        for st in streams:
+            if not any(r.get("probes", {}).get(name, {}).get(st) or r.get("objects", {}).get(name, {}).get(st)
+                       for r in recs):
+                continue
+            cells = [avg([mlp(r, name, st, None) for r in recs], 3),
+                     avg([box(r, name, st, "error_mean") for r in recs], 2),
+                     avg([box(r, name, st, "found_share") for r in recs], 2),
+                     avg([box(r, name, st, "spurious_per_frame") for r in recs], 2)]
+            cells += [f"{avg([mlp(r, name, st, o) for r in recs], 3)} / {avg([box(r, name, st, '', o) for r in recs], 2)}"
+                      for o in objs]
+            lines.append(f"| {name} | {_STREAM_LABELS.get(st, st)} | " + " | ".join(cells) + " |")
+    radii = sorted({o[st]["radius"] for r in recs for o in r.get("objects", {}).values() for st in o
+                    if "radius" in o[st]})
+    rad = f" ({', '.join(f'{x:g}' for x in radii)} px)" if radii else ""
+    seeds = len({r["seed"] for r in recs})
+    lines.append("")
+    lines.append(f"Object-level probes, epochs {', '.join(map(str, epochs))}, mean over {seeds} seeds. MLP: the "
+                 "standard probe's normalised error (MAE / reference spread) on the objects' positions "
+                 "(per object: mean over x, y, z). Boxes (learners with boxes): distance from each true "
+                 "object's image position to the nearest present box centre (presence > 0.5), in pixels, "
+                 f"over frames with a present box; found = share of objects with one within the radius{rad}.")
     return "\n".join(lines)

@@ -28,7 +28,7 @@ import bulbjax
 from bulbjax.data import replay, sequence
 from bulbjax.data.sequence import Windows
 from bulbjax.envs.base import EnvState, MjxPixelEnv
-from bulbjax.eval import probe
+from bulbjax.eval import objects, probe
 from bulbjax.experiment.config import ExperimentConfig
 from bulbjax.learners import is_sequential, make_learner
 from bulbjax.rl.ppo import PPO, PPOState, Transition
@@ -93,7 +93,9 @@ def train_learner(learner: Any, state: Any, sample: Any, key: jax.Array, updates
 
 def probe_learner(learner: Any, params: Any, train: Any, held: dict[str, Windows], key: jax.Array,
                   config: probe.ProbeConfig, train_frames: int,
-                  corrupt: Any = None) -> dict[str, dict[str, jax.Array]]:
+                  corrupt: Any = None,
+                  score_objects: Callable[[jax.Array, Windows], dict] | None = None,
+                  ) -> dict[str, dict[str, jax.Array]]:
     """Fit a probe latent -> true state on `train` and score it on every held-out stream (one
     seed). `train` is `(frames, states)` for a frame learner and `Windows` for a sequential
     one, whose per-step latents (with `config.sequence_context` steps of context, see
@@ -101,7 +103,10 @@ def probe_learner(learner: Any, params: Any, train: Any, held: dict[str, Windows
     valid steps drawn from them. Held-out windows are scored on their valid
     steps (frame learners encode each frame). `corrupt` (tests only) maps per-step latents
     `[B, L, Z]` to what the probe sees, e.g. latents shuffled across time steps.
-    Returns `{stream: {"mae", "baseline", "spread"}}`, each `[D]` in the states' units."""
+    `score_objects` (frame learners) maps a held-out stream's per-step latents `[B, L, Z]` and
+    its windows to the object-level probe (`Experiment._object_scorer`), kept as `"objects"`.
+    Returns `{stream: {"mae", "baseline", "spread"(, "objects")}}`, each `[D]` in the states'
+    units."""
     k_c, k_f = jax.random.split(key)
     corrupt = corrupt or (lambda z, k: z)
     if is_sequential(learner):
@@ -123,11 +128,14 @@ def probe_learner(learner: Any, params: Any, train: Any, held: dict[str, Windows
     p = probe.fit(k_f, tz, ts, config)
     res = {}
     for stream, w in held.items():
-        z = enc(w).reshape((-1, tz.shape[-1]))
+        zw = enc(w)
+        z = zw.reshape((-1, tz.shape[-1]))
         s, v = w.states.reshape((-1, ts.shape[-1])), w.valid.reshape(-1)
         res[stream] = {"mae": probe.mae(probe.predict(p, z), s, v),
                        "baseline": probe.constant_baseline(ts, s, v),
                        "spread": probe.spread(s, v)}
+        if score_objects is not None:
+            res[stream]["objects"] = score_objects(zw, w)
     return res
 
 
@@ -180,6 +188,10 @@ class Experiment:
         self.sequential = {n: is_sequential(l) for n, l in self.learners.items()}
         self.window_length = c.window_length  # stored windows (0 without sequential learners)
         self.eval_length = c.seq_len if self.window_length else 1  # held-out window length
+        # Object-level probe (multi-object domains): names and states -> image positions (px)
+        # of the true objects, None for domains without objects in the state (nothing computed).
+        self.objects = objects.object_pixels(self.env)
+        self.object_radius = objects.default_radius(c.resolution)
         if self.sharded:
             self._per_device_renderer()
         self._rep = NamedSharding(self.mesh, P())
@@ -544,12 +556,33 @@ class Experiment:
         return curr_env, rand_env, {"curr": self._windows(cst, starts, le),
                                     "rand": self._windows(rst, starts, le)}
 
+    def _object_scorer(self, learner: Any) -> Callable[[jax.Array, Windows], dict] | None:
+        """The object-level probe of one seed's held-out stream for a learner with boxes (SPAIR,
+        `boxes_of_latents`) in a domain with objects; None otherwise. It maps the stream's
+        per-step latents `[B, L, Z]` and windows to `objects.reduce_scores` of its valid steps
+        (per object: distance from the true object's image position to the nearest present box
+        centre, share within `object_radius` px) plus the `radius`."""
+        if self.objects is None or is_sequential(learner) or not hasattr(learner, "boxes_of_latents"):
+            return None
+        _, pixels = self.objects
+        res, radius = self.config.resolution, self.object_radius
+
+        def score(z: jax.Array, w: Windows) -> dict:
+            centres, pres = learner.boxes_of_latents(z.reshape((-1, z.shape[-1])), res)
+            pos = pixels(w.states.reshape((-1, w.states.shape[-1])))
+            out = objects.reduce_scores(objects.object_scores(centres, pres, pos, radius), w.valid)
+            return {**out, "radius": jnp.float32(radius)}
+
+        return score
+
     def probe_phase(self, learners: dict, buffers: dict, held_out: dict, key: jax.Array,
                     windows: dict | None = None) -> dict:
         """Alignment probes: fit latents -> true state on replay data, evaluate on the held-out
         windows' valid steps. Frame learners: one latent per frame. Sequential learners: the
         per-step latents of replay windows (probe_train_frames valid steps drawn from them) and
-        of the held-out windows; the latent at step t is matched with the state at step t."""
+        of the held-out windows; the latent at step t is matched with the state at step t.
+        Learners with boxes (SPAIR) in domains with objects also get the object-level probe
+        on the same held-out steps, per stream under `"objects"` (`_object_scorer`)."""
         c = self.config
         out = {}
         for i, (name, learner) in enumerate(self.learners.items()):
@@ -562,7 +595,7 @@ class Experiment:
                 else:
                     train = replay.sample(b, k_s, c.probe_train_frames)
                 return probe_learner(learner, lstate.params, train, held, k_p, c.probe,
-                                     c.probe_train_frames)
+                                     c.probe_train_frames, score_objects=self._object_scorer(learner))
 
             keys = jax.random.split(jax.random.fold_in(key, i), self.S)
             buf = (windows if seq else buffers)[buffer_key(self.retention[name])]

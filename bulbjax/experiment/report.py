@@ -9,6 +9,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
+from bulbjax.eval import objects
 from bulbjax.eval.probe import summarise
 from bulbjax.eval.spec import StateEntry
 
@@ -25,9 +26,12 @@ NORM_NOTE = ("normalised error = MAE / reference spread of each state entry (mea
 
 def epoch_records(epoch: int, metrics: Any, spec: Sequence[StateEntry]) -> list[dict[str, Any]]:
     """One JSON-able record per seed from the epoch's metrics (arrays with a leading seed axis).
-    Epochs without a probe (`--probe-every`) have an empty `probes`."""
+    Epochs without a probe (`--probe-every`) have an empty `probes`. Learners with an object-level
+    probe (SPAIR in multi-object domains) also get `objects[learner][stream]`
+    (`bulbjax.eval.objects.summary_of`: per object and averaged); other records have no `objects`."""
     m = _to_numpy(metrics)
     seeds = len(m["rl_return"])
+    names = objects.object_names(spec)
     out = []
     for s in range(seeds):
         rec: dict[str, Any] = {
@@ -44,6 +48,10 @@ def epoch_records(epoch: int, metrics: Any, spec: Sequence[StateEntry]) -> list[
                 stream: summarise(d["mae"][s], d["baseline"][s], m["ref_spread"][s], spec,
                                   spread_D=d["spread"][s])
                 for stream, d in streams.items()}
+            for stream, d in streams.items():
+                if "objects" in d:
+                    one = {k: v[s] for k, v in d["objects"].items()}
+                    rec.setdefault("objects", {}).setdefault(name, {})[stream] = objects.summary_of(one, names)
         out.append(rec)
     return out
 
@@ -274,6 +282,9 @@ def write_reports(run_dir: str, records: Sequence[dict[str, Any]], cfg: Any,
     title = title_of(cfg, done)
     plot(records, spec, os.path.join(run_dir, "fig2.png"), title, solved_return=solved_return)
     tab = table(records, spec, last=min(3, len(probed(records)) // len(seeds)))
+    obj = objects.comparison_table(records, spec, last=min(3, len(probed(records)) // len(seeds)))
+    if obj:
+        tab += f"\n\n## Objects\n\n{obj}"
     with open(os.path.join(run_dir, "table.md"), "w") as f:
         f.write(f"# {title}\n\n{tab}\n" + (f"\n{footer}\n" if footer else ""))
     return tab

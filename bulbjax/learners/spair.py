@@ -552,6 +552,13 @@ class SPAIR:
         r = x.shape[1]
         return cells.centres[..., ::-1] * r, cells.sizes[..., ::-1] * r, cells.pres
 
+    def boxes_of_latents(self, z: jax.Array, resolution: int) -> tuple[jax.Array, jax.Array]:
+        """(centres_px [..., G*G, 2], pres [..., G*G]) of latents [..., latent_dim] from `encode`
+        of frames of `resolution` pixels: the same centres and presences as `boxes`, without
+        encoding the frames again (the experiment's object probe reuses the probe's latents)."""
+        cells = z.reshape(z.shape[:-1] + (self.num_cells, self.cell_dim))
+        return cells[..., 1::-1] * resolution, cells[..., 4]
+
 
 def _to_unit(frames: jax.Array) -> jax.Array:
     """uint8 frames [B, R, R, 3] -> float32 in [0, 1]; other dtypes are refused."""
