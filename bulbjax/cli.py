@@ -177,15 +177,33 @@ def cmd_fit(args: argparse.Namespace) -> int:
     return 0
 
 
+def _spec_summary(spec, full_below: int = 12) -> str:
+    """A state spec as `name[unit]/group` entries, or, for long specs (the multi-object
+    domains' 100+ entries), as a count per group with the first and last entry of each."""
+    if len(spec) <= full_below:
+        return ", ".join(f"{e.name}[{e.unit}]/{e.group}" for e in spec)
+    groups: dict[str, list] = {}
+    for e in spec:
+        groups.setdefault(e.group, []).append(e)
+    parts = []
+    for g, es in groups.items():
+        span = es[0].name if len(es) == 1 else f"{es[0].name} .. {es[-1].name}"
+        parts.append(f"{g} {len(es)} ({span})")
+    return f"{len(spec)} entries: " + "; ".join(parts)
+
+
 def cmd_envs(args: argparse.Namespace) -> int:
     from bulbjax.envs.registry import _REGISTRY, MULTICOLOUR_SUFFIX
 
     for name, cls in _REGISTRY.items():
-        spec = ", ".join(f"{e.name}[{e.unit}]/{e.group}" for e in cls.state_spec)
         act = f"discrete({cls.num_actions})" if cls.discrete else f"box({cls.action_size})"
-        variant = f"(+{MULTICOLOUR_SUFFIX})" if cls.supports_multicolour else "(versions 0-5, random)"
-        print(f"{name:<20} {variant} action {act}, episode {cls.episode_length}, "
-              f"solved {cls.solved_return:g}; state: {spec}")
+        versions = getattr(sys.modules.get(cls.__module__), "NUM_VERSIONS", None)
+        if cls.supports_multicolour:
+            variant = f"(+{MULTICOLOUR_SUFFIX})"
+        else:
+            variant = f"(versions 0-{versions - 1}, random)" if versions else "(one scene)"
+        print(f"{name:<24} {variant} action {act}, episode {cls.episode_length}, "
+              f"solved {cls.solved_return:g}; state: {_spec_summary(cls.state_spec)}")
     return 0
 
 

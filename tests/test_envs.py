@@ -627,3 +627,25 @@ def test_render_sequence_keeps_each_step_with_its_frames(cartpole: Bundle) -> No
     for k, ri in enumerate(ris):
         np.testing.assert_array_equal(seq[k], np.asarray(cartpole.render(ri)), err_msg=f"step {k}")
     assert not np.array_equal(seq[0], seq[1]) and not np.array_equal(seq[1], seq[2])
+
+
+def test_cli_envs_lists_versions_and_summarises_long_specs(capsys) -> None:
+    """`bulbjax envs`: every registered env once; the Rearrange families say versions 0-11
+    (6-11: black background), Incline 0-5; short specs in full, the multi-object ones as counts
+    per group that add up to the spec's length."""
+    import re
+
+    from bulbjax.cli import main
+    from bulbjax.envs.registry import _REGISTRY
+
+    assert main(["envs"]) == 0
+    lines = {l.split()[0]: l for l in capsys.readouterr().out.splitlines() if l.strip()}
+    assert set(lines) == set(_REGISTRY)
+    assert "versions 0-11" in lines["FrankaRearrangeYcb"] and "versions 0-11" in lines["ReacherRearrangeGeom"]
+    assert "versions 0-5" in lines["YcbOnIncline"]
+    assert "theta_vel[rad/s]/velocity" in lines["CartPole"]
+    spec = _REGISTRY["ReacherRearrangeGeom"].state_spec
+    m = re.search(r"state: (\d+) entries: (.*)$", lines["ReacherRearrangeGeom"])
+    assert m and int(m.group(1)) == len(spec)
+    counts = [int(x) for x in re.findall(r"(?:^|; )\w+ (\d+) \(", m.group(2))]
+    assert sum(counts) == len(spec) and len(counts) == len({e.group for e in spec})
