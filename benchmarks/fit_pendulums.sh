@@ -9,7 +9,9 @@
 # Environment: MAX_MINUTES (per env, default 7.5: `fit` stops cleanly before it and still probes
 # and writes its plots), UPDATES (default 5000), OUT_ROOT (default docs/results), CACHE (default
 # runs/cache), PYTHON (default .venv/bin/python if present, else python), EXTRA (more `fit`
-# flags, e.g. the CPU smoke test's "--small --seeds 1 --data-worlds 8 ...").
+# flags, e.g. the CPU smoke test's "--small --seeds 1 --data-worlds 8 ..."), RESUME=1 (continue the
+# fits in OUT_ROOT from their checkpoints: 5,000 updates take two or three 10-minute calls on the
+# same machine; UPDATES may grow).
 # Writes OUT_ROOT/offline_<env>/{curves.jsonl,curves.png,table.md,recon.png,config.json}.
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -30,5 +32,5 @@ for env in "${ENVS[@]}"; do
   # shellcheck disable=SC2086
   "$PYTHON" -m bulbjax.cli fit --preset "fig2-$env" --learners vae_rpl,svae,pred,dsa --seeds 3 \
     --updates "$UPDATES" --probe-every 250 --bf16 --max-minutes "$MAX_MINUTES" \
-    --cache-dir "$CACHE" --out "$OUT_ROOT/offline_$env" ${EXTRA:-}
+    --cache-dir "$CACHE" --out "$OUT_ROOT/offline_$env" ${RESUME:+--resume} ${EXTRA:-}
 done

@@ -171,7 +171,8 @@ def cmd_fit(args: argparse.Namespace) -> int:
     from bulbjax.experiment import offline
 
     cfg = build_offline_config(args)
-    offline.run(cfg, args.out, cache_dir=args.cache_dir, max_minutes=args.max_minutes, seed=args.seed)
+    offline.run(cfg, args.out, cache_dir=args.cache_dir, max_minutes=args.max_minutes, seed=args.seed,
+                resume=args.resume)
     print(f"curves: {args.out}/curves.png, {args.out}/curves.jsonl; table: {args.out}/table.md; "
           f"reconstructions: {args.out}/recon.png")
     return 0
@@ -325,6 +326,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     o.add_argument("--max-minutes", type=float, default=0.0,
                    help="stop cleanly before this wall time, probe and write the plots (0: no limit)")
     o.add_argument("--out", default="runs/fit")
+    o.add_argument("--resume", action="store_true",
+                   help="continue the fit in --out from its checkpoint (same flags; a larger --updates extends it)")
     o.set_defaults(fn=cmd_fit)
     e = sub.add_parser("envs", help="list the environments")
     e.set_defaults(fn=cmd_envs)

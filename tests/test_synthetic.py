@@ -125,3 +125,15 @@ def test_fit_cli_end_to_end(tmp_path) -> None:
     assert os.path.getsize(tmp_path / "b" / "curves.png") > 100
     assert len(os.listdir(tmp_path / "cache")) == 2
     assert main(["fit", "--learners", "vae", "--out", str(tmp_path / "c")]) == 2  # no env
+    # a fit cut in two calls (2 updates, then --resume to 4) gives the straight fit's curves
+    r = args[:-4] + ["--out", str(tmp_path / "r"), "--cache-dir", str(tmp_path / "cache")]
+    assert main([*r[:r.index("--updates") + 1], "2", *r[r.index("--updates") + 2:]]) == 0
+    assert os.path.isdir(tmp_path / "r" / "checkpoints")
+    assert main(r + ["--resume"]) == 0
+    resumed = [json.loads(x) for x in open(tmp_path / "r" / "curves.jsonl")]
+    assert [x["update"] for x in resumed] == [0, 0, 2, 2, 4, 4]
+    for x, y in zip(recs, resumed):
+        assert x["probes"] == y["probes"], (x["update"], x["seed"])
+    # other settings on resume: a clear error (exit 2), nothing overwritten
+    assert main(r + ["--resume", "--seed", "1"]) == 2
+    assert main(args[:-4] + ["--out", str(tmp_path / "nothing"), "--resume"]) == 2

@@ -19,6 +19,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import os
+import shutil
 import time
 from dataclasses import dataclass, field
 from typing import Any, Callable
@@ -246,20 +247,51 @@ def records_of(update: int, probes: Any, losses: Any, ref_spread: np.ndarray,
     return out
 
 
+def _config_json(c: OfflineConfig, fit: "OfflineFit", seed: int) -> dict[str, Any]:
+    return json.loads(json.dumps({"offline": {k: v for k, v in dataclasses.asdict(c).items() if k != "base"},
+                                  "base": dataclasses.asdict(c.base), "source": fit.source.name,
+                                  "seed": seed}, default=str))
+
+
+def _check_resumable(out_dir: str, now: dict[str, Any]) -> None:
+    """A fit continues only with the settings it was started with (`updates` may grow)."""
+    path = os.path.join(out_dir, "config.json")
+    if not os.path.exists(path):
+        raise ValueError(f"--resume: {path} does not exist; is {out_dir} the --out of a `bulbjax fit`?")
+    with open(path) as f:
+        saved = json.load(f)
+    strip = lambda d: {**d, "offline": {k: v for k, v in d["offline"].items() if k != "updates"}}
+    if strip(saved) != strip(now):
+        diff = [k for k in sorted(set(saved["offline"]) | set(now["offline"]))
+                if k != "updates" and saved["offline"].get(k) != now["offline"].get(k)]
+        diff += [k for k in ("base", "source", "seed") if saved.get(k) != now.get(k)]
+        raise ValueError(f"--resume: {out_dir} was fitted with other settings ({', '.join(diff)} differ); "
+                         "give the same flags as its first call (only --updates may change)")
+
+
 def run(config: OfflineConfig, out_dir: str, cache_dir: str | None = None, max_minutes: float = 0.0,
-        seed: int = 0, log: Callable[[str], None] = print) -> list[dict[str, Any]]:
+        seed: int = 0, log: Callable[[str], None] = print, resume: bool = False) -> list[dict[str, Any]]:
     """The whole offline fit: data (cached), training, a probe at update 0 and every
     `probe_every` updates (and at the end), `curves.jsonl`, `curves.png`, `table.md`,
     `recon.png`, `config.json` under `out_dir`. Stops cleanly after `max_minutes` of wall time
-    (then the last chunk is probed and everything is written). Returns the records."""
+    (then the last chunk is probed and everything is written) and checkpoints the learners, the
+    key chain and the update count under `out_dir/checkpoints` (the newest only). `resume`
+    continues such a fit, same settings (a larger `updates` extends it), appending to
+    `curves.jsonl`: a fit longer than one stretch of GPU time is several calls. Returns all
+    records."""
+    from bulbjax.experiment.checkpoint import Checkpointer
+
     c = config
     t0 = time.time()
     os.makedirs(out_dir, exist_ok=True)
     cache_dir = cache_dir if cache_dir is not None else os.path.join(out_dir, "data")
     fit = OfflineFit(c)
-    with open(os.path.join(out_dir, "config.json"), "w") as f:
-        json.dump({"offline": {k: v for k, v in dataclasses.asdict(c).items() if k != "base"},
-                   "base": dataclasses.asdict(c.base), "source": fit.source.name}, f, indent=1, default=str)
+    cfg_json = _config_json(c, fit, seed)
+    if resume:
+        _check_resumable(out_dir, cfg_json)
+    else:
+        with open(os.path.join(out_dir, "config.json"), "w") as f:
+            json.dump(cfg_json, f, indent=1)
     data, held_traj, cached = load_or_collect(c, fit.source, cache_dir)
     held = sequence.consecutive_windows(held_traj, c.eval_length)
     ref_spread = np.asarray(jax.device_get(_ref_spread(held)))
@@ -267,13 +299,24 @@ def run(config: OfflineConfig, out_dir: str, cache_dir: str | None = None, max_m
     log(f"data: {data.frames.shape[1]} worlds x {data.steps} steps for training, "
         f"{held.valid.size} held-out steps ({'cache' if cached else 'collected'}, {t_data:.1f} s)")
     path = os.path.join(out_dir, "curves.jsonl")
-    if os.path.exists(path):
-        os.remove(path)
+    ckpt = Checkpointer(out_dir, keep=1)
     key = jax.random.PRNGKey(seed)
     k_init, key = jax.random.split(key)
     states = fit.init(k_init)
     records: list[dict[str, Any]] = []
     losses: dict = {n: {"loss": np.full((fit.S,), np.nan)} for n in fit.learners}
+    done = 0
+    if resume:
+        states, host, done = ckpt.restore(states)
+        key = jnp.asarray(host["key"], jnp.uint32)
+        records = [r for r in report.read_jsonl(path, tolerate_partial=True) if r["update"] <= done]
+        report.write_jsonl_atomic(path, records)  # drop probes written after the checkpoint
+        log(f"resuming at update {done} of {c.updates} ({len(records)} records)")
+    else:  # a fresh fit: curves and checkpoints of an earlier fit in this folder go
+        if os.path.exists(path):
+            os.remove(path)
+        shutil.rmtree(ckpt.directory, ignore_errors=True)
+        ckpt = Checkpointer(out_dir, keep=1)
 
     def do_probe(update: int) -> None:
         nonlocal key
@@ -283,8 +326,9 @@ def run(config: OfflineConfig, out_dir: str, cache_dir: str | None = None, max_m
         records.extend(recs)
         log(f"update {update:>6} ({time.time() - t0:6.1f} s): " + _summary(recs))
 
-    do_probe(0)
-    done, stopped, last_call = 0, False, 0.0
+    if not resume:
+        do_probe(0)
+    stopped, last_call = False, 0.0
     while done < c.updates and not stopped:
         chunk = min(c.probe_every, c.updates - done)
         sums: dict = {"_n": []}
@@ -311,6 +355,8 @@ def run(config: OfflineConfig, out_dir: str, cache_dir: str | None = None, max_m
         if stopped:
             log(f"stopping after {done} updates: --max-minutes {max_minutes} reached")
         do_probe(done)
+    ckpt.save(done, states, {"key": [int(x) for x in np.asarray(jax.device_get(key)).ravel()]})
+    ckpt.close()
     write_outputs(fit, records, states, held, out_dir, time.time() - t0, t_data)
     return records
 
