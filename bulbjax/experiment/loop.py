@@ -171,19 +171,18 @@ class Experiment:
         # Actions as the sequential learners see them: one-hot for discrete, the clipped vector else.
         self.action_dim = self.env.num_actions if self.env.discrete else self.env.action_size
         self.learners = {n: make_learner(n, latent, c.learner, self.action_dim) for n in c.learners}
-        # PPO observes the true state, or (rl_input "latent:<name>") that learner's latent.
+        # PPO observes the true state, the frame (rl_input "pixels") or a learner's latent of it.
         self.rl_learner = c.rl_learner
         self.rl_pixels = c.rl_input == "pixels"
+        num_actions = self.env.num_actions if self.env.discrete else None
         if self.rl_pixels:
-            self.ppo = PPO(c.ppo, 0, self.env.num_actions if self.env.discrete else None,
-                           self.env.action_size, frame_shape=self.env.frame_shape)
+            self.ppo = PPO(c.ppo, 0, num_actions, self.env.action_size, frame_shape=self.env.frame_shape)
         elif self.rl_learner is None:
             self.ppo = PPO.for_env(c.ppo, self.env)
         else:
             z = jax.eval_shape(self._encode_frames, self._abstract_learner_params(self.rl_learner),
                                jax.ShapeDtypeStruct((1,) + self.env.frame_shape, jnp.uint8))
-            self.ppo = PPO(c.ppo, z.shape[-1], self.env.num_actions if self.env.discrete else None,
-                           self.env.action_size)
+            self.ppo = PPO(c.ppo, z.shape[-1], num_actions, self.env.action_size)
         self.retention = {n: l.retain_fraction for n, l in self.learners.items()}
         self.sequential = {n: is_sequential(l) for n, l in self.learners.items()}
         self.window_length = c.window_length  # stored windows (0 without sequential learners)

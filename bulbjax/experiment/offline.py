@@ -260,11 +260,10 @@ def _check_resumable(out_dir: str, now: dict[str, Any]) -> None:
         raise ValueError(f"--resume: {path} does not exist; is {out_dir} the --out of a `bulbjax fit`?")
     with open(path) as f:
         saved = json.load(f)
-    strip = lambda d: {**d, "offline": {k: v for k, v in d["offline"].items() if k != "updates"}}
-    if strip(saved) != strip(now):
-        diff = [k for k in sorted(set(saved["offline"]) | set(now["offline"]))
-                if k != "updates" and saved["offline"].get(k) != now["offline"].get(k)]
-        diff += [k for k in ("base", "source", "seed") if saved.get(k) != now.get(k)]
+    diff = [k for k in sorted(set(saved["offline"]) | set(now["offline"]))
+            if k != "updates" and saved["offline"].get(k) != now["offline"].get(k)]
+    diff += [k for k in ("base", "source", "seed") if saved.get(k) != now.get(k)]
+    if diff:
         raise ValueError(f"--resume: {out_dir} was fitted with other settings ({', '.join(diff)} differ); "
                          "give the same flags as its first call (only --updates may change)")
 
@@ -279,7 +278,7 @@ def run(config: OfflineConfig, out_dir: str, cache_dir: str | None = None, max_m
     continues such a fit, same settings (a larger `updates` extends it), appending to
     `curves.jsonl`: a fit longer than one stretch of GPU time is several calls. Returns all
     records."""
-    from bulbjax.experiment.checkpoint import Checkpointer
+    from bulbjax.experiment.checkpoint import CHECKPOINT_DIR, Checkpointer
 
     c = config
     t0 = time.time()
@@ -299,6 +298,10 @@ def run(config: OfflineConfig, out_dir: str, cache_dir: str | None = None, max_m
     log(f"data: {data.frames.shape[1]} worlds x {data.steps} steps for training, "
         f"{held.valid.size} held-out steps ({'cache' if cached else 'collected'}, {t_data:.1f} s)")
     path = os.path.join(out_dir, "curves.jsonl")
+    if not resume:  # a fresh fit: curves and checkpoints of an earlier fit in this folder go
+        if os.path.exists(path):
+            os.remove(path)
+        shutil.rmtree(os.path.join(out_dir, CHECKPOINT_DIR), ignore_errors=True)
     ckpt = Checkpointer(out_dir, keep=1)
     key = jax.random.PRNGKey(seed)
     k_init, key = jax.random.split(key)
@@ -312,11 +315,6 @@ def run(config: OfflineConfig, out_dir: str, cache_dir: str | None = None, max_m
         records = [r for r in report.read_jsonl(path, tolerate_partial=True) if r["update"] <= done]
         report.write_jsonl_atomic(path, records)  # drop probes written after the checkpoint
         log(f"resuming at update {done} of {c.updates} ({len(records)} records)")
-    else:  # a fresh fit: curves and checkpoints of an earlier fit in this folder go
-        if os.path.exists(path):
-            os.remove(path)
-        shutil.rmtree(ckpt.directory, ignore_errors=True)
-        ckpt = Checkpointer(out_dir, keep=1)
 
     def do_probe(update: int) -> None:
         nonlocal key

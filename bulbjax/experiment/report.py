@@ -180,13 +180,18 @@ def plot(records: Sequence[dict[str, Any]], spec: Sequence[StateEntry], path: st
     plt.close(fig)
 
 
-def _plot_rl(axes: Any, records: Sequence[dict[str, Any]], solved_return: float | None) -> None:
-    """The PPO return row of the Fig. 2 plot."""
-    ep, r = rl_curve(records)
+def _rl_band(ep: np.ndarray, r: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Of `rl_curve`'s epochs and `[seeds, epochs]` returns: the epochs with a return, the mean
+    return and its 90% CI half-width over seeds."""
     mean, half = ci90(r)
     # epochs in which no episode ended (long locomotion episodes) have no return: join the others
     ok = np.isfinite(mean)
-    ep, mean, half = np.asarray(ep)[ok], mean[ok], np.nan_to_num(half[ok])
+    return np.asarray(ep)[ok], mean[ok], np.nan_to_num(half[ok])
+
+
+def _plot_rl(axes: Any, records: Sequence[dict[str, Any]], solved_return: float | None) -> None:
+    """The PPO return row of the Fig. 2 plot."""
+    ep, mean, half = _rl_band(*rl_curve(records))
     for ax in axes:
         ax.plot(ep, mean, color="tab:green", marker=".", label="PPO return")
         ax.fill_between(ep, mean - half, mean + half, color="tab:green", alpha=0.2)
@@ -281,8 +286,9 @@ def write_reports(run_dir: str, records: Sequence[dict[str, Any]], cfg: Any,
     done = len({r["epoch"] for r in records})
     title = title_of(cfg, done)
     plot(records, spec, os.path.join(run_dir, "fig2.png"), title, solved_return=solved_return)
-    tab = table(records, spec, last=min(3, len(probed(records)) // len(seeds)))
-    obj = objects.comparison_table(records, spec, last=min(3, len(probed(records)) // len(seeds)))
+    last = min(3, len(probed(records)) // len(seeds))
+    tab = table(records, spec, last=last)
+    obj = objects.comparison_table(records, spec, last=last)
     if obj:
         tab += f"\n\n## Objects\n\n{obj}"
     with open(os.path.join(run_dir, "table.md"), "w") as f:
@@ -346,36 +352,33 @@ def rl_compare(run_dirs: Sequence[str], out_dir: str, solved_return: float | Non
     rows = ["| run | PPO observes | seeds | epochs | final return (90% CI) | epochs to reach "
             f"{'the solved return' if solved_return is None else solved_return} (per seed) |",
             "|---|---|---|---|---|---|"]
-    envs = set()
+    targets: dict[str, float | None] = {}  # env -> the return counted as solved
     for d in run_dirs:
         cfg, _ = read_run_config(d)
-        envs.add(cfg.env)
-        target = solved_return if solved_return is not None else env_class(cfg.env).solved_return
+        target = targets.setdefault(cfg.env, solved_return if solved_return is not None
+                                    else env_class(cfg.env).solved_return)
         records = read_jsonl(os.path.join(d, "metrics.jsonl"), tolerate_partial=True)
         if not records:
             raise ValueError(f"{d}/metrics.jsonl has no epoch yet")
-        ep, r = rl_curve(records)
-        mean, half = ci90(r)
-        ok = np.isfinite(mean)
-        label = getattr(cfg, "rl_input", "state")
-        line, = ax.plot(ep[ok], mean[ok], label=label)
-        ax.fill_between(ep[ok], (mean - half)[ok], (mean + half)[ok], color=line.get_color(), alpha=0.2)
-        last = np.nonzero(ok)[0][-1]
-        reach = epochs_to_reach(r, ep, target) if target is not None else []
-        rows.append(f"| {os.path.basename(os.path.normpath(d))} | {label} | {r.shape[0]} | {len(ep)} | "
-                    f"{mean[last]:.1f} ± {np.nan_to_num(half[last]):.1f} | "
+        epochs, r = rl_curve(records)
+        ep, mean, half = _rl_band(epochs, r)
+        line, = ax.plot(ep, mean, label=cfg.rl_input)
+        ax.fill_between(ep, mean - half, mean + half, color=line.get_color(), alpha=0.2)
+        reach = epochs_to_reach(r, epochs, target) if target is not None else []
+        rows.append(f"| {os.path.basename(os.path.normpath(d))} | {cfg.rl_input} | {r.shape[0]} | "
+                    f"{r.shape[1]} | {mean[-1]:.1f} ± {half[-1]:.1f} | "
                     f"{', '.join('never' if x is None else str(x) for x in reach) or 'n/a'} |")
-    target = solved_return if solved_return is not None else env_class(next(iter(envs))).solved_return
-    if target is not None:
+    envs = sorted(targets)
+    for target in {t for t in targets.values() if t is not None}:
         ax.axhline(target, color="k", ls="--", lw=0.8, label="solved")
     ax.set_xlabel("epoch")
     ax.set_ylabel("PPO episode return (mean, 90% CI over seeds)")
-    ax.set_title(f"{', '.join(sorted(envs))}: PPO from state, pixels and latents")
+    ax.set_title(f"{', '.join(envs)}: PPO from state, pixels and latents")
     ax.legend(fontsize=8)
     fig.tight_layout()
     fig.savefig(os.path.join(out_dir, "rl_compare.png"), dpi=120)
     plt.close(fig)
     tab = "\n".join(rows)
     with open(os.path.join(out_dir, "rl_compare.md"), "w") as f:
-        f.write(f"# PPO return by observation ({', '.join(sorted(envs))})\n\n{tab}\n")
+        f.write(f"# PPO return by observation ({', '.join(envs)})\n\n{tab}\n")
     return tab
