@@ -1,8 +1,10 @@
 """N PyBullet envs stepped together, with auto-reset, as bulb trained with many parallel envs.
 
-The envs are bulb's pybullet_envs domains (`BulletPixelEnv`) or the Incline originals
-(`pybullet_compat.incline.InclineBulletEnv`, picked by name; `env_kwargs` go to its constructor,
-e.g. `version`, or `shape` prepared in the parent so that workers never import JAX).
+The envs are bulb's pybullet_envs domains (`BulletPixelEnv`), the Incline originals
+(`pybullet_compat.incline.InclineBulletEnv`) or the Rearrange originals
+(`pybullet_compat.rearrange_env.RearrangeBulletEnv`), picked by name; `env_kwargs` go to the
+Incline/Rearrange constructor, e.g. `version`, or `shape` / `objects` prepared in the parent so
+that workers never import JAX.
 `ProcessVecEnv` runs one env per process (multiprocessing, one pipe each; 'spawn' by default so
 it is safe after JAX started threads), `SerialVecEnv` runs the same in this process. Both return
 batched arrays with bulbjax's conventions: frames [N, H, W, 3] uint8, states [N, D] float32,
@@ -18,13 +20,23 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
-from pybullet_compat.envs import BulletPixelEnv, domain
+from pybullet_compat.envs import DOMAINS, BulletPixelEnv, domain
 from pybullet_compat.incline import INCLINE_DOMAINS, InclineBulletEnv, incline_domain
+from pybullet_compat.rearrange_env import REARRANGE_DOMAINS, RearrangeBulletEnv, rearrange_domain
 
 
 def any_domain(name: str) -> Any:
-    """The spec of a pybullet_envs domain (`DomainSpec`) or an Incline domain (`InclineSpec`)."""
-    return incline_domain(name) if name in INCLINE_DOMAINS else domain(name)
+    """The spec of a pybullet_envs domain (`DomainSpec`), an Incline domain (`InclineSpec`) or a
+    Rearrange domain (`RearrangeSpec`); an unknown name lists them all."""
+    if name in INCLINE_DOMAINS:
+        return incline_domain(name)
+    if name in REARRANGE_DOMAINS:
+        return rearrange_domain(name)
+    try:
+        return domain(name)
+    except ValueError:
+        raise ValueError(f"unknown PyBullet domain {name!r}; available: "
+                         f"{', '.join([*DOMAINS, *INCLINE_DOMAINS, *REARRANGE_DOMAINS])}") from None
 
 
 @dataclass(frozen=True)
@@ -34,11 +46,13 @@ class VecConfig:
     name: str
     resolution: int = 64
     render: bool = True
-    env_kwargs: tuple[tuple[str, Any], ...] = ()  # constructor options of Incline envs
+    env_kwargs: tuple[tuple[str, Any], ...] = ()  # constructor options of Incline / Rearrange envs
 
     def make(self) -> Any:
         if self.name in INCLINE_DOMAINS:
             return InclineBulletEnv(self.name, resolution=self.resolution, render=self.render, **dict(self.env_kwargs))
+        if self.name in REARRANGE_DOMAINS:
+            return RearrangeBulletEnv(self.name, resolution=self.resolution, render=self.render, **dict(self.env_kwargs))
         if self.env_kwargs:
             raise ValueError(f"{self.name} takes no env_kwargs, got {dict(self.env_kwargs)}")
         return BulletPixelEnv(self.name, self.resolution, self.render)
