@@ -23,21 +23,20 @@ Writes benchmarks/results/incline_<device>_<stamp>.json (and incline_latest.json
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import shutil
-import statistics
 import sys
 import tempfile
 import time
 from dataclasses import asdict, dataclass
 from typing import Any
 
-import numpy as np
-
 HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, os.path.dirname(HERE))  # run from a checkout without installing
 sys.path.insert(0, HERE)
+
+import frames_bench  # noqa: E402
+from frames_bench import log, measure_env, time_bulbjax, time_pybullet  # noqa: E402
 
 
 @dataclass(frozen=True)
@@ -69,10 +68,6 @@ class Settings:
         return [i % 6 for i in range(self.procs)] if self.version == "random" else [int(self.version)] * self.procs
 
 
-def log(msg: str) -> None:
-    print(msg, flush=True)
-
-
 def bench_cache(s: Settings, cache: str) -> dict[str, Any]:
     """Build bulb's six YCB objects (default scale 2.5) into the empty folder `cache`, then load them again."""
     from bulbjax.assets import load_ycb_object
@@ -101,74 +96,18 @@ def bench_cache(s: Settings, cache: str) -> dict[str, Any]:
 def bench_pybullet(name: str, s: Settings) -> dict[str, Any]:
     """Frames/s of `s.procs` PyBullet Incline processes stepping and rendering together."""
     from pybullet_compat.incline import incline_domain, object_shape
-    from pybullet_compat.vector import ProcessVecEnv
 
     spec = incline_domain(name)
     versions = s.pybullet_versions()
     shapes = {v: object_shape(spec, v, s.ycb_dir) for v in sorted(set(versions))}  # no JAX in the workers
-    rng = np.random.default_rng(s.seed)
-    t0 = time.perf_counter()
-    venv = ProcessVecEnv(name, s.procs, resolution=s.resolution, render=True,
-                         env_kwargs=[{"version": v, "shape": shapes[v]} for v in versions])
-    start_s = time.perf_counter() - t0
-    try:
-        venv.reset(seeds=list(range(s.procs)))
-        for _ in range(10):  # warm-up
-            venv.step(rng.uniform(-1, 1, (s.procs, 1)))
-        steps, episodes, t0 = 0, 0, time.perf_counter()
-        while time.perf_counter() - t0 < s.seconds:
-            frames, states, _, term, trunc, _ = venv.step(rng.uniform(-1, 1, (s.procs, 1)))
-            steps += 1
-            episodes += int((term | trunc).sum())
-        wall = time.perf_counter() - t0
-    finally:
-        venv.close()
-    assert frames.shape == (s.procs, s.resolution, s.resolution, 3) and frames.dtype == np.uint8
-    return {"env": name, "processes": s.procs, "versions": versions, "vector_steps": steps, "wall_s": wall,
-            "start_s": start_s, "episodes_ended": episodes, "frames_per_s": s.procs * steps / wall,
-            "frames_per_s_per_process": steps / wall, "state_dim": int(states.shape[1]),
-            "pixels_mean": float(frames.mean())}
+    return time_pybullet(name, s.procs, [{"version": v, "shape": shapes[v]} for v in versions], 1, s.seconds,
+                         s.resolution, s.seed, meta={"versions": versions})
 
 
 def bench_bulbjax(name: str, worlds: int, s: Settings) -> dict[str, Any]:
     """Frames/s of one bulbjax Incline env of `worlds` worlds, `s.steps` rendered steps per jitted scan."""
-    import jax
-
-    import bulbjax
-
-    t0 = time.perf_counter()
-    env = bulbjax.make(name, num_envs=worlds, resolution=s.resolution, render=True, version=s.mjx_version,
-                       ycb_dir=s.ycb_dir)
-    make_s = time.perf_counter() - t0
-
-    @jax.jit
-    def rollout(state: Any, key: jax.Array) -> tuple[Any, jax.Array]:
-        def body(carry, _):
-            st, k = carry
-            k, ka = jax.random.split(k)
-            return (env.step(st, jax.random.uniform(ka, (worlds, 1), minval=-1.0, maxval=1.0)), k), None
-        return jax.lax.scan(body, (state, key), None, length=s.steps)[0]
-
-    key = jax.random.PRNGKey(s.seed)
-    t0 = time.perf_counter()
-    state = jax.block_until_ready(jax.jit(env.reset)(key))
-    reset_s = time.perf_counter() - t0
-    t0 = time.perf_counter()
-    compiled = rollout.lower(state, key).compile()
-    compile_s = time.perf_counter() - t0
-    state, key = jax.block_until_ready(compiled(state, key))
-    calls = []
-    for _ in range(s.repeats):
-        t0 = time.perf_counter()
-        state, key = jax.block_until_ready(compiled(state, key))
-        calls.append(time.perf_counter() - t0)
-    med = statistics.median(calls)
-    px = np.asarray(state.pixels)
-    return {"env": name, "worlds": worlds, "version": s.mjx_version, "steps": s.steps, "repeats": s.repeats,
-            "make_s": make_s, "first_reset_s": reset_s, "compile_s": compile_s, "call_s": calls,
-            "median_call_s": med, "frames_per_s": worlds * s.steps / med,
-            "frames_per_s_best": worlds * s.steps / min(calls), "state_dim": int(state.lowdim.shape[1]),
-            "pixels_mean": float(px.mean()), "finite_worlds": int(np.isfinite(np.asarray(state.lowdim)).all(1).sum())}
+    return time_bulbjax(name, worlds, 1, s.steps, s.repeats, s.resolution, s.seed, meta={"version": s.mjx_version},
+                        version=s.mjx_version, ycb_dir=s.ycb_dir)
 
 
 def parse_args(argv: list[str] | None = None) -> Settings:
@@ -227,30 +166,9 @@ def main(argv: list[str] | None = None) -> str:
             f"cache hits {c['cache_hit_total_s']:.2f} s")
     try:
         for name in s.envs:
-            row: dict[str, Any] = {"env": name}
-            if not s.skip_pybullet:
-                try:
-                    row["pybullet"] = bench_pybullet(name, s)
-                    log(f"{name}: PyBullet {s.procs} processes: {row['pybullet']['frames_per_s']:,.0f} frames/s")
-                except Exception as err:
-                    row["pybullet_error"] = repr(err)
-                    log(f"{name}: PyBullet failed: {err!r}")
-            if not s.skip_bulbjax:
-                row["bulbjax"] = []
-                for w in s.worlds:
-                    try:
-                        r = bench_bulbjax(name, w, s)
-                        row["bulbjax"].append(r)
-                        log(f"{name}: bulbjax {w} worlds: {r['frames_per_s']:,.0f} frames/s (compile {r['compile_s']:.0f} s)")
-                    except Exception as err:
-                        row["bulbjax"].append({"worlds": w, "error": repr(err)})
-                        log(f"{name}: bulbjax {w} worlds failed: {err!r}")
-            ok = [r for r in row.get("bulbjax", []) if "frames_per_s" in r]
-            if ok and "pybullet" in row:
-                best = max(ok, key=lambda r: r["frames_per_s"])
-                row["ratio_best_bulbjax_to_pybullet"] = best["frames_per_s"] / row["pybullet"]["frames_per_s"]
-                row["best_worlds"] = best["worlds"]
-                log(f"{name}: ratio bulbjax/PyBullet = {row['ratio_best_bulbjax_to_pybullet']:.3g}x")
+            row = measure_env(name, s.procs, s.worlds,
+                              None if s.skip_pybullet else (lambda: bench_pybullet(name, s)),
+                              None if s.skip_bulbjax else (lambda w: bench_bulbjax(name, w, s)))
             results["rows"].append(row)
     finally:
         if made_tmp and not s.keep_cache:
@@ -262,29 +180,14 @@ def main(argv: list[str] | None = None) -> str:
 
 
 def print_table(results: dict[str, Any]) -> None:
-    procs = results["settings"]["procs"]
-    print(f"\n| env | PyBullet, {procs} processes (frames/s) | bulbjax (worlds: frames/s) | ratio |")
-    print("|---|---|---|---|")
-    for row in results["rows"]:
-        pb = f"{row['pybullet']['frames_per_s']:,.0f}" if "pybullet" in row else row.get("pybullet_error", "-")
-        bj = ", ".join(f"{r['worlds']}: {r['frames_per_s']:,.0f}" for r in row.get("bulbjax", []) if "frames_per_s" in r)
-        ratio = row.get("ratio_best_bulbjax_to_pybullet")
-        print(f"| {row['env']} | {pb} | {bj or '-'} | {f'{ratio:.3g}x' if ratio else '-'} |")
+    frames_bench.print_table(results)
     if "ycb_cache" in results:
         c = results["ycb_cache"]
         print(f"\nYCB cache from empty: {c['build_total_s']:.1f} s for 6 objects; hits {c['cache_hit_total_s']:.2f} s")
 
 
 def write(results: dict[str, Any], out: str) -> str:
-    os.makedirs(out, exist_ok=True)
-    dev = str(results["device"].get("device", "cpu")).lower()
-    slug = "".join(c if c.isalnum() else "_" for c in dev).strip("_") or "cpu"
-    path = os.path.join(out, f"incline_{slug}_{time.strftime('%Y%m%d_%H%M%S')}.json")
-    for p in (path, os.path.join(out, "incline_latest.json")):
-        with open(p, "w") as f:
-            json.dump(results, f, indent=1, default=str)
-    log(f"wrote {path}")
-    return path
+    return frames_bench.write(results, out, "incline")
 
 
 if __name__ == "__main__":

@@ -1,0 +1,152 @@
+"""Shared timing of rendered frames/s for the "bulbjax against the PyBullet originals" benchmarks
+(`bench_incline.py`, `bench_rearrange.py`): N PyBullet processes (`pybullet_compat.vector`)
+stepping with random actions, one bulbjax env of W worlds stepping in one jitted scan, the
+per-env loop that records errors and the ratio, the table and the JSON file.
+
+Actions are uniform in [-1, 1] on both sides (bulbjax's convention, which the originals share).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import statistics
+import time
+from typing import Any, Callable, Mapping, Sequence
+
+import numpy as np
+
+
+def log(msg: str) -> None:
+    print(msg, flush=True)
+
+
+def time_pybullet(name: str, procs: int, env_kwargs: Sequence[Mapping[str, Any]], action_size: int,
+                  seconds: float, resolution: int, seed: int = 0, warmup: int = 10,
+                  meta: Mapping[str, Any] | None = None) -> dict[str, Any]:
+    """Frames/s of `procs` PyBullet processes (`ProcessVecEnv`, auto-reset) stepping with random
+    actions and rendering every step, over `seconds` after `warmup` steps. `meta` goes into the
+    result after the process count (e.g. the versions the processes simulate)."""
+    from pybullet_compat.vector import ProcessVecEnv
+
+    rng = np.random.default_rng(seed)
+    t0 = time.perf_counter()
+    venv = ProcessVecEnv(name, procs, resolution=resolution, render=True, env_kwargs=list(env_kwargs))
+    start_s = time.perf_counter() - t0
+    try:
+        venv.reset(seeds=list(range(procs)))
+        for _ in range(warmup):
+            venv.step(rng.uniform(-1, 1, (procs, action_size)))
+        steps, episodes, t0 = 0, 0, time.perf_counter()
+        while time.perf_counter() - t0 < seconds:
+            frames, states, _, term, trunc, _ = venv.step(rng.uniform(-1, 1, (procs, action_size)))
+            steps += 1
+            episodes += int((term | trunc).sum())
+        wall = time.perf_counter() - t0
+    finally:
+        venv.close()
+    assert frames.shape == (procs, resolution, resolution, 3) and frames.dtype == np.uint8
+    return {"env": name, "processes": procs, **(meta or {}), "vector_steps": steps, "wall_s": wall,
+            "start_s": start_s, "episodes_ended": episodes, "frames_per_s": procs * steps / wall,
+            "frames_per_s_per_process": steps / wall, "state_dim": int(states.shape[1]),
+            "pixels_mean": float(frames.mean())}
+
+
+def time_bulbjax(name: str, worlds: int, action_size: int, steps: int, repeats: int, resolution: int,
+                 seed: int = 0, meta: Mapping[str, Any] | None = None, **make_kwargs: Any) -> dict[str, Any]:
+    """Frames/s of one bulbjax env of `worlds` worlds (`bulbjax.make(name, ..., **make_kwargs)`,
+    rendering on): `steps` random-action steps in one jitted scan, median of `repeats` calls
+    after compiling and one untimed call. `meta` goes into the result after the world count."""
+    import jax
+
+    import bulbjax
+
+    t0 = time.perf_counter()
+    env = bulbjax.make(name, num_envs=worlds, resolution=resolution, render=True, **make_kwargs)
+    make_s = time.perf_counter() - t0
+
+    @jax.jit
+    def rollout(state: Any, key: jax.Array) -> tuple[Any, jax.Array]:
+        def body(carry, _):
+            st, k = carry
+            k, ka = jax.random.split(k)
+            return (env.step(st, jax.random.uniform(ka, (worlds, action_size), minval=-1.0, maxval=1.0)), k), None
+        return jax.lax.scan(body, (state, key), None, length=steps)[0]
+
+    key = jax.random.PRNGKey(seed)
+    t0 = time.perf_counter()
+    state = jax.block_until_ready(jax.jit(env.reset)(key))
+    reset_s = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    compiled = rollout.lower(state, key).compile()
+    compile_s = time.perf_counter() - t0
+    state, key = jax.block_until_ready(compiled(state, key))
+    calls = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        state, key = jax.block_until_ready(compiled(state, key))
+        calls.append(time.perf_counter() - t0)
+    med = statistics.median(calls)
+    px = np.asarray(state.pixels)
+    return {"env": name, "worlds": worlds, **(meta or {}), "steps": steps, "repeats": repeats, "make_s": make_s,
+            "first_reset_s": reset_s, "compile_s": compile_s, "call_s": calls, "median_call_s": med,
+            "frames_per_s": worlds * steps / med, "frames_per_s_best": worlds * steps / min(calls),
+            "state_dim": int(state.lowdim.shape[1]), "pixels_mean": float(px.mean()),
+            "finite_worlds": int(np.isfinite(np.asarray(state.lowdim)).all(1).sum())}
+
+
+def measure_env(name: str, procs: int, worlds: Sequence[int], pybullet: Callable[[], dict[str, Any]] | None,
+                bulbjax: Callable[[int], dict[str, Any]] | None) -> dict[str, Any]:
+    """One table row: PyBullet (`pybullet()`, unless None), bulbjax at each world count
+    (`bulbjax(w)`, unless None), a failing case recorded with its error; the ratio of the best
+    bulbjax batch to PyBullet."""
+    row: dict[str, Any] = {"env": name}
+    if pybullet is not None:
+        try:
+            row["pybullet"] = pybullet()
+            log(f"{name}: PyBullet {procs} processes: {row['pybullet']['frames_per_s']:,.0f} frames/s")
+        except Exception as err:
+            row["pybullet_error"] = repr(err)
+            log(f"{name}: PyBullet failed: {err!r}")
+    if bulbjax is not None:
+        row["bulbjax"] = []
+        for w in worlds:
+            try:
+                r = bulbjax(w)
+                row["bulbjax"].append(r)
+                log(f"{name}: bulbjax {w} worlds: {r['frames_per_s']:,.0f} frames/s (compile {r['compile_s']:.0f} s)")
+            except Exception as err:
+                row["bulbjax"].append({"worlds": w, "error": repr(err)})
+                log(f"{name}: bulbjax {w} worlds failed: {err!r}")
+    ok = [r for r in row.get("bulbjax", []) if "frames_per_s" in r]
+    if ok and "pybullet" in row:
+        best = max(ok, key=lambda r: r["frames_per_s"])
+        row["ratio_best_bulbjax_to_pybullet"] = best["frames_per_s"] / row["pybullet"]["frames_per_s"]
+        row["best_worlds"] = best["worlds"]
+        log(f"{name}: ratio bulbjax/PyBullet = {row['ratio_best_bulbjax_to_pybullet']:.3g}x")
+    return row
+
+
+def print_table(results: dict[str, Any]) -> None:
+    """Markdown table of `results['rows']` (from `measure_env`)."""
+    procs = results["settings"]["procs"]
+    print(f"\n| env | PyBullet, {procs} processes (frames/s) | bulbjax (worlds: frames/s) | ratio |")
+    print("|---|---|---|---|")
+    for row in results["rows"]:
+        pb = f"{row['pybullet']['frames_per_s']:,.0f}" if "pybullet" in row else row.get("pybullet_error", "-")
+        bj = ", ".join(f"{r['worlds']}: {r['frames_per_s']:,.0f}" for r in row.get("bulbjax", []) if "frames_per_s" in r)
+        ratio = row.get("ratio_best_bulbjax_to_pybullet")
+        print(f"| {row['env']} | {pb} | {bj or '-'} | {f'{ratio:.3g}x' if ratio else '-'} |")
+
+
+def write(results: dict[str, Any], out: str, prefix: str) -> str:
+    """`<out>/<prefix>_<device>_<stamp>.json` and `<out>/<prefix>_latest.json`; returns the first."""
+    os.makedirs(out, exist_ok=True)
+    dev = str(results["device"].get("device", "cpu")).lower()
+    slug = "".join(c if c.isalnum() else "_" for c in dev).strip("_") or "cpu"
+    path = os.path.join(out, f"{prefix}_{slug}_{time.strftime('%Y%m%d_%H%M%S')}.json")
+    for p in (path, os.path.join(out, f"{prefix}_latest.json")):
+        with open(p, "w") as f:
+            json.dump(results, f, indent=1, default=str)
+    log(f"wrote {path}")
+    return path
