@@ -19,7 +19,9 @@ The scene:
 - Reacher: bulbjax's `mjcf_assets/reacher_rearrange.xml` through `loadMJCF` (as
   `pybullet_compat.rearrange.ReacherBullet`), its base made static (`loadMJCF` leaves the root
   body free: a 0.06 kg base that the arm's reaction torques throw around), the elbow drawn orange.
-  Franka: `pybullet_data`'s `franka_panda/panda.urdf`, fixed base at (-0.7, 0, 0),
+  Franka: `pybullet_data`'s `franka_panda/panda.urdf`, fixed base at (-0.7, 0, 0), link
+  inertias Bullet's default (recomputed from the collision meshes; the URDF's are 0.1 kg m^2
+  placeholders, which the MJX mirror uses: `inertia_from_file=True` takes those),
   self-collision on (all ancestors excluded; the two fixed fingers not against each other), the
   fingers held closed by position motors (bulb gives them no torque).
 - Bullet settings of bulb: gravity -9.81, time step 0.01 s, 2 substeps, 5 solver iterations; the
@@ -50,6 +52,15 @@ The scene:
 - frames: 64 x 64 RGB from `getCameraImage` (ER_TINY_RENDERER); Reacher camera distance 0.40,
   yaw 90, pitch -89, target (0, 0, 0); Franka distance 0.44, yaw 90, pitch -65, target
   (0.05, 0, 0); vertical FOV 90, near 0.01, far 100.
+
+Differences from the MJX mirror (measured: `python -m pybullet_compat.parity_rearrange`,
+docs/parity/README.md, Rearrange): where objects settle agrees (mean heights within 3 mm, the
+same shares on their side), but the arms move more here during the reset -- the reacher has
+`loadMJCF`'s density-1000 masses and no damping or armature, the Panda Bullet's recomputed link
+inertias (the mirror: the URDF's 0.1 kg m^2 placeholders) and no gravity compensation during the
+free settle (the mirror holds it) -- so objects start episodes faster here. The mirror leaves out
+restitution and rolling friction and caps object speeds during its reset; objects' body frames
+are their centres of mass on both sides.
 
     env = RearrangeBulletEnv("FrankaRearrangeGeom", version=2)
     frame, state = env.reset(seed=0)
@@ -324,12 +335,14 @@ class RearrangeBulletEnv:
     auto-reset. `objects` (from `rearrange_objects`) avoids importing bulbjax here.
     `render=False` skips `getCameraImage`; `rotation` 'true' (bulbjax's state) or 'bulb'
     (bulb's matrix of the permuted quaternion); `skip_zero_torque`: bulb's Franka does not step
-    when the commanded torque is all zeros."""
+    when the commanded torque is all zeros; `inertia_from_file`: the Panda's link inertias from
+    panda.urdf (0.1 kg m^2 placeholders, as the MJX mirror has them) instead of Bullet's default,
+    which recomputes them from the collision meshes (5-200x smaller)."""
 
     def __init__(self, name: str, version: int = 0, resolution: int = 64, render: bool = True,
                  ycb_dir: str | None = None, cache_dir: str | None = None,
                  objects: Sequence[RearrangeObject] | None = None, rotation: str = "true",
-                 skip_zero_torque: bool = True, seed: int | None = None):
+                 skip_zero_torque: bool = True, inertia_from_file: bool = False, seed: int | None = None):
         if not isinstance(resolution, int) or resolution < 8:
             raise ValueError(f"resolution must be an integer >= 8, got {resolution!r}")
         if rotation not in ("true", "bulb"):
@@ -338,6 +351,7 @@ class RearrangeBulletEnv:
         self.name, self.version = name, _check_version(version)
         self.resolution, self.render_frames = resolution, render
         self.rotation, self.skip_zero_torque = rotation, skip_zero_torque
+        self.inertia_from_file = inertia_from_file
         self.objects = tuple(objects) if objects is not None else rearrange_objects(name, self.version, ycb_dir, cache_dir)
         expected = OBJECT_LISTS[self.spec.variant][self.version % NUM_LISTS]
         if tuple(o.name for o in self.objects) != expected:
@@ -357,6 +371,7 @@ class RearrangeBulletEnv:
         self.max_object_z = max(2 * o.half_z for o in self.objects)
         self.step_count, self.episode_return, self._started = 0, 0.0, False
         self.ik_tries = 0
+        self.last_draws: dict[str, np.ndarray] = {}
         self._view = self._proj = None
 
     @property
@@ -402,6 +417,8 @@ class RearrangeBulletEnv:
         p, pb = self.client, self._pb
         if self.franka:
             flags = pb.URDF_USE_SELF_COLLISION | pb.URDF_USE_SELF_COLLISION_EXCLUDE_ALL_PARENTS
+            if self.inertia_from_file:
+                flags |= pb.URDF_USE_INERTIA_FROM_FILE
             self.robot_id = p.loadURDF("franka_panda/panda.urdf", list(FRANKA_BASE), useFixedBase=True, flags=flags)
             names = {p.getJointInfo(self.robot_id, j)[1].decode(): j for j in range(p.getNumJoints(self.robot_id))}
             self.joints = [names[f"panda_joint{i}"] for i in range(1, 8)]
@@ -544,7 +561,8 @@ class RearrangeBulletEnv:
     def reset(self, seed: int | None = None, **fixed: Any) -> tuple[np.ndarray, np.ndarray]:
         """bulb's reset -> (frame, state): robot pose, objects dropped, 20 free steps, 10 steps of
         random torques. `fixed` sets draws: robot_qpos [A], obj_pos [M, 3], obj_quat [M, 4]
-        (w, x, y, z, before the settle), torques [10, A] (actions in [-1, 1])."""
+        (w, x, y, z, before the settle), torques [10, A] (actions in [-1, 1]). The episode's
+        draws are kept in `last_draws` (the same fields, for the mirror's `reset_with`)."""
         unknown = set(fixed) - set(RESET_FIELDS)
         if unknown:
             raise ValueError(f"unknown reset fields {sorted(unknown)}; known: {RESET_FIELDS}")
@@ -567,6 +585,8 @@ class RearrangeBulletEnv:
             xyzw = wxyz[:, [1, 2, 3, 0]] / np.linalg.norm(wxyz, axis=1, keepdims=True)
         if "torques" in fixed:
             torques = np.broadcast_to(np.asarray(fixed["torques"], np.float64), (RANDOM_TORQUE_STEPS, n))
+        self.last_draws = {"robot_qpos": np.array(q, np.float64), "obj_pos": np.array(pos),
+                           "obj_quat": np.array(xyzw[:, [3, 0, 1, 2]]), "torques": np.array(torques)}
         p = self.client
         self.set_robot(q)
         for b, xyz, quat in zip(self.object_ids, pos, xyzw):

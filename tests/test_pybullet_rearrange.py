@@ -167,3 +167,17 @@ def test_process_vector_runs_two_versions():
         assert qpos.shape == (2, 2 + 4 * 7) and qvel.shape == (2, 2 + 4 * 6)
     finally:
         venv.close()
+
+
+def test_settle_study_pybullet_side():
+    """`parity_rearrange`'s PyBullet half: the draws it hands to the mirror and the tilt measure."""
+    from pybullet_compat import parity_rearrange as par
+
+    c = np.cos(np.pi / 4)
+    quats = np.array([[1.0, 0, 0, 0], [0.0, 1, 0, 0], [c, 0, c, 0]])  # upright, upside down, on its side
+    np.testing.assert_allclose(par.tilt_deg(quats), [0.0, 180.0, 90.0], atol=1e-6)
+    r = par.pybullet_resets(par.SettleConfig("ReacherRearrangeGeom", resets=2))
+    assert r["robot_qpos"].shape == (2, 2) and r["obj_pos"].shape == (2, 4, 3) and r["obj_quat"].shape == (2, 4, 4)
+    assert r["torques"].shape == (2, pbr.RANDOM_TORQUE_STEPS, 2) and r["pos"].shape == (2, 4, 3)
+    s = par.summarise(r, r["half_z"], r["obj_pos"][..., :2], r["robot_qpos"])
+    assert len(s["objects"]) == 4 and len(s["robot_travel_rad_mean"]) == 2
