@@ -226,6 +226,16 @@ def reacher_mjcf_path() -> str:
     return path
 
 
+def load_reacher(client: Any, path: str | None = None) -> int:
+    """Load the reacher MJCF (`reacher_mjcf_path()` by default) into PyBullet `client` with its base
+    welded where it stands, and return its body id. `loadMJCF` makes the root body a free base (the
+    0.06 kg base cylinder), which the arm's reaction torques throw about; a base of mass 0 is static
+    in Bullet, as bulb's arm mounted on the table."""
+    robot = client.loadMJCF(path or reacher_mjcf_path())[0]
+    client.changeDynamics(robot, -1, mass=0.0)
+    return robot
+
+
 def _check_version(version: Any) -> int:
     if isinstance(version, bool) or not isinstance(version, (int, np.integer)) or not 0 <= int(version) < NUM_VERSIONS:
         raise ValueError(f"version must be an int in 0..{NUM_VERSIONS - 1} (6-11: black background), got {version!r}")
@@ -440,8 +450,7 @@ class RearrangeBulletEnv:
             p.setJointMotorControlArray(self.robot_id, self.fingers, pb.POSITION_CONTROL, targetPositions=[0.0, 0.0],
                                         forces=[FINGER_HOLD_FORCE] * 2)
         else:
-            self.robot_id = p.loadMJCF(reacher_mjcf_path())[0]
-            p.changeDynamics(self.robot_id, -1, mass=0.0)  # loadMJCF leaves the base free: weld it
+            self.robot_id = load_reacher(p)  # loadMJCF leaves the base free: welded there
             names = {p.getJointInfo(self.robot_id, j)[1].decode(): j for j in range(p.getNumJoints(self.robot_id))}
             links = {p.getJointInfo(self.robot_id, j)[12].decode(): j for j in range(p.getNumJoints(self.robot_id))}
             self.joints = [names["joint0"], names["joint1"]]
