@@ -28,6 +28,19 @@ def _domain_ppo(cfg):
         return cfg
 
 
+def _parse_version(text: str) -> int | str:
+    """An object version from the command line: "random" or a non-negative int."""
+    if text == "random":
+        return text
+    try:
+        v = int(text)
+    except ValueError:
+        v = -1
+    if v < 0:
+        raise ValueError(f"--version must be a non-negative int or 'random', got {text!r}")
+    return v
+
+
 def build_config(args: argparse.Namespace, base=None, domain_ppo: bool = True):
     """The run's ExperimentConfig: `base` (default a preset, or the defaults) with the flags that
     were given, the domain's PPO settings (unless `domain_ppo` is False), then --small, --lr and
@@ -43,6 +56,8 @@ def build_config(args: argparse.Namespace, base=None, domain_ppo: bool = True):
         given["learners"] = _parse_learners(args.learners)
     if args.multicolour:
         given["multicolour"] = True
+    if getattr(args, "version", None) is not None:
+        given["version"] = _parse_version(args.version)
     if getattr(args, "rl_input", None) is not None:
         given["rl_input"] = args.rl_input
     cfg = base.replace(**given)
@@ -215,7 +230,7 @@ def cmd_render(args: argparse.Namespace) -> int:
 
     import bulbjax
 
-    version = args.version if args.version == "random" else int(args.version)
+    version = _parse_version(args.version)
     env = bulbjax.make(args.env, num_envs=args.frames, resolution=args.resolution, version=version)
     state = jax.jit(env.reset)(jax.random.PRNGKey(args.seed))
     step = jax.jit(env.step)
@@ -246,7 +261,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     sub = p.add_subparsers(dest="cmd", required=True)
     r = sub.add_parser("run", help="train PPO + unsupervised learners and probe their latents")
     r.add_argument("--preset", default=None,
-                   help="named settings (fig2-cartpole, fig2-invpend, fig2-halfcheetah, fig2-ant); "
+                   help="named settings (fig2-cartpole, fig2-invpend, fig2-halfcheetah, fig2-ant, "
+                        "fig3-rearrange-geom); "
                         "the flags below override it")
     r.add_argument("--env", default=None, help="environment (default CartPole)")
     r.add_argument("--learners", default=None,
@@ -258,6 +274,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     r.add_argument("--seed", type=int, default=None, help="base PRNG seed (default 0)")
     r.add_argument("--out", default=None, help="run folder (default runs/latest)")
     r.add_argument("--multicolour", action="store_true", help="bulb's multicolour variant")
+    r.add_argument("--version", default=None,
+                   help="object version of the multi-object domains (Incline 0-5, Rearrange 0-11), or random "
+                        "(one per world and episode); default 0, fig3 presets random")
     r.add_argument("--small", action="store_true", help="CPU-sized settings (not the paper's)")
     r.add_argument("--bf16", action="store_true", help="bf16 compute in the learners (GPU)")
     r.add_argument("--rl-input", default=None,

@@ -104,7 +104,7 @@ def test_padding_does_not_change_the_loss(trained) -> None:
 
 
 def test_registry_and_equalised_batches() -> None:
-    assert LEARNER_NAMES == ("vae", "vae_rpl", "beta_vae", "svae", "pred", "dsa", "spair")
+    assert LEARNER_NAMES == ("vae", "vae_rpl", "beta_vae", "svae", "pred", "dsa", "spair", "spair6")
     for name in SEQUENCE_LEARNER_NAMES:
         learner = make_learner(name, 8, {"sequence_length": 24}, action_dim=2)
         assert learner.retain_fraction == 0.5 and learner.config.lr == 1e-4

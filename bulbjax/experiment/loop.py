@@ -159,7 +159,8 @@ class Experiment:
         try:
             self.env: MjxPixelEnv = bulbjax.make(c.env, num_envs=c.seeds * c.num_envs // self.mesh.size,
                                                  resolution=c.resolution, render=True,
-                                                 render_steps=False, multicolour=c.multicolour)
+                                                 render_steps=False, multicolour=c.multicolour,
+                                                 version=c.version)
         except ValueError as err:
             if c.env.startswith(("HalfCheetah", "Ant")):
                 raise ValueError(f"{err}. HalfCheetah and Ant come with the locomotion environments "

@@ -10,7 +10,8 @@ or one of the sequential learners (train on windows, one latent per step; sequen
 or the structured frame learner
 - `spair`: SPAIR with a learned background (spair.py), 64 frames per batch (the paper's
   equalised compute) and the 50% retention; its latent size follows from its config
-  (G*G cells of 6 + spair_what_dim), not from `latent_dim`.
+  (G*G cells of 6 + spair_what_dim), not from `latent_dim`; its grid is 4x4 (`spair_grid`);
+- `spair6`: the same with a 6x6 grid (the paper reports both; the two can train side by side).
 """
 
 from __future__ import annotations
@@ -40,6 +41,7 @@ _PRESETS: dict[str, dict[str, Any]] = {
     "pred": {"retain_fraction": 0.5},
     "dsa": {"retain_fraction": 0.5},
     "spair": {"batch_size": 64, "retain_fraction": 0.5},
+    "spair6": {"batch_size": 64, "retain_fraction": 0.5, "spair_grid": 6},
 }
 LEARNER_NAMES: tuple[str, ...] = tuple(_PRESETS)
 SEQUENCE_LEARNER_NAMES: tuple[str, ...] = tuple(SEQUENTIAL_LEARNERS)
@@ -91,7 +93,7 @@ def make_learner(
     cfg = resolve_config(name, config)
     if name in SEQUENTIAL_LEARNERS:
         return SEQUENTIAL_LEARNERS[name](latent_dim=latent_dim, config=cfg, action_dim=action_dim)
-    if name == "spair":
+    if name.startswith("spair"):
         return SPAIR(config=cfg)
     return VAE(latent_dim=latent_dim, config=cfg)
 
