@@ -95,6 +95,18 @@ def test_summarise_groups() -> None:
         probe.summarise([0.1], [0.1], [0.1], SPEC)
 
 
+def test_near_constant_entry_is_excluded() -> None:
+    """An entry that hardly moves under the random policy (a resting sphere's height: spread
+    8e-5 against ~0.25 for the other positions) is excluded instead of dividing by ~0; a small
+    but real spread (5% of the median) is kept."""
+    spec = tuple(StateEntry(n, "1", "object_position") for n in ("x", "y", "z_sphere", "z_box"))
+    out = probe.summarise([0.1, 0.1, 0.0076, 0.01], [0.3, 0.3, 3e-5, 0.02], [0.25, 0.3, 8e-5, 0.0125], spec)
+    assert out["excluded"] == ["z_sphere"]
+    assert math.isnan(out["entries"]["z_sphere"]["mae_norm"])
+    assert out["entries"]["z_box"]["mae_norm"] == pytest.approx(0.8)
+    assert out["groups"]["object_position"]["mae_norm"] == pytest.approx((0.4 + 0.1 / 0.3 + 0.8) / 3)
+
+
 def test_fixed_scale_does_not_depend_on_the_scored_stream() -> None:
     """A solved policy's stream hardly moves (own spread ~1e-3): its normalised errors stay on
     the reference scale instead of blowing up by 1 / own spread."""

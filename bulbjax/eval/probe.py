@@ -29,6 +29,22 @@ from flax import struct
 from bulbjax.eval.spec import StateEntry
 
 _EPS = 1e-6
+# An entry whose reference spread is below this share of the median spread of the entries with
+# its unit barely moves under the random policy (a resting sphere's height: 8e-5 against 0.25
+# for the objects' x, y): its normalised error would be noise divided by ~0, so it is excluded.
+_REL_FLOOR = 1e-2
+
+
+def normalisable(ref_spread_D: Any, spec: Sequence[StateEntry]) -> np.ndarray:
+    """`[D]` bool: the entries whose reference spread can normalise errors: above `_EPS` and
+    above `_REL_FLOOR` times the median spread of the other such entries sharing its unit."""
+    r = np.asarray(ref_spread_D, np.float64)
+    good = r > _EPS
+    for unit in {e.unit for e in spec}:
+        idx = np.array([i for i, e in enumerate(spec) if e.unit == unit and good[i]], int)
+        if idx.size:
+            good[idx] &= r[idx] > _REL_FLOOR * np.median(r[idx])
+    return good
 
 
 @dataclasses.dataclass(frozen=True)
@@ -201,8 +217,10 @@ def summarise(
     ref_spread``; groups and overall have ``n, unit, mae, baseline, mae_norm, baseline_norm``,
     where normalised values are the equal-weight mean over entries and raw values are given only
     if every entry has the same unit (else None). Entries whose reference spread is ~0 (e.g. a
-    contact the random policy never makes) cannot be normalised: their normalised values are
-    NaN and they are listed in ``excluded`` and left out of normalised averages.
+    contact the random policy never makes), or below 1% of the median spread of the entries
+    with its unit (`normalisable`; e.g. a resting sphere's height), cannot be normalised: their
+    normalised values are NaN and they are listed in ``excluded`` and left out of normalised
+    averages.
     """
     m, b, r = (np.asarray(a, np.float64) for a in (mae_D, baseline_D, ref_spread_D))
     d = len(spec)
@@ -214,7 +232,7 @@ def summarise(
     names = [e.name for e in spec]
     if len(set(names)) != d:
         raise ValueError(f"duplicate state entry names in spec: {names}")
-    good = r > _EPS
+    good = normalisable(r, spec)
     safe = np.where(good, r, 1.0)
     mn = np.where(good, m / safe, np.nan)
     bn = np.where(good, b / safe, np.nan)
