@@ -90,6 +90,9 @@ class EnvConfig:
     # episode) and the folder of the YCB models (default: $BULBJAX_YCB_DIR).
     version: int | str = 0
     ycb_dir: str | None = None
+    # Draw the task's targets as visual-only marks (Rearrange: bulb's two target areas on the
+    # tray floor). Off by default: bulb's frames show none.
+    show_targets: bool = False
 
 
 class MjxPixelEnv:
@@ -121,9 +124,12 @@ class MjxPixelEnv:
     pointcloud_box: float = 1.3
     pointcloud_exclude: tuple[str, ...] = ()
     supports_multicolour: bool = True  # a `<Name>Multicolour` variant exists
+    supports_targets: bool = False  # `show_targets` draws something
 
     def __init__(self, config: EnvConfig):
         _check_config(config)
+        if config.show_targets and not self.supports_targets:
+            raise ValueError(f"{self.name} has no targets to draw; show_targets is for the Rearrange domains")
         self.config = config
         self.num_envs = config.num_envs
         self.resolution = config.resolution
@@ -405,6 +411,8 @@ OBSERVATIONS = ("rgb", "depth", "pointcloud")
 
 
 def _check_config(config: EnvConfig) -> None:
+    if not isinstance(config.show_targets, (bool, np.bool_)):
+        raise ValueError(f"show_targets must be True or False, got {config.show_targets!r}")
     if config.observation not in OBSERVATIONS:
         raise ValueError(f"observation must be one of {OBSERVATIONS}, got {config.observation!r}")
     if config.observation == "depth" and not config.render:

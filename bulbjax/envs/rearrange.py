@@ -58,7 +58,11 @@ Known differences from bulb:
   quaternion, which that function reads as (w, x, y, z): bulb's nine numbers are the matrix of a
   permuted quaternion. Here they are the object's true rotation matrix.
 - bulb's code leaves the target markers commented out (`create_visual_area` "impacts
-  physics"): targets are not drawn here either.
+  physics"), so by default no targets are drawn here either. `show_targets=True`
+  (`bulbjax.make(..., show_targets=True)`, `bulbjax render --show-targets`) draws them as
+  visual-only discs on the tray floor (radius 5 cm; violet at (0.2, -0.2) for boxes and cans,
+  lime at (0.2, 0.2) for everything else; bulb's would-be markers were 1 cm translucent
+  spheres); the physics is unchanged by them.
 - YCB objects' body frames are their centres of mass (as in the incline domains; bulb places
   the mesh origin); positions in the state are COM positions.
 - Contacts are MuJoCo's soft contacts with friction 0.5 everywhere (Bullet multiplies the two
@@ -92,6 +96,7 @@ from bulbjax.envs.base import EnvConfig, EnvState, MjxPixelEnv, _where_tree, ass
 from bulbjax.envs.camera import CameraConfig
 from bulbjax.envs.incline import _quat_mat, geom_object
 from bulbjax.envs.locomotion import _quiet_solver_limits
+from bulbjax.envs.render import SCENERY_GROUP
 from bulbjax.eval.spec import StateEntry
 
 os.environ.setdefault("MUJOCO_GL", "disable")  # dm_control needs no GL context to build models
@@ -113,6 +118,13 @@ EE_ABOVE_OBJECTS = 0.2
 INIT_XY = 0.15
 INIT_Z_MAX = 0.075
 TARGETS = np.array([[0.2, -0.2], [0.2, 0.2]])  # boxes and cans / everything else
+# `show_targets`: discs on the tray floor at TARGETS (bulb's markers -- 1 cm spheres in rgba
+# (0.6, 0.6, 0.9, 0.7) and (0.9, 0.9, 0.9, 0.7), left commented out -- would be a pixel wide at
+# 64 x 64, and the renderer has no transparency). Opaque violet / lime, at least 0.5 (in their most
+# different channel) from every tray, geom-object and arm colour: the marks never blend in.
+TARGET_RADIUS = 0.05
+TARGET_HALF_HEIGHT = 0.001
+TARGET_RGBA = ((0.5, 0.1, 1.0, 1.0), (0.5, 0.9, 0.1, 1.0))
 TRAY_SCALE = 0.8
 PARK_HEIGHT = 50.0
 NAN_RETRIES = 2
@@ -288,6 +300,7 @@ class Rearrange(MjxPixelEnv):
     pointcloud_box = 0.5  # bulb's PTCLOUD_BOX_SIZE for Rearrange
     pointcloud_exclude = ("floor", "tray_bottom", "border0", "border1", "border2", "border3")
     supports_multicolour = False
+    supports_targets = True
 
     def __init__(self, config: EnvConfig):
         version = config.version
@@ -386,7 +399,21 @@ class Rearrange(MjxPixelEnv):
             if self.random_version:
                 model.find("body", "object").gravcomp = 1e-6  # compiled in, set per world to park
             frame.pos = [2.0 + 1.0 * k, 3.0, PARK_HEIGHT]
+        if self.config.show_targets:
+            self._add_targets(root)
         return mujoco.MjSpec.from_string(root.to_xml_string(), assets=root.get_assets())
+
+    def _add_targets(self, root: mjcf.RootElement) -> None:
+        """bulb's two target areas as flat discs on the tray floor, drawn only: no contacts, no
+        mass, in a static body added last so that every other body's and geom's id is unchanged
+        (physics is the same with and without them). In the scenery group: point clouds leave
+        them out, as they leave out the tray."""
+        body = root.worldbody.add("body", name="targets")
+        top = 0.0005 + 2 * TARGET_HALF_HEIGHT  # on the tray bottom's top face (z 0.0005)
+        for i, ((x, y), rgba) in enumerate(zip(TARGETS, TARGET_RGBA)):
+            body.add("geom", name=f"target{i}", type="cylinder", size=[TARGET_RADIUS, TARGET_HALF_HEIGHT],
+                     pos=[x, y, top - TARGET_HALF_HEIGHT], rgba=rgba, contype=0, conaffinity=0, mass=0,
+                     group=SCENERY_GROUP)
 
     def _add_floor(self, root: mjcf.RootElement) -> None:
         root.worldbody.add("geom", name="floor", type="plane", size=[5, 5, 0.1], rgba=self.floor_rgba,

@@ -30,7 +30,7 @@ def env_names(with_variants: bool = True) -> list[str]:
 
 def make(name: str, num_envs: int = 64, resolution: int = 64, render: bool | str = True,
          multicolour: bool = False, render_steps: bool = True, version: int | str = 0,
-         ycb_dir: str | None = None, num_points: int = 1024) -> MjxPixelEnv:
+         ycb_dir: str | None = None, num_points: int = 1024, show_targets: bool = False) -> MjxPixelEnv:
     """A batched environment of `num_envs` worlds with `resolution`x`resolution` RGB frames.
 
     `name` is a registered domain (see `env_names()`); a `Multicolour` suffix, or
@@ -41,7 +41,8 @@ def make(name: str, num_envs: int = 64, resolution: int = 64, render: bool | str
     `render_frames`). `render_steps=False` keeps a renderer for `env.render_frames` but leaves
     frames out of `reset`/`step` (the experiment renders only the steps it stores).
     Multi-object domains take `version` (an int, or "random": one drawn per world and episode)
-    and `ycb_dir` (the YCB models; default `$BULBJAX_YCB_DIR`)."""
+    and `ycb_dir` (the YCB models; default `$BULBJAX_YCB_DIR`). `show_targets=True` draws the
+    Rearrange targets as visual-only discs on the tray floor (bulb's frames have none)."""
     base = name
     if name.endswith(MULTICOLOUR_SUFFIX):
         base, multicolour = name[: -len(MULTICOLOUR_SUFFIX)], True
@@ -53,7 +54,8 @@ def make(name: str, num_envs: int = 64, resolution: int = 64, render: bool | str
         observation = "rgb"
     cfg = EnvConfig(num_envs=num_envs, resolution=resolution, render=bool(render),
                     render_steps=render_steps and observation != "pointcloud", multicolour=multicolour,
-                    observation=observation, num_points=num_points, version=version, ycb_dir=ycb_dir)
+                    observation=observation, num_points=num_points, version=version, ycb_dir=ycb_dir,
+                    show_targets=show_targets)
     return _REGISTRY[base](cfg)
 
 
