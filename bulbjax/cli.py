@@ -231,7 +231,8 @@ def cmd_render(args: argparse.Namespace) -> int:
     import bulbjax
 
     version = _parse_version(args.version)
-    env = bulbjax.make(args.env, num_envs=args.frames, resolution=args.resolution, version=version)
+    env = bulbjax.make(args.env, num_envs=args.frames, resolution=args.resolution, version=version,
+                       show_targets=args.show_targets)
     state = jax.jit(env.reset)(jax.random.PRNGKey(args.seed))
     step = jax.jit(env.step)
     key = jax.random.PRNGKey(args.seed + 1)
@@ -359,6 +360,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     d.add_argument("--seed", type=int, default=0)
     d.add_argument("--version", default="0",
                    help="object version of the multi-object domains: 0-5, or random (one per frame)")
+    d.add_argument("--show-targets", action="store_true",
+                   help="Rearrange: draw the targets as discs on the tray floor (bulb's frames have none)")
     d.set_defaults(fn=cmd_render)
     argv = list(sys.argv[1:] if argv is None else argv)
     args = p.parse_args(argv)
