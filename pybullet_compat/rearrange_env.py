@@ -400,7 +400,10 @@ class RearrangeBulletEnv:
         p.setAdditionalSearchPath(pybullet_data.getDataPath())
         p.setGravity(0, 0, -GRAVITY)
         p.setTimeStep(BULLET_DT)
-        p.setPhysicsEngineParameter(numSolverIterations=SOLVER_ITERATIONS, numSubSteps=BULLET_SUBSTEPS)
+        # deterministicOverlappingPairs: Bullet otherwise orders contact pairs by memory address, so
+        # the same seed gave different resets in every other env created in a process
+        p.setPhysicsEngineParameter(numSolverIterations=SOLVER_ITERATIONS, numSubSteps=BULLET_SUBSTEPS,
+                                    deterministicOverlappingPairs=1)
         self.plane_id = p.loadURDF("plane.urdf", [0, 0, 0])
         if not self.franka:
             p.changeVisualShape(self.plane_id, -1, rgbaColor=[0, 0, 0, 1])
