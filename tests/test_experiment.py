@@ -214,7 +214,12 @@ def test_presets_and_cli_overrides():
     loco = preset("fig2-halfcheetah")
     assert (loco.learner_batches, loco.seq_len, loco.learner.sequence_length) == (50, 16, 16)
     assert preset("fig2-ant").window_length == 16 + loco.learner.pred_horizon
-    assert set(PRESETS) == {"fig2-cartpole", "fig2-invpend", "fig2-halfcheetah", "fig2-ant"}
+    assert set(PRESETS) == {"fig2-cartpole", "fig2-invpend", "fig2-halfcheetah", "fig2-ant", "fig3-rearrange-geom"}
+    fig3 = preset("fig3-rearrange-geom")
+    assert (fig3.env, fig3.version, fig3.seeds, fig3.window_length) == ("ReacherRearrangeGeom", "random", 3, 0)
+    assert {"vae_rpl", "spair", "spair6"} <= set(fig3.learners)
+    from bulbjax.learners import resolve_config
+    assert (resolve_config("spair6").spair_grid, resolve_config("spair").spair_grid) == (6, 4)
     with pytest.raises(ValueError, match="fig2-cartpole"):
         preset("fig3")
     import argparse
@@ -223,4 +228,10 @@ def test_presets_and_cli_overrides():
     cfg = build_config(argparse.Namespace(**ns))
     assert (cfg.seeds, cfg.epochs, cfg.learners, cfg.learner.compute_dtype) == (2, 3, ALL, "bfloat16")
     assert cfg.num_envs == 16 and cfg.seq_len == 8 and cfg.learner.sequence_length == 8
+    assert build_config(argparse.Namespace(**{**ns, "version": "random"})).version == "random"
+    assert build_config(argparse.Namespace(**{**ns, "version": "3"})).version == 3
+    with pytest.raises(ValueError, match="--version"):
+        build_config(argparse.Namespace(**{**ns, "version": "-1"}))
+    with pytest.raises(ValueError, match="version"):
+        dataclasses.replace(cart, version="all")
     assert main(["run", "--preset", "nope", "--out", "/tmp/bulbjax_nope"]) == 2
