@@ -98,6 +98,14 @@ def resolve_seed_loop(choice: str, mesh: Mesh) -> str:
     return "map" if platform != "cpu" and mesh.size == 1 else "vmap"
 
 
+def over_seeds(loop: str, fn: Callable[..., Any], *args: Any) -> Any:
+    """`fn` applied to every seed's slice of `args` (leading axis S): `jax.vmap` for loop
+    "vmap", `lax.map` (one seed at a time) for "map" (see `resolve_seed_loop`)."""
+    if loop == "map":
+        return jax.lax.map(lambda a: fn(*a), args)
+    return jax.vmap(fn)(*args)
+
+
 def train_learner(learner: Any, state: Any, sample: Any, key: jax.Array, updates: int,
                   unroll: bool | int | None = None) -> tuple[Any, dict]:
     """`updates` updates of one learner (one seed) on batches `sample(key)` gives (uint8 frames
@@ -541,11 +549,8 @@ class Experiment:
         return {k: jax.vmap(sequence.insert)(b, keys, w) for k, b in windows.items()}
 
     def over_seeds(self, fn: Callable[..., Any], *args: Any) -> Any:
-        """`fn` applied to every seed's slice of `args` (leading axis S) with the learners' seed
-        loop (`resolve_seed_loop`): `jax.vmap`, or `lax.map` (one seed at a time)."""
-        if self.seed_loop == "map":
-            return jax.lax.map(lambda a: fn(*a), args)
-        return jax.vmap(fn)(*args)
+        """`fn` over every seed's slice of `args` with the run's seed loop (`over_seeds`)."""
+        return over_seeds(self.seed_loop, fn, *args)
 
     def learn_phase(self, learners: dict, buffers: dict, key: jax.Array,
                     windows: dict | None = None) -> tuple[dict, dict]:

@@ -34,7 +34,7 @@ from bulbjax.eval import probe
 from bulbjax.eval.spec import StateEntry
 from bulbjax.experiment import report
 from bulbjax.experiment.config import ExperimentConfig
-from bulbjax.experiment.loop import probe_learner, train_learner
+from bulbjax.experiment.loop import make_mesh, over_seeds, probe_learner, resolve_seed_loop, train_learner
 from bulbjax.learners import check_finite, is_sequential, make_learner
 
 
@@ -160,7 +160,7 @@ def load_or_collect(config: OfflineConfig, source: Source, cache_dir: str | None
 
 
 class OfflineFit:
-    """Learners (seeds vmapped) on one dataset; jitted training chunks and probes."""
+    """Learners (seeds vmapped, or mapped on one GPU) on one dataset; jitted training chunks and probes."""
 
     def __init__(self, config: OfflineConfig, source: Source | None = None):
         self.config = c = config
@@ -170,6 +170,8 @@ class OfflineFit:
         self.learners = {n: make_learner(n, latent, b.learner, self.source.action_dim) for n in b.learners}
         self.spec = self.source.spec
         self.S = b.seeds
+        # learner updates and probe encodings over seeds: lax.map on one GPU, vmap on the CPU
+        self.seed_loop = resolve_seed_loop(b.learner_seed_loop, make_mesh(jax.devices()[:1], b.seeds, 1))
         per_call = c.updates_per_call or (1 if jax.default_backend() == "cpu" else c.probe_every)
         self.per_call = min(per_call, c.probe_every)
         self.init = jax.jit(self._init)
@@ -196,7 +198,7 @@ class OfflineFit:
         for i, (name, l) in enumerate(self.learners.items()):
             keys = jax.random.split(jax.random.fold_in(key, i), self.S)
             run = lambda st, k, l=l: train_learner(l, st, self._sampler(l, data), k, updates, unroll)  # noqa: E731
-            out[name], m = jax.vmap(run)(states[name], keys)
+            out[name], m = over_seeds(self.seed_loop, run, states[name], keys)
             metrics[name] = jax.tree.map(lambda x: x.mean(-1), m)
         return out, metrics
 
@@ -219,7 +221,7 @@ class OfflineFit:
                 return probe_learner(l, st.params, train, {"rand": held}, k_p, b.probe,
                                      b.probe_train_frames, corrupt)
             keys = jax.random.split(jax.random.fold_in(key, i), self.S)
-            out[name] = jax.vmap(one)(states[name], keys)
+            out[name] = over_seeds(self.seed_loop, one, states[name], keys)
         return out
 
 
