@@ -21,32 +21,19 @@ import argparse
 import datetime as dt
 import json
 import os
-import statistics
 import sys
-import time
-from typing import Any, Callable
+from typing import Any
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, os.path.dirname(HERE))
+sys.path.insert(0, HERE)
 
 import jax  # noqa: E402
 import jax.numpy as jnp  # noqa: E402
 
 from bulbjax.experiment.loop import train_learner  # noqa: E402
 from bulbjax.learners import LearnerConfig, make_learner  # noqa: E402
-
-
-def timed(fn: Callable[[], Any], repeats: int) -> dict[str, float]:
-    """Compile + first call, then the median/min of `repeats` calls (each waited for)."""
-    t0 = time.perf_counter()
-    jax.block_until_ready(fn())
-    first = time.perf_counter() - t0
-    ts = []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        jax.block_until_ready(fn())
-        ts.append(time.perf_counter() - t0)
-    return {"first_s": first, "median_s": statistics.median(ts), "min_s": min(ts)}
+from profile_epoch import time_fn as timed  # noqa: E402  (first call, then median/min of repeats)
 
 
 def main(argv: list[str] | None = None) -> dict[str, Any]:
