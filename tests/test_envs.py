@@ -649,3 +649,14 @@ def test_cli_envs_lists_versions_and_summarises_long_specs(capsys) -> None:
     assert m and int(m.group(1)) == len(spec)
     counts = [int(x) for x in re.findall(r"(?:^|; )\w+ (\d+) \(", m.group(2))]
     assert sum(counts) == len(spec) and len(counts) == len({e.group for e in spec})
+
+
+def test_version_is_refused_by_single_scene_domains():
+    """`version` selects objects in the multi-object domains; a single-scene domain refuses any
+    other value than 0 instead of ignoring it (e.g. `bulbjax run --env CartPole --version 3`)."""
+    import bulbjax
+
+    with pytest.raises(ValueError, match="no object versions"):
+        bulbjax.make("CartPole", num_envs=2, version=3, render=False)
+    with pytest.raises(ValueError, match="no object versions"):
+        bulbjax.make("InvertedPendulum", num_envs=2, version="random", render=False)

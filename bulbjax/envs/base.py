@@ -125,11 +125,15 @@ class MjxPixelEnv:
     pointcloud_exclude: tuple[str, ...] = ()
     supports_multicolour: bool = True  # a `<Name>Multicolour` variant exists
     supports_targets: bool = False  # `show_targets` draws something
+    num_versions: int = 0  # object versions (multi-object domains); 0: one scene, `version` must stay 0
 
     def __init__(self, config: EnvConfig):
         _check_config(config)
         if config.show_targets and not self.supports_targets:
             raise ValueError(f"{self.name} has no targets to draw; show_targets is for the Rearrange domains")
+        if not self.num_versions and config.version != 0:
+            raise ValueError(f"{self.name} has one scene, no object versions (got version={config.version!r}); "
+                             "versions are for the Incline and Rearrange domains")
         self.config = config
         self.num_envs = config.num_envs
         self.resolution = config.resolution

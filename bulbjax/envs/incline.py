@@ -147,6 +147,8 @@ def incline_state_spec(report_friction: bool = False) -> tuple[StateEntry, ...]:
 class Incline(MjxPixelEnv):
     """bulb's BlockOnInclineEnv on MJX; subclasses pick the object family and scale."""
 
+    num_versions = NUM_VERSIONS
+
     variant: str = "Geom"
     scale: float = 2.5
     report_friction: bool = False  # bulb's report_fric: friction in the state, before the pitch

@@ -277,6 +277,8 @@ class Rearrange(MjxPixelEnv):
     """bulb's RearrangeEnv on MJX; subclasses pick the robot (`_robot_model`, joints, torques,
     end effector, camera) and the object variant."""
 
+    num_versions = NUM_VERSIONS
+
     variant: str = "Geom"
     # robot: joints in state order (controlled ones first), their torque limits, the end-effector
     # body, the floor colour
