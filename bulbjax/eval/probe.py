@@ -37,7 +37,7 @@ _REL_FLOOR = 1e-2
 
 def normalisable(ref_spread_D: Any, spec: Sequence[StateEntry]) -> np.ndarray:
     """`[D]` bool: the entries whose reference spread can normalise errors: above `_EPS` and
-    above `_REL_FLOOR` times the median spread of the other such entries sharing its unit."""
+    above `_REL_FLOOR` times the median spread of the entries of its unit that are above `_EPS`."""
     r = np.asarray(ref_spread_D, np.float64)
     good = r > _EPS
     for unit in {e.unit for e in spec}:

@@ -33,7 +33,7 @@ class ExperimentConfig:
     env: str = "CartPole"
     multicolour: bool = False
     # Multi-object domains (Incline, Rearrange): the object version, an int, or "random" for one
-    # drawn per world and episode (their multicolour-style variation). Ignored by the others.
+    # drawn per world and episode (their multicolour-style variation). Other domains take only 0.
     version: int | str = 0
     learners: tuple[str, ...] = ("vae", "vae_rpl", "beta_vae")
     seeds: int = 3
