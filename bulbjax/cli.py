@@ -364,7 +364,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     d.add_argument("--resolution", type=int, default=64)
     d.add_argument("--seed", type=int, default=0)
     d.add_argument("--version", default="0",
-                   help="object version of the multi-object domains: 0-5, or random (one per frame)")
+                   help="object version of the multi-object domains (Incline 0-5, Rearrange 0-11), or random (one per frame)")
     d.add_argument("--show-targets", action="store_true",
                    help="Rearrange: draw the targets as discs on the tray floor (bulb's frames have none)")
     d.set_defaults(fn=cmd_render)
