@@ -36,7 +36,7 @@ sys.path.insert(0, os.path.dirname(HERE))  # run from a checkout without install
 sys.path.insert(0, HERE)
 
 import frames_bench  # noqa: E402
-from frames_bench import log, measure_env, time_bulbjax, time_pybullet  # noqa: E402
+from frames_bench import device_info, log, measure_env, time_bulbjax, time_pybullet  # noqa: E402
 
 
 @dataclass(frozen=True)
@@ -144,7 +144,6 @@ def parse_args(argv: list[str] | None = None) -> Settings:
 
 def main(argv: list[str] | None = None) -> str:
     s = parse_args(argv)
-    from bench_pybullet_vs_bulbjax import device_info
 
     from pybullet_compat.incline import incline_domain
 

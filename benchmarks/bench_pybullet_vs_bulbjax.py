@@ -18,9 +18,7 @@ benchmarks/results/pybullet_vs_bulbjax_<device>_<stamp>.json (and ..._latest.jso
 from __future__ import annotations
 
 import argparse
-import json
 import os
-import platform
 import statistics
 import sys
 import time
@@ -31,6 +29,9 @@ import numpy as np
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, os.path.dirname(HERE))  # run from a checkout without installing
+sys.path.insert(0, HERE)
+
+from frames_bench import device_info, log, measure_env, print_table, write  # noqa: E402
 
 
 @dataclass(frozen=True)
@@ -48,10 +49,6 @@ class Settings:
     skip_pybullet: bool
     skip_bulbjax: bool
     seed: int = 0
-
-
-def log(msg: str) -> None:
-    print(msg, flush=True)
 
 
 def bench_pybullet(name: str, s: Settings) -> dict[str, Any]:
@@ -129,24 +126,6 @@ def bench_bulbjax(name: str, worlds: int, s: Settings) -> dict[str, Any]:
             "pixels_mean": float(px.mean())}
 
 
-def device_info() -> dict[str, Any]:
-    info: dict[str, Any] = {"cpu_count": os.cpu_count(), "python": platform.python_version(),
-                            "machine": platform.machine()}
-    try:
-        import jax
-        d = jax.devices()[0]
-        info.update(platform=d.platform, device=getattr(d, "device_kind", str(d)), jax=jax.__version__)
-    except Exception as err:  # pragma: no cover
-        info["jax_error"] = repr(err)
-    for pkg in ("pybullet", "gym", "mujoco", "mujoco-warp"):
-        try:
-            from importlib import metadata
-            info[pkg] = metadata.version(pkg)
-        except Exception:
-            info[pkg] = None
-    return info
-
-
 def parse_args(argv: list[str] | None = None) -> Settings:
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument("--envs", default="CartPole,InvertedPendulum,HalfCheetah,Ant")
@@ -176,60 +155,15 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     except Exception as err:
         available, results["bulbjax_error"] = set(), repr(err)
     for name in s.envs:
-        row: dict[str, Any] = {"env": name}
-        if not s.skip_pybullet:
-            try:
-                row["pybullet"] = bench_pybullet(name, s)
-                log(f"{name}: PyBullet {s.procs} processes: {row['pybullet']['frames_per_s']:,.0f} frames/s")
-            except Exception as err:
-                row["pybullet_error"] = repr(err)
-                log(f"{name}: PyBullet failed: {err!r}")
-        if not s.skip_bulbjax:
-            if name not in available:
-                row["bulbjax_error"] = f"{name} is not registered in this bulbjax"
-            else:
-                row["bulbjax"] = []
-                for w in s.worlds:
-                    try:
-                        r = bench_bulbjax(name, w, s)
-                        row["bulbjax"].append(r)
-                        log(f"{name}: bulbjax {w} worlds: {r['frames_per_s']:,.0f} frames/s (compile {r['compile_s']:.0f} s)")
-                    except Exception as err:
-                        row["bulbjax"].append({"worlds": w, "error": repr(err)})
-                        log(f"{name}: bulbjax {w} worlds failed: {err!r}")
-        ok = [r for r in row.get("bulbjax", []) if "frames_per_s" in r]
-        if ok and "pybullet" in row:
-            best = max(ok, key=lambda r: r["frames_per_s"])
-            row["ratio_best_bulbjax_to_pybullet"] = best["frames_per_s"] / row["pybullet"]["frames_per_s"]
-            row["best_worlds"] = best["worlds"]
-            log(f"{name}: ratio bulbjax/PyBullet = {row['ratio_best_bulbjax_to_pybullet']:.1f}x")
+        missing = not s.skip_bulbjax and name not in available
+        row = measure_env(name, s.procs, s.worlds, None if s.skip_pybullet else (lambda: bench_pybullet(name, s)),
+                          None if s.skip_bulbjax or missing else (lambda w: bench_bulbjax(name, w, s)))
+        if missing:
+            row["bulbjax_error"] = f"{name} is not registered in this bulbjax"
         results["rows"].append(row)
     print_table(results)
-    write(results, s.out)
+    write(results, s.out, "pybullet_vs_bulbjax")
     return results
-
-
-def print_table(results: dict[str, Any]) -> None:
-    procs = results["settings"]["procs"]
-    print(f"\n| env | PyBullet, {procs} processes (frames/s) | bulbjax (worlds: frames/s) | ratio |")
-    print("|---|---|---|---|")
-    for row in results["rows"]:
-        pb = f"{row['pybullet']['frames_per_s']:,.0f}" if "pybullet" in row else row.get("pybullet_error", "-")
-        bj = ", ".join(f"{r['worlds']}: {r['frames_per_s']:,.0f}" for r in row.get("bulbjax", []) if "frames_per_s" in r)
-        ratio = row.get("ratio_best_bulbjax_to_pybullet")
-        print(f"| {row['env']} | {pb} | {bj or row.get('bulbjax_error', '-')} | {f'{ratio:.1f}x' if ratio else '-'} |")
-
-
-def write(results: dict[str, Any], out: str) -> None:
-    os.makedirs(out, exist_ok=True)
-    dev = str(results["device"].get("device", "cpu")).lower()
-    slug = "".join(c if c.isalnum() else "_" for c in dev).strip("_") or "cpu"
-    stamp = time.strftime("%Y%m%d_%H%M%S")
-    path = os.path.join(out, f"pybullet_vs_bulbjax_{slug}_{stamp}.json")
-    for p in (path, os.path.join(out, "pybullet_vs_bulbjax_latest.json")):
-        with open(p, "w") as f:
-            json.dump(results, f, indent=1)
-    log(f"wrote {path}")
 
 
 if __name__ == "__main__":

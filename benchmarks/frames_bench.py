@@ -1,5 +1,5 @@
 """Shared timing of rendered frames/s for the "bulbjax against the PyBullet originals" benchmarks
-(`bench_incline.py`, `bench_rearrange.py`): N PyBullet processes (`pybullet_compat.vector`)
+(`bench_incline.py`, `bench_rearrange.py`, `bench_pybullet_vs_bulbjax.py`): N PyBullet processes (`pybullet_compat.vector`)
 stepping with random actions, one bulbjax env of W worlds stepping in one jitted scan, the
 per-env loop that records errors and the ratio, the table and the JSON file.
 
@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import json
 import os
+import platform
 import statistics
 import time
 from typing import Any, Callable, Mapping, Sequence
@@ -19,6 +20,26 @@ import numpy as np
 
 def log(msg: str) -> None:
     print(msg, flush=True)
+
+
+def device_info() -> dict[str, Any]:
+    """The machine: CPU cores, Python, JAX device and versions of the simulators."""
+    info: dict[str, Any] = {"cpu_count": os.cpu_count(), "python": platform.python_version(),
+                            "machine": platform.machine()}
+    try:
+        import jax
+        d = jax.devices()[0]
+        info.update(platform=d.platform, device=getattr(d, "device_kind", str(d)), jax=jax.__version__)
+    except Exception as err:  # pragma: no cover
+        info["jax_error"] = repr(err)
+    for pkg in ("pybullet", "gym", "mujoco", "mujoco-warp"):
+        try:
+            from importlib import metadata
+            info[pkg] = metadata.version(pkg)
+        except Exception:
+            info[pkg] = None
+    return info
+
 
 
 def time_pybullet(name: str, procs: int, env_kwargs: Sequence[Mapping[str, Any]], action_size: int,
@@ -136,7 +157,7 @@ def print_table(results: dict[str, Any]) -> None:
         pb = f"{row['pybullet']['frames_per_s']:,.0f}" if "pybullet" in row else row.get("pybullet_error", "-")
         bj = ", ".join(f"{r['worlds']}: {r['frames_per_s']:,.0f}" for r in row.get("bulbjax", []) if "frames_per_s" in r)
         ratio = row.get("ratio_best_bulbjax_to_pybullet")
-        print(f"| {row['env']} | {pb} | {bj or '-'} | {f'{ratio:.3g}x' if ratio else '-'} |")
+        print(f"| {row['env']} | {pb} | {bj or row.get('bulbjax_error', '-')} | {f'{ratio:.3g}x' if ratio else '-'} |")
 
 
 def write(results: dict[str, Any], out: str, prefix: str) -> str:
