@@ -17,14 +17,12 @@ import numpy as np
 from PIL import Image
 
 import bulbjax
-from bulbjax.envs.incline import NUM_VERSIONS
-from bulbjax.envs.rearrange import NUM_VERSIONS as REARRANGE_VERSIONS
 from bulbjax.envs.rearrange import Rearrange
 
 
 def gallery(name: str, steps: int, every: int, scale: int, seed: int) -> np.ndarray:
-    rearrange = issubclass(bulbjax.envs.registry.env_class(name), Rearrange)
-    n = REARRANGE_VERSIONS if rearrange else NUM_VERSIONS
+    cls = bulbjax.envs.registry.env_class(name)
+    rearrange, n = issubclass(cls, Rearrange), cls.num_versions
     env = bulbjax.make(name, num_envs=n, version="random")
     versions = jnp.arange(n)
     fixed = {"version": versions} if rearrange else {"version": versions, "texture": versions}

@@ -215,7 +215,7 @@ def cmd_envs(args: argparse.Namespace) -> int:
 
     for name, cls in _REGISTRY.items():
         act = f"discrete({cls.num_actions})" if cls.discrete else f"box({cls.action_size})"
-        versions = getattr(sys.modules.get(cls.__module__), "NUM_VERSIONS", None)
+        versions = cls.num_versions
         if cls.supports_multicolour:
             variant = f"(+{MULTICOLOUR_SUFFIX})"
         else:
