@@ -74,6 +74,12 @@ def test_replay_retention_and_sharing(run):
     # the non-retained part did receive the epochs' new frames
     assert not np.array_equal(kept.frames[~mask], before.frames[~mask])
     assert all(np.all(v == 0) for v in m1["replay_dropped"].values())
+    # Each slot keeps the world its frame came from (the probe's validation split groups by it):
+    # after init, slot i holds the fill's frame i, of world i % N; later frames keep theirs.
+    np.testing.assert_array_equal(before.extras["world"], np.broadcast_to(np.arange(32) % 4, (SEEDS, 32)))
+    w = kept.extras["world"]
+    assert w.dtype == np.int32 and w.min() >= 0 and w.max() < 4
+    np.testing.assert_array_equal(w[mask], before.extras["world"][mask])
 
 
 def test_epoch_is_deterministic_under_a_key(run):

@@ -139,3 +139,21 @@ def test_retain_fraction_at_paper_capacity(fraction: float) -> None:
     if 0 < fraction < 1:  # roughly uniform over slots: both halves of the buffer get their share
         first_half = int(buf.retained[:2500].sum())
         assert abs(first_half - fraction * 2500) < 150
+
+
+def test_sample_with_extras_keeps_each_frames_extras() -> None:
+    """The world id written beside each frame comes back with that frame after random
+    replacement (frames encode their id in pixel 0)."""
+    cfg = replay.ReplayConfig(capacity=32)
+    buf = replay.init(cfg, (2, 2, 3), 1, extras={"world": jax.ShapeDtypeStruct((), jnp.int32)})
+    for i in range(4):
+        ids = jnp.arange(16, dtype=jnp.int32) + 16 * i
+        frames = jnp.broadcast_to((ids % 256).astype(jnp.uint8)[:, None, None, None], (16, 2, 2, 3))
+        buf = replay.insert(buf, jax.random.PRNGKey(i), frames, ids[:, None].astype(jnp.float32),
+                            {"world": ids})
+    f, s, ex = replay.sample_with_extras(buf, jax.random.PRNGKey(9), 64)
+    assert ex["world"].shape == (64,) and ex["world"].dtype == jnp.int32
+    np.testing.assert_array_equal(np.asarray(f[:, 0, 0, 0]), np.asarray(ex["world"]) % 256)
+    np.testing.assert_array_equal(np.asarray(s[:, 0]), np.asarray(ex["world"]))
+    f2, s2 = replay.sample(buf, jax.random.PRNGKey(9), 64)  # same draw as `sample`
+    np.testing.assert_array_equal(np.asarray(f2), np.asarray(f))

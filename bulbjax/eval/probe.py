@@ -134,6 +134,22 @@ def _n_validation(rows: int, share: float) -> int:
     return int(min(rows - 1, max(1, round(rows * share))))
 
 
+def _validation_mask(key: jax.Array, rows: int, share: float, groups: jax.Array | None) -> jax.Array:
+    """`[B]` bool, the rows held out for selection. Without `groups`: `_n_validation` rows drawn
+    at random. With `groups` (`[B]` int, e.g. each frame's world): every group is held out whole
+    with probability `share`, so that no group has rows on both sides (frames of one scene are
+    near copies of each other: a row split would let the probe's memorisation pass validation).
+    Never all rows: if every group came out held out, none is."""
+    if share <= 0 or rows < 2:
+        return jnp.zeros((rows,), bool)
+    if groups is None:
+        n_val = _n_validation(rows, share)
+        return jnp.zeros((rows,), bool).at[jax.random.permutation(key, rows)[:n_val]].set(True)
+    u = jax.vmap(lambda g: jax.random.uniform(jax.random.fold_in(key, g)))(groups.astype(jnp.uint32))
+    mask = u < share
+    return jnp.where(mask.all(), False, mask)
+
+
 def _snapshot_predictions(model: nn.Module, mlps: Any, x: jax.Array) -> jax.Array:
     """Standardised predictions `[K, B, D]` of every snapshot (leading axis of `mlps`)."""
     return jax.vmap(lambda p: model.apply(p, x))(mlps)
@@ -141,7 +157,8 @@ def _snapshot_predictions(model: nn.Module, mlps: Any, x: jax.Array) -> jax.Arra
 
 @functools.partial(jax.jit, static_argnames=("config",))
 def fit(
-    key: jax.Array, latents: jax.Array, states: jax.Array, config: ProbeConfig = ProbeConfig()
+    key: jax.Array, latents: jax.Array, states: jax.Array, config: ProbeConfig = ProbeConfig(),
+    groups: jax.Array | None = None,
 ) -> ProbeParams:
     """Fit an MLP ``latents [B, L] -> states [B, D]`` with Adam on standardised MSE, using
     ``config.steps`` minibatches (rounded up to a multiple of the snapshots) drawn with
@@ -154,21 +171,21 @@ def fit(
     pairs is held out, `snapshots` copies of the weights are kept at even intervals of training,
     and each state entry is predicted by the snapshot with the lowest validation MAE on it, or
     by the training median (the constant baseline) when that is lower still. A latent that holds
-    nothing about an entry then scores about the constant predictor on it, not worse."""
+    nothing about an entry then scores about the constant predictor on it, not worse.
+    `groups` (`[B]` int, optional): rows of one group (e.g. one world's frames, which in a scene
+    of resting objects are near copies) go to the same side of the split (`_validation_mask`).
+    Inputs and targets are standardised with the moments of all `B` rows."""
     latents = latents.astype(jnp.float32)
     states = states.astype(jnp.float32)
     k_split, init_key, train_key = jax.random.split(key, 3)
-    n_val = _n_validation(latents.shape[0], config.validation)
-    if n_val:
-        order = jax.random.permutation(k_split, latents.shape[0])
-        val_x, val_y = latents[order[:n_val]], states[order[:n_val]]
-        tr_x, tr_y = latents[order[n_val:]], states[order[n_val:]]
-    else:
-        tr_x, tr_y = latents, states
-    x_mean, x_std = _moments(tr_x)
-    y_mean, y_std = _moments(tr_y)
-    x = (tr_x - x_mean) / _safe(x_std)
-    y = (tr_y - y_mean) / _safe(y_std)
+    rows = latents.shape[0]
+    val = _validation_mask(k_split, rows, config.validation, groups)
+    n_train = rows - jnp.sum(val, dtype=jnp.int32)
+    train_rows = jnp.argsort(val, stable=True)  # training rows first
+    x_mean, x_std = _moments(latents)
+    y_mean, y_std = _moments(states)
+    x = (latents - x_mean) / _safe(x_std)
+    y = (states - y_mean) / _safe(y_std)
 
     model = _MLP(config.hidden, states.shape[-1])
     mlp = model.init(init_key, x[:1])
@@ -179,13 +196,14 @@ def fit(
 
     def step(carry: tuple[Any, Any], k: jax.Array) -> tuple[tuple[Any, Any], None]:
         p, opt_state = carry
-        idx = jax.random.randint(k, (config.batch_size,), 0, x.shape[0])
+        idx = train_rows[jax.random.randint(k, (config.batch_size,), 0, n_train)]
         grads = jax.grad(loss_fn)(p, x[idx], y[idx])
         updates, opt_state = opt.update(grads, opt_state, p)
         return (optax.apply_updates(p, updates), opt_state), None
 
     # K snapshots: the weights after each of K equal chunks of training (the last at `steps`).
-    k_snap = min(config.snapshots, config.steps) if n_val else 1
+    selecting = config.validation > 0 and rows >= 2
+    k_snap = min(config.snapshots, config.steps) if selecting else 1
     chunk = -(-config.steps // k_snap)
 
     def train_chunk(carry: tuple[Any, Any], keys: jax.Array) -> tuple[tuple[Any, Any], Any]:
@@ -195,12 +213,14 @@ def fit(
     keys = jax.random.split(train_key, k_snap * chunk).reshape((k_snap, chunk, -1))
     _, mlps = jax.lax.scan(train_chunk, (mlp, opt.init(mlp)), keys)
     y_const = jnp.median(states, axis=0)
-    if n_val:
-        xv = (val_x - x_mean) / _safe(x_std)
-        pred = _snapshot_predictions(model, mlps, xv) * y_std + y_mean  # [K, V, D]
-        val_mae = jnp.concatenate([jnp.mean(jnp.abs(pred - val_y), axis=1),
-                                   jnp.mean(jnp.abs(y_const - val_y), axis=0)[None]])  # [K+1, D]
-        choice = jnp.argmin(val_mae, axis=0).astype(jnp.int32)
+    if selecting:
+        w = val.astype(jnp.float32)[:, None]
+        n_val = jnp.sum(w)
+        pred = _snapshot_predictions(model, mlps, x) * y_std + y_mean  # [K, B, D]
+        val_mae = jnp.concatenate([jnp.sum(jnp.abs(pred - states) * w, axis=1),
+                                   jnp.sum(jnp.abs(y_const - states) * w, axis=0)[None]]) / jnp.maximum(n_val, 1.0)
+        # No validation rows (one group only): the last snapshot for every entry.
+        choice = jnp.where(n_val > 0, jnp.argmin(val_mae, axis=0), k_snap - 1).astype(jnp.int32)
     else:
         choice = jnp.zeros(states.shape[-1], jnp.int32)
     return ProbeParams(mlps, choice, y_const, x_mean, x_std, y_mean, y_std, hidden=config.hidden)

@@ -126,8 +126,9 @@ def probe_learner(learner: Any, params: Any, train: Any, held: dict[str, Windows
                   score_objects: Callable[[jax.Array, Windows], dict] | None = None,
                   ) -> dict[str, dict[str, jax.Array]]:
     """Fit a probe latent -> true state on `train` and score it on every held-out stream (one
-    seed). `train` is `(frames, states)` for a frame learner and `Windows` for a sequential
-    one, whose per-step latents (with `config.sequence_context` steps of context, see
+    seed). `train` is `(frames, states)` or `(frames, states, groups)` (each frame's world: the
+    probe's validation split keeps a world's frames together) for a frame learner and `Windows`
+    for a sequential one, whose per-step latents (with `config.sequence_context` steps of context, see
     `probe.context_latents`) are paired with the states of the same step and `train_frames`
     valid steps drawn from them. Held-out windows are scored on their valid
     steps (frame learners encode each frame). `corrupt` (tests only) maps per-step latents
@@ -144,17 +145,19 @@ def probe_learner(learner: Any, params: Any, train: Any, held: dict[str, Windows
         z = ctx(corrupt(learner.encode(params, train), k_c))
         z, s = z.reshape((-1, z.shape[-1])), train.states[:, :l].reshape((-1, train.states.shape[-1]))
         v = train.valid[:, :l].reshape(-1).astype(jnp.float32)
+        groups = None  # window buffers keep no world ids: the probe's validation split is by row
         pick = jax.random.choice(k_c, v.shape[0], (train_frames,), p=v / v.sum())
         tz, ts = z[pick], s[pick]
         enc = lambda w: ctx(corrupt(learner.encode(params, w), k_c))  # noqa: E731
     else:
-        tf, ts = train
+        tf, ts, *rest = train
+        groups = rest[0] if rest else None
         tz = corrupt(learner.encode(params, tf)[:, None], k_c)[:, 0]
 
         def enc(w: Windows) -> jax.Array:
             z = learner.encode(params, w.frames.reshape((-1,) + w.frames.shape[2:]))
             return corrupt(z.reshape(w.frames.shape[:2] + z.shape[-1:]), k_c)
-    p = probe.fit(k_f, tz, ts, config)
+    p = probe.fit(k_f, tz, ts, config, groups=groups)
     res = {}
     for stream, w in held.items():
         zw = enc(w)
@@ -453,8 +456,9 @@ class Experiment:
         buffers = {}
         for frac in sorted(set(self.retention.values())):
             def fill(f, s, k, frac=frac):
-                buf = replay.init(rcfg, self.env.frame_shape, self.env.state_dim)
-                buf = replay.insert(buf, k, f, s)
+                buf = replay.init(rcfg, self.env.frame_shape, self.env.state_dim,
+                                  extras={"world": jax.ShapeDtypeStruct((), jnp.int32)})
+                buf = replay.insert(buf, k, f, s, {"world": self._world_ids(f.shape[0])})
                 return replay.retain_initial(buf, k, frac) if frac > 0 else buf
             buffers[buffer_key(frac)] = jax.vmap(fill)(frames, states, jax.random.split(k_keep, self.S))
         # Keys of the window buffers are folded in, so frame-only runs keep their random streams.
@@ -527,7 +531,14 @@ class Experiment:
         pick = jax.random.choice(k_pick, low.shape[0], (c.frames_per_epoch // self.N,), replace=False)
         frames, states = self._frames_of_steps(jax.tree.map(lambda x: x[pick], ri), low[pick])
         keys = jax.random.split(k_ins, self.S)
-        return {k: jax.vmap(replay.insert)(b, keys, frames, states) for k, b in buffers.items()}
+        world = {"world": jnp.broadcast_to(self._world_ids(frames.shape[1]), frames.shape[:2])}
+        return {k: jax.vmap(replay.insert)(b, keys, frames, states, world) for k, b in buffers.items()}
+
+    def _world_ids(self, n: int) -> jax.Array:
+        """`[n]` world index (0..N-1) of each of a seed's `n` frames as `_frames_of_steps` lays
+        them out (step-major). Kept in replay so that the probe's validation split keeps one
+        world's frames together (`probe.fit`'s `groups`)."""
+        return (jnp.arange(n) % self.N).astype(jnp.int32)
 
     def window_phase(self, windows: dict, steps: tuple, key: jax.Array) -> dict:
         """Cut windows of the epoch's stored steps at random starts (one per world and round, cut
@@ -627,7 +638,8 @@ class Experiment:
                 if seq:
                     train = sequence.sample(b, k_s, -(-c.probe_train_frames // learner.sequence_length))
                 else:
-                    train = replay.sample(b, k_s, c.probe_train_frames)
+                    frames, states, extras = replay.sample_with_extras(b, k_s, c.probe_train_frames)
+                    train = (frames, states, extras["world"])
                 return probe_learner(learner, lstate.params, train, held, k_p, c.probe,
                                      c.probe_train_frames, score_objects=self._object_scorer(learner))
 
