@@ -92,6 +92,7 @@ def test_rearrange_run_has_the_object_probe(rearrange, tmp_path) -> None:
     tab = report.write_reports(str(tmp_path), recs, exp.config, exp.spec)
     text = (tmp_path / "table.md").read_text()
     assert "## Objects" in tab and "## Objects" in text
+    assert (tmp_path / "objects.png").stat().st_size > 10_000  # the object-probe curves
     # the object section: spair with boxes and MLP, vae_rpl with its MLP probe only
     section = text.split("## Objects")[1].splitlines()
     spair_row = [ln for ln in section if ln.startswith("| spair | π_rand |")]
@@ -130,6 +131,7 @@ def test_cartpole_run_has_no_object_section(tmp_path) -> None:
     assert all("objects" not in r for r in recs)
     tab = report.write_reports(str(tmp_path), recs, cfg, exp.spec)
     assert "Objects" not in tab and "Objects" not in (tmp_path / "table.md").read_text()
+    assert not (tmp_path / "objects.png").exists()
     assert comparison_table(recs, exp.spec) == ""
 
 

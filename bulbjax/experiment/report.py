@@ -180,6 +180,70 @@ def plot(records: Sequence[dict[str, Any]], spec: Sequence[StateEntry], path: st
     plt.close(fig)
 
 
+def object_curves(records: Sequence[dict[str, Any]], learner: str, stream: str,
+                  key: str) -> tuple[np.ndarray, np.ndarray]:
+    """Probed epochs and `[seeds, epochs]` of an object-probe summary value (`error_mean`,
+    `found_share`, ...; `bulbjax.eval.objects.summary_of`) of a learner with boxes; an infinite
+    error (no present box in any frame) is NaN."""
+    def value(r: dict[str, Any]) -> Any:
+        v = r.get("objects", {}).get(learner, {}).get(stream, {}).get(key)
+        return None if v is None or not np.isfinite(v) else v
+    return _seed_epoch_matrix([r for r in records if r.get("objects")], value)
+
+
+def has_objects(records: Sequence[dict[str, Any]]) -> bool:
+    return any(r.get("objects") for r in records)
+
+
+def plot_objects(records: Sequence[dict[str, Any]], path: str, title: str,
+                 streams: Sequence[tuple[str, str]] = STREAMS) -> None:
+    """The object-level probes against epoch (issue 11), mean and 90% band over seeds: for the
+    learners with boxes (SPAIR) the mean distance from each true object to the nearest present box
+    centre (px) and the share of objects found within the radius; for every learner the MLP
+    probe's normalised error on the `object_position` group, with the constant predictor dotted.
+    Rows pi_curr / pi_rand."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    boxed = list(dict.fromkeys(n for r in records for n in r.get("objects", {})))
+    learners = list(probed(records)[0]["probes"])
+    colours = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+    colour = {n: colours[i % len(colours)] for i, n in enumerate(learners)}
+    radius = next(o["radius"] for r in records for d in r.get("objects", {}).values() for o in d.values())
+    fig, axes = plt.subplots(len(streams), 3, figsize=(13, 3.0 * len(streams) + 0.5), squeeze=False, sharex=True)
+    for row, (stream, label) in enumerate(streams):
+        for col, (key, ylabel) in enumerate((("error_mean", "px"), ("found_share", f"share within {radius:.1f} px"))):
+            ax = axes[row, col]
+            for name in boxed:
+                ep, v = object_curves(records, name, stream, key)
+                mean, half = ci90(v)
+                ax.plot(ep, mean, color=colour.get(name), label=name)
+                ax.fill_between(ep, mean - half, mean + half, color=colour.get(name), alpha=0.2)
+            ax.set_title(f"{label}: boxes, {'distance to nearest box' if col == 0 else 'objects found'}")
+            ax.set_ylabel(ylabel)
+            ax.set_ylim(bottom=0, top=None if col == 0 else 1.02)
+        ax = axes[row, 2]
+        for name in learners:
+            ep, v = curves(records, name, stream, "object_position")
+            mean, half = ci90(v)
+            ax.plot(ep, mean, color=colour[name], label=name)
+            ax.fill_between(ep, mean - half, mean + half, color=colour[name], alpha=0.2)
+        ep, b = curves(records, learners[0], stream, "object_position", key="baseline_norm")
+        ax.plot(ep, np.nanmean(b, 0), "k:", label="constant predictor")
+        ax.set_title(f"{label}: MLP probe, object_position")
+        ax.set_ylabel("MAE / π_rand reference spread")
+        ax.set_ylim(bottom=0)
+    for ax in axes[-1]:
+        ax.set_xlabel("epoch")
+    axes[0, 0].legend(fontsize=8)
+    axes[0, 2].legend(fontsize=8)
+    fig.suptitle(f"{title}: object-level probes", fontsize=9)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
 def _rl_band(ep: np.ndarray, r: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Of `rl_curve`'s epochs and `[seeds, epochs]` returns: the epochs with a return, the mean
     return and its 90% CI half-width over seeds."""
@@ -274,8 +338,8 @@ def title_of(cfg: Any, epochs_done: int) -> str:
 def write_reports(run_dir: str, records: Sequence[dict[str, Any]], cfg: Any,
                   spec: Sequence[StateEntry], solved_return: float | None = None,
                   footer: str = "") -> str:
-    """`fig2.png` and `table.md` of a run from its records (all epochs written so far); returns
-    the table. Epochs whose seeds are not all written yet (a run in progress) are left out."""
+    """`fig2.png` and `table.md` (and `objects.png` when learners with boxes were probed in a
+    domain with objects) of a run from its records (all epochs written so far); returns the table. Epochs whose seeds are not all written yet (a run in progress) are left out."""
     seeds = sorted({r["seed"] for r in records})
     per_epoch: dict[int, int] = {}
     for r in records:
@@ -291,6 +355,8 @@ def write_reports(run_dir: str, records: Sequence[dict[str, Any]], cfg: Any,
     obj = objects.comparison_table(records, spec, last=last)
     if obj:
         tab += f"\n\n## Objects\n\n{obj}"
+    if obj and has_objects(records):
+        plot_objects(records, os.path.join(run_dir, "objects.png"), title)
     with open(os.path.join(run_dir, "table.md"), "w") as f:
         f.write(f"# {title}\n\n{tab}\n" + (f"\n{footer}\n" if footer else ""))
     return tab
