@@ -115,6 +115,29 @@ def test_seed_loop_map_equals_vmap(run):
         np.testing.assert_allclose(out["vmap"][1][name]["loss"], out["map"][1][name]["loss"], rtol=1e-4)
 
 
+def test_probe_phase_same_under_either_seed_loop(run):
+    """Probes: the learners' encodings follow the seed loop, the probe MLPs are vmapped over
+    seeds either way (`probe_over_seeds`); the scores agree, and differ between seeds."""
+    exp, *_, rs1 = run
+    saved, saved_loop = exp.learners, exp.seed_loop
+    exp.learners = {n: saved[n] for n in ("vae_rpl", "svae")}
+    try:
+        _, _, held = jax.jit(exp.eval_phase)(rs1.ppo, rs1.curr_env, rs1.rand_env, jax.random.PRNGKey(3))
+        out = {}
+        for loop in ("vmap", "map"):
+            exp.seed_loop = loop
+            out[loop] = jax.device_get(jax.jit(exp.probe_phase)(rs1.learners, rs1.buffers, held,
+                                                                jax.random.PRNGKey(4), rs1.windows))
+    finally:
+        exp.learners, exp.seed_loop = saved, saved_loop
+    for name in ("vae_rpl", "svae"):
+        for stream in ("curr", "rand"):
+            a, b = out["vmap"][name][stream]["mae"], out["map"][name][stream]["mae"]
+            assert a.shape == (SEEDS, exp.env.state_dim) and np.all(np.isfinite(a))
+            np.testing.assert_allclose(a, b, rtol=1e-3, atol=1e-5)
+            assert not np.allclose(a[0], a[1])
+
+
 def test_seed_loop_choice():
     from bulbjax.experiment.loop import make_mesh, resolve_seed_loop
 

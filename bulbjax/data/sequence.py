@@ -180,11 +180,15 @@ def sample_windows(traj: Trajectories, key: jax.Array, batch: int, length: int) 
                    actions=pick(traj.actions) * valid.T[..., None], valid=valid.T)
 
 
-def sample_steps(traj: Trajectories, key: jax.Array, batch: int) -> tuple[jax.Array, jax.Array]:
-    """`batch` (frame, state) pairs drawn uniformly over all steps and worlds."""
+def sample_steps(traj: Trajectories, key: jax.Array, batch: int,
+                 with_worlds: bool = False) -> tuple[jax.Array, ...]:
+    """`batch` (frame, state) pairs drawn uniformly over all steps and worlds; `with_worlds`
+    adds each pair's world index (int32), e.g. for the probe's validation split by world."""
     k_t, k_w = jax.random.split(key)
     t = jax.random.randint(k_t, (batch,), 0, traj.steps)
     n = jax.random.randint(k_w, (batch,), 0, traj.worlds)
+    if with_worlds:
+        return traj.frames[t, n], traj.states[t, n], n.astype(jnp.int32)
     return traj.frames[t, n], traj.states[t, n]
 
 

@@ -120,47 +120,53 @@ def train_learner(learner: Any, state: Any, sample: Any, key: jax.Array, updates
     return jax.lax.scan(one, state, keys, unroll=learner_unroll() if unroll is None else unroll)
 
 
-def probe_learner(learner: Any, params: Any, train: Any, held: dict[str, Windows], key: jax.Array,
-                  config: probe.ProbeConfig, train_frames: int,
-                  corrupt: Any = None,
-                  score_objects: Callable[[jax.Array, Windows], dict] | None = None,
-                  ) -> dict[str, dict[str, jax.Array]]:
-    """Fit a probe latent -> true state on `train` and score it on every held-out stream (one
-    seed). `train` is `(frames, states)` or `(frames, states, groups)` (each frame's world: the
-    probe's validation split keeps a world's frames together) for a frame learner and `Windows`
-    for a sequential one, whose per-step latents (with `config.sequence_context` steps of context, see
+def probe_latents(learner: Any, params: Any, train: Any, held: dict[str, Windows], key: jax.Array,
+                  config: probe.ProbeConfig, train_frames: int, corrupt: Any = None) -> dict[str, Any]:
+    """The learner's half of a probe (one seed; the convolutions): the training pairs' latents
+    `tz [T, Z']`, their states `ts [T, D]` and `groups` (each pair's world, or None), and each
+    held-out stream's per-step latents `held [B, L, Z']`. `train` is `(frames, states)` or
+    `(frames, states, groups)` for a frame learner and `Windows` for a sequential one, whose
+    per-step latents (with `config.sequence_context` steps of context, see
     `probe.context_latents`) are paired with the states of the same step and `train_frames`
-    valid steps drawn from them. Held-out windows are scored on their valid
-    steps (frame learners encode each frame). `corrupt` (tests only) maps per-step latents
-    `[B, L, Z]` to what the probe sees, e.g. latents shuffled across time steps.
-    `score_objects` (frame learners) maps a held-out stream's per-step latents `[B, L, Z]` and
-    its windows to the object-level probe (`Experiment._object_scorer`), kept as `"objects"`.
-    Returns `{stream: {"mae", "baseline", "spread"(, "objects")}}`, each `[D]` in the states'
-    units."""
-    k_c, k_f = jax.random.split(key)
+    valid steps drawn from them (split by row for validation: windows keep no world ids).
+    `corrupt` (tests only) maps per-step latents `[B, L, Z]` to what the probe sees, e.g.
+    latents shuffled across time steps."""
     corrupt = corrupt or (lambda z, k: z)
     if is_sequential(learner):
         l = learner.sequence_length
         ctx = lambda z: probe.context_latents(z, config.sequence_context)  # noqa: E731
-        z = ctx(corrupt(learner.encode(params, train), k_c))
+        z = ctx(corrupt(learner.encode(params, train), key))
         z, s = z.reshape((-1, z.shape[-1])), train.states[:, :l].reshape((-1, train.states.shape[-1]))
         v = train.valid[:, :l].reshape(-1).astype(jnp.float32)
-        groups = None  # window buffers keep no world ids: the probe's validation split is by row
-        pick = jax.random.choice(k_c, v.shape[0], (train_frames,), p=v / v.sum())
-        tz, ts = z[pick], s[pick]
-        enc = lambda w: ctx(corrupt(learner.encode(params, w), k_c))  # noqa: E731
+        pick = jax.random.choice(key, v.shape[0], (train_frames,), p=v / v.sum())
+        tz, ts, groups = z[pick], s[pick], None
+        enc = lambda w: ctx(corrupt(learner.encode(params, w), key))  # noqa: E731
     else:
         tf, ts, *rest = train
         groups = rest[0] if rest else None
-        tz = corrupt(learner.encode(params, tf)[:, None], k_c)[:, 0]
+        tz = corrupt(learner.encode(params, tf)[:, None], key)[:, 0]
 
         def enc(w: Windows) -> jax.Array:
             z = learner.encode(params, w.frames.reshape((-1,) + w.frames.shape[2:]))
-            return corrupt(z.reshape(w.frames.shape[:2] + z.shape[-1:]), k_c)
-    p = probe.fit(k_f, tz, ts, config, groups=groups)
+            return corrupt(z.reshape(w.frames.shape[:2] + z.shape[-1:]), key)
+    return {"tz": tz, "ts": ts, "groups": groups, "held": {st: enc(w) for st, w in held.items()}}
+
+
+def fit_and_score(latents: dict[str, Any], held: dict[str, Windows], key: jax.Array,
+                  config: probe.ProbeConfig,
+                  score_objects: Callable[[jax.Array, Windows], dict] | None = None,
+                  ) -> dict[str, dict[str, jax.Array]]:
+    """The probe's half (one seed; small MLPs, best vmapped over seeds): fit latent -> true state
+    on `probe_latents`' training pairs and score it on every held-out stream's valid steps.
+    `score_objects` (frame learners) maps a stream's per-step latents `[B, L, Z]` and its windows
+    to the object-level probe (`Experiment._object_scorer`), kept as `"objects"`.
+    Returns `{stream: {"mae", "baseline", "spread"(, "objects")}}`, each `[D]` in the states'
+    units."""
+    tz, ts = latents["tz"], latents["ts"]
+    p = probe.fit(key, tz, ts, config, groups=latents["groups"])
     res = {}
     for stream, w in held.items():
-        zw = enc(w)
+        zw = latents["held"][stream]
         z = zw.reshape((-1, tz.shape[-1]))
         s, v = w.states.reshape((-1, ts.shape[-1])), w.valid.reshape(-1)
         res[stream] = {"mae": probe.mae(probe.predict(p, z), s, v),
@@ -169,6 +175,29 @@ def probe_learner(learner: Any, params: Any, train: Any, held: dict[str, Windows
         if score_objects is not None:
             res[stream]["objects"] = score_objects(zw, w)
     return res
+
+
+def probe_learner(learner: Any, params: Any, train: Any, held: dict[str, Windows], key: jax.Array,
+                  config: probe.ProbeConfig, train_frames: int,
+                  corrupt: Any = None,
+                  score_objects: Callable[[jax.Array, Windows], dict] | None = None,
+                  ) -> dict[str, dict[str, jax.Array]]:
+    """Fit a probe latent -> true state on `train` and score it on every held-out stream (one
+    seed): `probe_latents` then `fit_and_score` (see them)."""
+    k_c, k_f = jax.random.split(key)
+    lat = probe_latents(learner, params, train, held, k_c, config, train_frames, corrupt)
+    return fit_and_score(lat, held, k_f, config, score_objects)
+
+
+def probe_over_seeds(loop: str, latents_seed: Callable[..., dict], fit_seed: Callable[..., dict],
+                     keys: jax.Array, *args: Any) -> dict:
+    """A probe of every seed: `latents_seed(k_c, *args)` (the learner's convolutions) with the
+    run's seed loop, then `fit_seed(latents, k_f, *args)` (the probe MLP, hundreds of small
+    sequential Adam steps) vmapped over seeds whatever the loop: one seed at a time, those steps
+    would run S times in a row on a GPU. Same keys as `probe_learner`, so the same numbers."""
+    ks = jax.vmap(jax.random.split)(keys)
+    lat = over_seeds(loop, latents_seed, ks[:, 0], *args)
+    return jax.vmap(fit_seed)(lat, ks[:, 1], *args)
 
 
 class Experiment:
@@ -633,19 +662,22 @@ class Experiment:
         for i, (name, learner) in enumerate(self.learners.items()):
             seq = self.sequential[name]
 
-            def probe_seed(lstate, b, held, k, learner=learner, seq=seq):
-                k_s, k_p = jax.random.split(k)
+            def latents_seed(k_c, k_s, lstate, b, held, learner=learner, seq=seq):
                 if seq:
                     train = sequence.sample(b, k_s, -(-c.probe_train_frames // learner.sequence_length))
                 else:
                     frames, states, extras = replay.sample_with_extras(b, k_s, c.probe_train_frames)
                     train = (frames, states, extras["world"])
-                return probe_learner(learner, lstate.params, train, held, k_p, c.probe,
-                                     c.probe_train_frames, score_objects=self._object_scorer(learner))
+                return probe_latents(learner, lstate.params, train, held, k_c, c.probe, c.probe_train_frames)
+
+            def fit_seed(lat, k_f, k_s, lstate, b, held, learner=learner):
+                return fit_and_score(lat, held, k_f, c.probe, self._object_scorer(learner))
 
             keys = jax.random.split(jax.random.fold_in(key, i), self.S)
+            k_s, k_p = jax.vmap(jax.random.split)(keys).swapaxes(0, 1)
             buf = (windows if seq else buffers)[buffer_key(self.retention[name])]
-            out[name] = self.over_seeds(probe_seed, learners[name], buf, held_out, keys)
+            out[name] = probe_over_seeds(self.seed_loop, latents_seed, fit_seed, k_p,
+                                         k_s, learners[name], buf, held_out)
         return out
 
     def _epoch(self, rs: RunState, key: jax.Array, probe: bool = True) -> tuple[RunState, dict[str, Any]]:

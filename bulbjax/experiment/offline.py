@@ -7,7 +7,7 @@ batches (1,024 frames; 1,024 // L windows of L steps for sequential learners, cu
 starts and at episode boundaries), seeds vmapped. Every `probe_every` updates a probe is fit on
 training data and scored on held-out random-policy windows (separate worlds), normalised by
 the held-out states' reference spread (`bulbjax.eval.probe`). The pieces are the experiment's:
-its rollout and window cutting collect the data, `train_learner` / `probe_learner` train and
+its rollout and window cutting collect the data, `train_learner` / `probe_over_seeds` train and
 probe, `report` writes curves and tables.
 
 Sources: any registered MJX environment (random policy, as π_rand), or `SyntheticMovers`
@@ -34,7 +34,8 @@ from bulbjax.eval import probe
 from bulbjax.eval.spec import StateEntry
 from bulbjax.experiment import report
 from bulbjax.experiment.config import ExperimentConfig
-from bulbjax.experiment.loop import make_mesh, over_seeds, probe_learner, resolve_seed_loop, train_learner
+from bulbjax.experiment.loop import (fit_and_score, make_mesh, over_seeds, probe_latents, probe_over_seeds,
+                                     resolve_seed_loop, train_learner)
 from bulbjax.learners import check_finite, is_sequential, make_learner
 
 
@@ -211,17 +212,21 @@ class OfflineFit:
         out = {}
         corrupt = lambda z, k: jnp.where(broken, shuffle_time(z, k), z)  # noqa: E731
         for i, (name, l) in enumerate(self.learners.items()):
-            def one(st, k, l=l):
-                k_s, k_p = jax.random.split(k)
+            def latents_seed(k_c, k_s, st, l=l):
                 if is_sequential(l):
                     train = sequence.sample_windows(data, k_s, -(-b.probe_train_frames // l.sequence_length),
                                                     l.sequence_length)
                 else:
-                    train = sequence.sample_steps(data, k_s, b.probe_train_frames)
-                return probe_learner(l, st.params, train, {"rand": held}, k_p, b.probe,
+                    train = sequence.sample_steps(data, k_s, b.probe_train_frames, with_worlds=True)
+                return probe_latents(l, st.params, train, {"rand": held}, k_c, b.probe,
                                      b.probe_train_frames, corrupt)
+
+            def fit_seed(lat, k_f, k_s, st):
+                return fit_and_score(lat, {"rand": held}, k_f, b.probe)
+
             keys = jax.random.split(jax.random.fold_in(key, i), self.S)
-            out[name] = over_seeds(self.seed_loop, one, states[name], keys)
+            k_s, k_p = jax.vmap(jax.random.split)(keys).swapaxes(0, 1)
+            out[name] = probe_over_seeds(self.seed_loop, latents_seed, fit_seed, k_p, k_s, states[name])
         return out
 
 
