@@ -146,12 +146,17 @@ def retain_initial(buf: ReplayBuffer, key: jax.Array, fraction: float | jax.Arra
 def sample(buf: ReplayBuffer, key: jax.Array, batch: int) -> tuple[jax.Array, jax.Array]:
     """Draw ``batch`` frames and their states uniformly (with replacement) among filled slots.
     On an empty buffer this returns slot 0's zeros; callers fill before sampling."""
-    idx = jax.random.randint(key, (batch,), 0, jnp.maximum(buf.size, 1))
+    idx = _sample_slots(buf, key, batch)
     return buf.frames[idx], buf.states[idx]
 
 
 def sample_with_extras(buf: ReplayBuffer, key: jax.Array, batch: int) -> tuple[jax.Array, jax.Array, dict]:
     """`sample` plus the drawn frames' `extras` (e.g. the world each frame came from); the
     frames and states are those `sample` draws with the same key."""
-    idx = jax.random.randint(key, (batch,), 0, jnp.maximum(buf.size, 1))
+    idx = _sample_slots(buf, key, batch)
     return buf.frames[idx], buf.states[idx], {k: v[idx] for k, v in buf.extras.items()}
+
+
+def _sample_slots(buf: ReplayBuffer, key: jax.Array, batch: int) -> jax.Array:
+    """`batch` slots drawn uniformly (with replacement) among the filled ones."""
+    return jax.random.randint(key, (batch,), 0, jnp.maximum(buf.size, 1))

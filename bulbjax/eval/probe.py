@@ -150,9 +150,12 @@ def _validation_mask(key: jax.Array, rows: int, share: float, groups: jax.Array 
     return jnp.where(mask.all(), False, mask)
 
 
-def _snapshot_predictions(model: nn.Module, mlps: Any, x: jax.Array) -> jax.Array:
-    """Standardised predictions `[K, B, D]` of every snapshot (leading axis of `mlps`)."""
-    return jax.vmap(lambda p: model.apply(p, x))(mlps)
+def _snapshot_predictions(model: nn.Module, mlps: Any, x: jax.Array, y_mean: jax.Array,
+                          y_std: jax.Array) -> jax.Array:
+    """Predictions `[K, B, D]` of every snapshot (leading axis of `mlps`) for standardised
+    inputs `x`, in the states' units. y_std is 0 for targets constant in training, so those are
+    predicted exactly as that constant."""
+    return jax.vmap(lambda p: model.apply(p, x))(mlps) * y_std + y_mean
 
 
 @functools.partial(jax.jit, static_argnames=("config",))
@@ -216,7 +219,7 @@ def fit(
     if selecting:
         w = val.astype(jnp.float32)[:, None]
         n_val = jnp.sum(w)
-        pred = _snapshot_predictions(model, mlps, x) * y_std + y_mean  # [K, B, D]
+        pred = _snapshot_predictions(model, mlps, x, y_mean, y_std)  # [K, B, D]
         val_mae = jnp.concatenate([jnp.sum(jnp.abs(pred - states) * w, axis=1),
                                    jnp.sum(jnp.abs(y_const - states) * w, axis=0)[None]]) / jnp.maximum(n_val, 1.0)
         # No validation rows (one group only): the last snapshot for every entry.
@@ -232,8 +235,7 @@ def predict(params: ProbeParams, latents: jax.Array) -> jax.Array:
     prediction or the training median (`fit`)."""
     model = _MLP(params.hidden, params.y_mean.shape[-1])
     x = (latents.astype(jnp.float32) - params.x_mean) / _safe(params.x_std)
-    # y_std is 0 for targets constant in training, so those are predicted exactly as that constant.
-    pred = _snapshot_predictions(model, params.mlp, x) * params.y_std + params.y_mean  # [K, B, D]
+    pred = _snapshot_predictions(model, params.mlp, x, params.y_mean, params.y_std)  # [K, B, D]
     k = pred.shape[0]
     picked = jnp.take_along_axis(pred, jnp.minimum(params.choice, k - 1)[None, None, :], axis=0)[0]
     return jnp.where(params.choice >= k, params.y_const, picked)

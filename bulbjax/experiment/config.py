@@ -9,6 +9,9 @@ from bulbjax.eval.probe import ProbeConfig
 from bulbjax.learners import LEARNER_NAMES, SEQUENCE_LEARNER_NAMES, LearnerConfig
 from bulbjax.rl.ppo import PPOConfig
 
+# How learner work may run over the seed axis (`ExperimentConfig.learner_seed_loop`).
+SEED_LOOPS = ("auto", "vmap", "map")
+
 # Default window length of the sequential learners per domain (paper Sec. IV.A).
 SEQUENCE_LENGTHS: dict[str, int] = {"CartPole": 24, "InvertedPendulum": 24, "HalfCheetah": 16, "Ant": 16}
 
@@ -100,8 +103,8 @@ class ExperimentConfig:
                 raise ValueError(f"rl_input {self.rl_input!r}: PPO from a sequential learner's latent "
                                  "(the window ending at each step) is not built yet; use a frame learner "
                                  "(vae, vae_rpl, beta_vae, spair, spair6)")
-        if self.learner_seed_loop not in ("auto", "vmap", "map"):
-            raise ValueError(f"learner_seed_loop must be 'auto', 'vmap' or 'map', got {self.learner_seed_loop!r}")
+        if self.learner_seed_loop not in SEED_LOOPS:
+            raise ValueError(f"learner_seed_loop must be one of {SEED_LOOPS}, got {self.learner_seed_loop!r}")
         if not (self.version == "random" or (isinstance(self.version, int) and self.version >= 0)):
             raise ValueError(f"version must be an int >= 0 or 'random', got {self.version!r}")
         for name in ("seeds", "epochs", "num_envs", "ppo_updates_per_epoch", "learner_batches",

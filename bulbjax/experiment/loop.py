@@ -29,7 +29,7 @@ from bulbjax.data import replay, sequence
 from bulbjax.data.sequence import Windows
 from bulbjax.envs.base import EnvState, MjxPixelEnv
 from bulbjax.eval import objects, probe
-from bulbjax.experiment.config import ExperimentConfig
+from bulbjax.experiment.config import SEED_LOOPS, ExperimentConfig
 from bulbjax.learners import is_sequential, make_learner
 from bulbjax.rl.ppo import PPO, PPOState, Transition
 
@@ -75,9 +75,6 @@ def learner_unroll() -> bool | int:
 def buffer_key(fraction: float) -> str:
     """Learners with the same replay retention share one buffer."""
     return f"retain_{fraction:g}"
-
-
-SEED_LOOPS = ("auto", "vmap", "map")
 
 
 def resolve_seed_loop(choice: str, mesh: Mesh) -> str:
