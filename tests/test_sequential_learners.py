@@ -87,6 +87,21 @@ def test_per_step_latents(trained) -> None:
     assert float(rec.min()) >= 0 and float(rec.max()) <= 1
 
 
+def test_encode_from_per_frame_features(trained) -> None:
+    """`encode_features` on `frame_features` computed one frame at a time (as PPO's rolling
+    window keeps them) gives `encode`'s latents; bad shapes are clear errors."""
+    learner, state, _, z, _ = trained
+    w = WINDOWS.head(L)
+    one_by_one = jnp.concatenate([learner.frame_features(state.params, w.frames[:, t:t + 1])
+                                  for t in range(L)], axis=1)
+    z2 = learner.encode_features(state.params, one_by_one, w.actions)
+    np.testing.assert_allclose(np.asarray(z2), np.asarray(z), rtol=1e-5, atol=1e-5)
+    with pytest.raises(ValueError, match="features"):
+        learner.encode_features(state.params, one_by_one[:, :-1], w.actions[:, :-1])
+    with pytest.raises(TypeError, match="uint8"):
+        learner.frame_features(state.params, w.frames.astype(jnp.float32))
+
+
 def test_padding_does_not_change_the_loss(trained) -> None:
     """Padded steps' reconstruction terms are masked out: their target frames never matter, and
     for the causal svae their input frames do not either."""

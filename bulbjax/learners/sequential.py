@@ -65,7 +65,10 @@ def _kl_normal(m_q: jax.Array, lv_q: jax.Array, m_p: jax.Array, lv_p: jax.Array)
 class SequentialVAE:
     """Shared plumbing of the sequential learners: config, input checks, Adam, decoding.
 
-    Subclasses define `_init_parts`, `_loss_parts` and `_means` (decoder-input means per step).
+    Subclasses define `_init_parts`, `_conv` (the per-frame feature network) and either
+    `_posterior_of_features` (SVAE, PRED) or `_loss_parts` and `_means_of_features` (DSA): every
+    latent is a function of the per-frame features and the previous actions, which is what lets
+    `frame_features` be computed once per frame and reused by `encode_features`.
     Hashable and immutable, so bound methods can go through jax.jit / vmap / scan.
     """
 
@@ -203,12 +206,42 @@ class SequentialVAE:
         x, a_prev, _ = self._inputs(params, windows, self.sequence_length)
         return jax.nn.sigmoid(self._decode_logits(params, self._means(params, x, a_prev)))
 
+    def frame_features(self, params: Any, frames: jax.Array) -> jax.Array:
+        """The per-frame half of `encode`: uint8 frames `[B, T, R, R, 3]` -> features `[B, T, F]`
+        float32, each frame's on its own (the conv stack, the costly part). A rolling window can
+        keep them per frame and get `encode`'s latents from `encode_features`."""
+        if frames.dtype != jnp.uint8 or frames.ndim != 5:
+            raise TypeError(f"frames must be uint8 [B, T, R, R, 3], got {frames.dtype} {frames.shape}")
+        return self._features(self._conv, params["conv"], frames.astype(jnp.float32) / 255.0)
+
+    def encode_features(self, params: Any, features: jax.Array, actions: jax.Array) -> jax.Array:
+        """`encode` from `frame_features` of a window's frames: features `[B, T, F]` and the
+        actions into each frame `[B, T, A]` (as in `Windows`; step 0's is ignored), T >= L ->
+        per-step latents `[B, L, latent_dim]`, the same numbers as `encode` on that window."""
+        l = self.sequence_length
+        if features.ndim != 3 or features.shape[1] < l or actions.shape[:2] != features.shape[:2] \
+                or actions.shape[-1] != self.action_dim:
+            raise ValueError(f"features [B, T >= {l}, F] and actions [B, T, {self.action_dim}] expected, "
+                             f"got {features.shape} and {actions.shape}")
+        a_prev = actions[:, :l].astype(jnp.float32).at[:, 0].set(0.0)
+        return self._means_of_features(params, features[:, :l], a_prev)[:, :l]
+
     # ------------------------------------------------------------------ per learner
     def _init_parts(self, key: jax.Array, resolution: int) -> dict[str, Any]:
         raise NotImplementedError
 
+    @property
+    def _conv(self) -> FrameFeatures:
+        """The per-frame feature network (params["conv"])."""
+        raise NotImplementedError
+
     def _posterior(self, params: Any, x: jax.Array, a_prev: jax.Array) -> tuple[jax.Array, jax.Array]:
         """Gaussian posterior (mean, log-variance) per step [B, T', latent_dim]."""
+        return self._posterior_of_features(params, self._features(self._conv, params["conv"], x), a_prev)
+
+    def _posterior_of_features(self, params: Any, h: jax.Array, a_prev: jax.Array
+                               ) -> tuple[jax.Array, jax.Array]:
+        """`_posterior` from the per-frame features h [B, T, F]."""
         raise NotImplementedError
 
     def _loss_parts(self, params: Any, x: jax.Array, a_prev: jax.Array, key: jax.Array
@@ -221,7 +254,11 @@ class SequentialVAE:
 
     def _means(self, params: Any, x: jax.Array, a_prev: jax.Array) -> jax.Array:
         """Decoder-input latent means per step [B, T', latent_dim]."""
-        return self._posterior(params, x, a_prev)[0]
+        return self._means_of_features(params, self._features(self._conv, params["conv"], x), a_prev)
+
+    def _means_of_features(self, params: Any, h: jax.Array, a_prev: jax.Array) -> jax.Array:
+        """`_means` from the per-frame features h [B, T, F]."""
+        return self._posterior_of_features(params, h, a_prev)[0]
 
 
 def _conv_out(config: LearnerConfig, resolution: int) -> int:
@@ -255,8 +292,8 @@ class SVAE(SequentialVAE):
             "head": GaussianHead(self.latent_dim).init(k3, jnp.zeros((1, self.config.hidden)))["params"],
         }
 
-    def _posterior(self, params: Any, x: jax.Array, a_prev: jax.Array) -> tuple[jax.Array, jax.Array]:
-        h = self._features(self._conv, params["conv"], x)
+    def _posterior_of_features(self, params: Any, h: jax.Array, a_prev: jax.Array
+                               ) -> tuple[jax.Array, jax.Array]:
         o = self._rnn.apply({"params": params["rnn"]}, jnp.concatenate([h, a_prev], -1))
         return GaussianHead(self.latent_dim).apply({"params": params["head"]}, o)
 
@@ -303,9 +340,13 @@ class PRED(SequentialVAE):
                 "head": self._head.init(k2, jnp.zeros((1, agg)))["params"]}
 
     def _posterior(self, params, x, a_prev):
+        # only the L input frames are encoded (the loss's window also holds the k forecast frames)
+        h = self._features(self._conv, params["conv"], x[:, : self.sequence_length])
+        return self._posterior_of_features(params, h, a_prev)
+
+    def _posterior_of_features(self, params, h, a_prev):
         l = self.sequence_length
-        h = self._features(self._conv, params["conv"], x[:, :l])
-        agg = jnp.concatenate([h, a_prev[:, :l]], -1).reshape((x.shape[0], -1))
+        agg = jnp.concatenate([h[:, :l], a_prev[:, :l]], -1).reshape((h.shape[0], -1))
         return self._head.apply({"params": params["head"]}, agg)
 
 
@@ -389,8 +430,7 @@ class DSA(SequentialVAE):
         kl_z = _kl_normal(z_mean, z_logvar, p_mean, p_logvar)
         return self._decode_logits(params, self._join(f, z)), kl_z, _kl_std_normal(f_mean, f_logvar)
 
-    def _means(self, params, x, a_prev):
-        h = self._features(self._conv, params["conv"], x)
+    def _means_of_features(self, params, h, a_prev):
         f_mean, _ = self._static(params, h)
         z_mean, _ = self._dynamic(params, h, a_prev, f_mean)
         return self._join(f_mean, z_mean)
