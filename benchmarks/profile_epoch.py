@@ -155,7 +155,7 @@ def profile(cfg: ExperimentConfig, repeats: int, warm_epochs: int, trace_dir: st
     ph = out["phases"]
     rl = jax.jit(exp.rl_phase)
     ph["rl (ppo rollout + update)"] = time_fn(lambda: rl(rs.ppo, rs.train_env, keys[0]), repeats)
-    ppo_state, _, _, _, _, steps = rl(rs.ppo, rs.train_env, keys[0])
+    ppo_state, _, _, _, _, steps, _ = rl(rs.ppo, rs.train_env, keys[0])
     rep = jax.jit(exp.replay_phase)
     ph["replay (render + insert)"] = time_fn(lambda: rep(rs.buffers, steps, keys[1]), repeats)
     if rs.windows:
@@ -164,7 +164,7 @@ def profile(cfg: ExperimentConfig, repeats: int, warm_epochs: int, trace_dir: st
     ev = jax.jit(exp.eval_phase)
     ph["eval (held-out rollouts + render)"] = time_fn(lambda: ev(ppo_state, rs.curr_env, rs.rand_env, keys[3]),
                                                       repeats)
-    _, _, held = ev(ppo_state, rs.curr_env, rs.rand_env, keys[3])
+    _, _, held, _ = ev(ppo_state, rs.curr_env, rs.rand_env, keys[3])
     for name in list(exp.learners):
         with only_learner(exp, name):
             learn = jax.jit(exp.learn_phase)

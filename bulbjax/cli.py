@@ -286,9 +286,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     r.add_argument("--small", action="store_true", help="CPU-sized settings (not the paper's)")
     r.add_argument("--bf16", action="store_true", help="bf16 compute in the learners (GPU)")
     r.add_argument("--rl-input", default=None,
-                   help="what PPO observes: state (default), latent:<learner> (a frame learner's latent "
-                        "of the current frame, its current parameters, no gradient into it), or pixels "
-                        "(the frame through a conv encoder PPO trains end to end)")
+                   help="what PPO observes: state (default), latent:<learner> (the learner's latent of "
+                        "the current frame, its current parameters, no gradient into it; for svae, pred, "
+                        "dsa: of the current step in the window of the last L steps ending at it), or "
+                        "pixels (the frame through a conv encoder PPO trains end to end)")
     r.add_argument("--ppo-updates", type=int, default=None, help="PPO updates per epoch")
     r.add_argument("--lr", type=float, default=None, help="learners' Adam learning rate (paper: 1e-4)")
     r.add_argument("--max-minutes", type=float, default=0.0,

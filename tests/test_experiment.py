@@ -122,7 +122,7 @@ def test_probe_phase_same_under_either_seed_loop(run):
     saved, saved_loop = exp.learners, exp.seed_loop
     exp.learners = {n: saved[n] for n in ("vae_rpl", "svae")}
     try:
-        _, _, held = jax.jit(exp.eval_phase)(rs1.ppo, rs1.curr_env, rs1.rand_env, jax.random.PRNGKey(3))
+        _, _, held, _ = jax.jit(exp.eval_phase)(rs1.ppo, rs1.curr_env, rs1.rand_env, jax.random.PRNGKey(3))
         out = {}
         for loop in ("vmap", "map"):
             exp.seed_loop = loop

@@ -61,8 +61,10 @@ class ExperimentConfig:
     sequence_length: int = 0
     # What PPO observes (issue 15): "state" (the true low-dimensional state, the paper's default),
     # "latent:<learner>": that learner's latent of the current frame, computed in the jitted
-    # epoch with its current parameters (no gradient into the learner from RL; frame learners
-    # only), or "pixels": the current frame through a small conv encoder trained end to end by PPO.
+    # epoch with its current parameters (no gradient into the learner from RL); for a sequential
+    # learner (svae, pred, dsa) its latent of the current step in the window of the last
+    # `seq_len` steps ending at it, cut at the episode's start (`loop.PolicyHistory`), or
+    # "pixels": the current frame through a small conv encoder trained end to end by PPO.
     rl_input: str = "state"
     # How learner work runs over the seed axis (`loop.resolve_seed_loop`): "vmap", "map" (one
     # seed at a time; ~1.9x faster VAE updates on the H100) or "auto" (map on one GPU, else vmap).
@@ -99,10 +101,6 @@ class ExperimentConfig:
             if name not in self.learners:
                 raise ValueError(f"rl_input {self.rl_input!r} names a learner this run does not train; "
                                  f"its learners: {', '.join(self.learners)}")
-            if name in SEQUENCE_LEARNER_NAMES:
-                raise ValueError(f"rl_input {self.rl_input!r}: PPO from a sequential learner's latent "
-                                 "(the window ending at each step) is not built yet; use a frame learner "
-                                 "(vae, vae_rpl, beta_vae, spair, spair6)")
         if self.learner_seed_loop not in SEED_LOOPS:
             raise ValueError(f"learner_seed_loop must be one of {SEED_LOOPS}, got {self.learner_seed_loop!r}")
         if not (self.version == "random" or (isinstance(self.version, int) and self.version >= 0)):

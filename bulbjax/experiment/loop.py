@@ -10,6 +10,10 @@ pred, dsa) on window buffers (`bulbjax.data.sequence`) cut from the same rollout
 the same retention share a buffer. Held-out evaluation streams are windows of L steps (L = 1
 without sequential learners), so every learner is probed on the very same (frame, state) pairs:
 frame learners encode each frame, sequential learners each window, one latent per step.
+
+PPO observes the true state, the current frame, or a learner's latent of the current frame
+(`rl_input`); for a sequential learner, the latent of the current step in the window of the last
+L steps ending at it (`PolicyHistory`, kept per world in the run state).
 """
 
 from __future__ import annotations
@@ -35,6 +39,64 @@ from bulbjax.rl.ppo import PPO, PPOState, Transition
 
 
 @struct.dataclass
+class PolicyHistory:
+    """What PPO's latent of a sequential learner is read from, per world: the last L steps up to
+    and including the current one, cut at the start of the world's current episode, laid out as
+    a training window whose episode ends at the current step (`bulbjax.data.sequence`): the
+    `count` steps held, oldest first, then padding (the current frame repeated, action 0). The
+    latent PPO sees is the learner's per-step latent at step `count - 1` of this window. Part of
+    the run state: carried from epoch to epoch and checkpointed with the worlds it follows.
+
+    Cost: memory `S x N x L` frames per set of worlds (train and held-out current-policy: fig2
+    with L = 24, 2 x 113 MB). Per step and world, on top of the frame a frame learner would
+    encode (rendered once, its conv features computed once and kept, `PolicyWindow`): the
+    learner's part after the convs over the L steps (SVAE: an LSTM of L steps; DSA: its two
+    sequence encoders; PRED: two FC layers on the L steps' features) and a shift of the window
+    (L frames, features and actions copied). Once per rollout (each PPO update's, each held-out
+    stream's): L conv passes per world, the features of the history under the new params."""
+
+    frames: jax.Array  # uint8 [S, N, L, H, W, 3]
+    actions: jax.Array  # float32 [S, N, L, A]: the action that led into each frame (0 on padding)
+    count: jax.Array  # int32 [S, N]: steps of the current episode held, 1..L
+
+    @property
+    def valid(self) -> jax.Array:
+        """bool [S, N, L]: the steps held (False on padding), as `Windows.valid`."""
+        return jnp.arange(self.frames.shape[2]) < self.count[..., None]
+
+
+@struct.dataclass
+class PolicyWindow:
+    """A `PolicyHistory` with its frames' `frame_features` under the learner's current params
+    (the carry of a rollout: features are computed once per frame, and again for the whole
+    history once per rollout, since the params change between epochs)."""
+
+    history: PolicyHistory
+    features: jax.Array  # float32 [S, N, L, F]
+
+
+def push_window(x: jax.Array, new: jax.Array, count: jax.Array, fresh: jax.Array,
+                pad_with_new: bool) -> jax.Array:
+    """One step of a rolling window in training-window layout (see `PolicyHistory`).
+
+    `x [S, N, L, ...]` holds `count [S, N]` steps then padding; `new [S, N, ...]` is the next
+    step; `fresh [S, N]` says it starts a new episode (the window restarts at it). Returns the
+    window with `new` appended after the steps held (the oldest step dropped once L are held)
+    and the steps after it padded with `new` (`pad_with_new`: frames, features) or zeros
+    (actions)."""
+    l = x.shape[2]
+    full = (count >= l) & ~fresh
+    shifted = jnp.concatenate([x[:, :, 1:], new[:, :, None]], axis=2)
+    pos = jnp.where(fresh, 0, jnp.minimum(count, l - 1))  # where `new` goes
+    expand = lambda a: a.reshape(a.shape + (1,) * (x.ndim - a.ndim))  # noqa: E731  [S, N, L] -> x's rank
+    i = jnp.arange(l)[None, None, :]
+    base = jnp.where(expand(full[..., None]), shifted, x)
+    after = new[:, :, None] if pad_with_new else jnp.zeros_like(new)[:, :, None]
+    out = jnp.where(expand(i == pos[..., None]), new[:, :, None], base)
+    return jnp.where(expand(i > pos[..., None]), after, out).astype(x.dtype)
+
+
+@struct.dataclass
 class RunState:
     """Carry of the jitted epoch."""
 
@@ -45,6 +107,8 @@ class RunState:
     train_env: EnvState  # [S*N] worlds driven by PPO; frames for replay come from here
     curr_env: EnvState  # [S*N] held-out worlds under the current policy (never in replay)
     rand_env: EnvState  # [S*N] held-out worlds under the random policy (never in replay)
+    # PPO on a sequential learner's latent: "train" and "curr" worlds' windows; {} otherwise
+    policy_history: dict[str, PolicyHistory]
     ref_spread: jax.Array  # [D] reference spread of every state entry (random policy, at init)
     epoch: jax.Array
 
@@ -234,14 +298,23 @@ class Experiment:
         # PPO observes the true state, the frame (rl_input "pixels") or a learner's latent of it.
         self.rl_learner = c.rl_learner
         self.rl_pixels = c.rl_input == "pixels"
+        # A sequential learner's latent is read from a window of the last L steps (PolicyHistory).
+        self.rl_sequential = self.rl_learner is not None and is_sequential(self.learners[self.rl_learner])
         num_actions = self.env.num_actions if self.env.discrete else None
         if self.rl_pixels:
             self.ppo = PPO(c.ppo, 0, num_actions, self.env.action_size, frame_shape=self.env.frame_shape)
         elif self.rl_learner is None:
             self.ppo = PPO.for_env(c.ppo, self.env)
         else:
-            z = jax.eval_shape(self._encode_frames, self._abstract_learner_params(self.rl_learner),
-                               jax.ShapeDtypeStruct((1,) + self.env.frame_shape, jnp.uint8))
+            params = self._abstract_learner_params(self.rl_learner)
+            if self.rl_sequential:
+                l = self.learners[self.rl_learner].sequence_length
+                z = jax.eval_shape(self._window_latents, params,
+                                   jax.ShapeDtypeStruct((1, l) + self.env.frame_shape, jnp.uint8),
+                                   jax.ShapeDtypeStruct((1, l, self.action_dim), jnp.float32))
+            else:
+                z = jax.eval_shape(self._encode_frames, params,
+                                   jax.ShapeDtypeStruct((1,) + self.env.frame_shape, jnp.uint8))
             self.ppo = PPO(c.ppo, z.shape[-1], num_actions, self.env.action_size)
         self.retention = {n: l.retain_fraction for n, l in self.learners.items()}
         self.sequential = {n: is_sequential(l) for n, l in self.learners.items()}
@@ -300,18 +373,22 @@ class Experiment:
         return jax.lax.switch(index, [with_renderer(r) for r in self._renderers], render_inputs)
 
     def state_shardings(self, rs: RunState) -> RunState:
-        """Shardings of a RunState: per-seed parts over the seed axis, simulator worlds over
-        both axes, the reference spread and the epoch counter replicated."""
+        """Shardings of a RunState: per-seed parts over the seed axis, simulator worlds (and the
+        policy's windows of them) over both axes, the reference spread and the epoch counter
+        replicated."""
         seed = NamedSharding(self.mesh, P(SEED_AXIS))
         world = NamedSharding(self.mesh, P((SEED_AXIS, WORLD_AXIS)))
 
         def each(tree: Any, sh: NamedSharding) -> Any:
             return jax.tree.map(lambda _: sh, tree)
 
+        seed_world = NamedSharding(self.mesh, P(SEED_AXIS, WORLD_AXIS))  # [S, N, ...] per world
         return RunState(ppo=each(rs.ppo, seed), learners=each(rs.learners, seed),
                         buffers=each(rs.buffers, seed), windows=each(rs.windows, seed),
                         train_env=each(rs.train_env, world), curr_env=each(rs.curr_env, world),
-                        rand_env=each(rs.rand_env, world), ref_spread=self._rep, epoch=self._rep)
+                        rand_env=each(rs.rand_env, world),
+                        policy_history=each(rs.policy_history, seed_world),
+                        ref_spread=self._rep, epoch=self._rep)
 
     def abstract_state(self) -> RunState:
         """Shapes, dtypes and shardings of the RunState (what a checkpoint is restored into)."""
@@ -380,13 +457,80 @@ class Experiment:
         into the learner."""
         return self.learners[self.rl_learner].encode(jax.lax.stop_gradient(params), frames)
 
-    def _policy_obs(self, es: EnvState, learners: dict | None) -> jax.Array:
+    def _window_latents(self, params: Any, frames: jax.Array, actions: jax.Array) -> jax.Array:
+        """The sequential RL learner's per-step latents `[B, L, Z]` of windows given as frames
+        `[B, L, H, W, 3]` and actions (one seed; sizes PPO's input)."""
+        learner = self.learners[self.rl_learner]
+        return learner.encode_features(params, learner.frame_features(params, frames), actions)
+
+    def _current_frames(self, es: EnvState) -> jax.Array:
+        """Every world's current frame, per seed `[S, N, H, W, 3]` uint8 (rendered here)."""
+        ri = jax.tree.map(lambda x: x[None], es.render_input)
+        return self._per_seed(self._render_sequence(ri)[0])
+
+    def _history_start(self, es: EnvState) -> PolicyHistory:
+        """The `PolicyHistory` of freshly reset worlds: their current frame alone (count 1)."""
+        frames = self._current_frames(es)
+        l = self.learners[self.rl_learner].sequence_length
+        return PolicyHistory(
+            frames=jnp.broadcast_to(frames[:, :, None], frames.shape[:2] + (l,) + frames.shape[2:]),
+            actions=jnp.zeros((self.S, self.N, l, self.action_dim), jnp.float32),
+            count=jnp.ones((self.S, self.N), jnp.int32))
+
+    def _frame_features(self, learners: dict, frames: jax.Array) -> jax.Array:
+        """The sequential RL learner's `frame_features` of per-seed frames `[S, N, T, H, W, 3]`
+        -> `[S, N, T, F]`, each seed's current params, no gradient into the learner."""
+        learner = self.learners[self.rl_learner]
+        fn = lambda p, f: learner.frame_features(jax.lax.stop_gradient(p), f)  # noqa: E731
+        return self.over_seeds(fn, learners[self.rl_learner].params, frames)
+
+    def policy_window(self, learners: dict, history: PolicyHistory) -> PolicyWindow:
+        """`history` with the features of its frames under the learners' current params: L conv
+        passes per world, once per rollout (the params changed since the history was built)."""
+        return PolicyWindow(history, self._frame_features(learners, history.frames))
+
+    def _window_push(self, learners: dict, window: PolicyWindow, es: EnvState,
+                     action: jax.Array) -> PolicyWindow:
+        """The window after an env step: `es`'s frames (rendered here, one conv pass each)
+        appended with the actions that led into them `[S, N(, A)]`; a world whose step ended an
+        episode (`es.done`: its frame is the next episode's first) starts its window over."""
+        h = window.history
+        frames = self._current_frames(es)
+        feats = self._frame_features(learners, frames[:, :, None])[:, :, 0]
+        act = self._per_seed(self._action_features(action))
+        fresh = self._per_seed(es.done) > 0
+        l = h.frames.shape[2]
+        hist = PolicyHistory(frames=push_window(h.frames, frames, h.count, fresh, True),
+                             actions=push_window(h.actions, act, h.count, fresh, False),
+                             count=jnp.where(fresh, 1, jnp.minimum(h.count + 1, l)).astype(jnp.int32))
+        return PolicyWindow(hist, push_window(window.features, feats, h.count, fresh, True))
+
+    def _window_obs(self, learners: dict, window: PolicyWindow) -> jax.Array:
+        """PPO's latent of every world `[S, N, Z]`: the sequential learner's per-step latent of
+        its window at the current step (`count - 1`), each seed's current params."""
+        learner = self.learners[self.rl_learner]
+
+        def one_seed(params: Any, feats: jax.Array, actions: jax.Array, count: jax.Array) -> jax.Array:
+            z = learner.encode_features(jax.lax.stop_gradient(params), feats, actions)  # [N, L, Z]
+            return jnp.take_along_axis(z, (count - 1)[:, None, None], axis=1)[:, 0]
+
+        h = window.history
+        return self.over_seeds(one_seed, learners[self.rl_learner].params, window.features, h.actions, h.count)
+
+    def _policy_obs(self, es: EnvState, learners: dict | None, window: PolicyWindow | None = None
+                    ) -> jax.Array:
         """PPO's observation of every world, per seed `[S, N, ...]`: the true state; with
         `rl_input="pixels"` the world's current frame (uint8, rendered here); with
         `rl_input="latent:<name>"` that learner's latent of the current frame, encoded with the
-        seed's current parameters."""
+        seed's current parameters; for a sequential learner, its latent of the current step of
+        `window` (the last L steps up to the current one, `PolicyHistory`)."""
         if self.rl_learner is None and not self.rl_pixels:
             return self._per_seed(es.obs)
+        if self.rl_sequential:
+            if learners is None or window is None:
+                raise ValueError("PPO observes a sequential learner's latent: pass the learners' "
+                                 "states and the worlds' PolicyWindow")
+            return self._window_obs(learners, window)
         ri = jax.tree.map(lambda x: x[None], es.render_input)
         frames = self._per_seed(self._render_sequence(ri)[0])  # [S, N, H, W, 3]
         if self.rl_pixels:
@@ -396,17 +540,22 @@ class Experiment:
         return self.over_seeds(self._encode_frames, learners[self.rl_learner].params, frames)
 
     def _policy_step(self, ppo_state: PPOState, es: EnvState, key: jax.Array, random: bool,
-                     learners: dict | None = None):
+                     learners: dict | None = None, window: PolicyWindow | None = None):
+        """One step of all worlds: PPO's observation, its action (or a random one), the env step.
+        Returns `(next env state, obs, action, logp, value, window)`, the `PolicyWindow` (PPO on
+        a sequential learner's latent; None otherwise) moved on to the next env state."""
         keys = jax.random.split(key, self.S)
         if random:  # the random policy observes nothing: no frame is rendered for it
             obs = self._per_seed(es.obs)
             action = jax.vmap(lambda k: self.ppo.random_act(k, self.N))(keys)
             logp = value = jnp.zeros((self.S, self.N))
         else:
-            obs = self._policy_obs(es, learners)
+            obs = self._policy_obs(es, learners, window)
             action, logp, value = jax.vmap(self.ppo.act)(ppo_state, obs, keys)
         nes = self._env_step(es, self._flat(self.ppo.env_action(action)))
-        return nes, obs, action, logp, value
+        if window is not None:
+            window = self._window_push(learners, window, nes, action)
+        return nes, obs, action, logp, value, window
 
     def _frames_of_steps(self, render_inputs: Any, lowdim: jax.Array) -> tuple[jax.Array, jax.Array]:
         """Render stored steps `[K, S*N]` -> per-seed frames `[S, K*N, H, W, 3]` and states."""
@@ -424,17 +573,24 @@ class Experiment:
         return self._flat(self.ppo.env_action(action).astype(jnp.float32))
 
     def _rollout(self, ppo_state: PPOState, es: EnvState, key: jax.Array, steps: int, random: bool,
-                 learners: dict | None = None):
+                 learners: dict | None = None, history: PolicyHistory | None = None):
         """Run `steps` steps, storing (render inputs, true states, action features, dones), each
-        `[steps, S*N, ...]`, unrendered. `learners`: for a policy that observes a latent."""
-        def body(es, k):
-            nes, _, action, _, _ = self._policy_step(ppo_state, es, k, random, learners)
-            return nes, (nes.render_input, nes.lowdim, self._action_features(action), nes.done)
-        return jax.lax.scan(body, es, jax.random.split(key, steps))
+        `[steps, S*N, ...]`, unrendered. `learners`: for a policy that observes a latent;
+        `history`: the worlds' `PolicyHistory` for one that observes a sequential learner's.
+        Returns `((env state, history after the steps or None), stored)`."""
+        window = None if history is None else self.policy_window(learners, history)
+
+        def body(carry, k):
+            es, window = carry
+            nes, _, action, _, _, window = self._policy_step(ppo_state, es, k, random, learners, window)
+            return (nes, window), (nes.render_input, nes.lowdim, self._action_features(action), nes.done)
+
+        (es, window), stored = jax.lax.scan(body, (es, window), jax.random.split(key, steps))
+        return (es, None if window is None else window.history), stored
 
     def _collect(self, ppo_state: PPOState, es: EnvState, key: jax.Array, steps: int, random: bool):
         """Run `steps` steps and render every one of them (initial replay frames)."""
-        es, (ri, low, _, _) = self._rollout(ppo_state, es, key, steps, random)
+        (es, _), (ri, low, _, _) = self._rollout(ppo_state, es, key, steps, random)
         frames, states = self._frames_of_steps(ri, low)
         return es, frames, states
 
@@ -469,8 +625,8 @@ class Experiment:
         train_env, curr_env, rand_env = (self._env_reset(k) for k in ke[:3])
         # The reference spread of every state entry, once per run: the random policy's held-out
         # worlds run `reference_steps` steps (pooled over seeds); their π_rand stream goes on from there.
-        rand_env, (_, ref_states, _, _) = self._rollout(ppo_state, rand_env, ke[3], c.reference_steps,
-                                                        random=True)
+        (rand_env, _), (_, ref_states, _, _) = self._rollout(ppo_state, rand_env, ke[3], c.reference_steps,
+                                                             random=True)
         ref_spread = probe.spread(ref_states.reshape((-1, ref_states.shape[-1])))
         # Fill replay with frames of the random policy; retained learners keep a share of them.
         steps = -(-c.replay_capacity // self.N)
@@ -489,8 +645,11 @@ class Experiment:
             buffers[buffer_key(frac)] = jax.vmap(fill)(frames, states, jax.random.split(k_keep, self.S))
         # Keys of the window buffers are folded in, so frame-only runs keep their random streams.
         windows = self._init_windows(ppo_state, jax.random.fold_in(key, 1)) if self.window_length else {}
+        # PPO on a sequential learner's latent: every policy-driven world's window starts at its first frame.
+        history = ({"train": self._history_start(train_env), "curr": self._history_start(curr_env)}
+                   if self.rl_sequential else {})
         return RunState(ppo=ppo_state, learners=learners, buffers=buffers, windows=windows,
-                        train_env=train_env, curr_env=curr_env, rand_env=rand_env,
+                        train_env=train_env, curr_env=curr_env, rand_env=rand_env, policy_history=history,
                         ref_spread=ref_spread, epoch=jnp.zeros((), jnp.int32))
 
     def _init_windows(self, ppo_state: PPOState, key: jax.Array) -> dict[str, sequence.WindowBuffer]:
@@ -516,37 +675,44 @@ class Experiment:
 
     # ------------------------------------------------------------------ epoch phases
     def rl_phase(self, ppo_state: PPOState, env_state: EnvState, key: jax.Array,
-                 learners: dict | None = None):
-        """PPO on the true state (or on a learner's latent, `learners` given): rollouts of all
-        seeds' worlds at once, per-seed updates.
+                 learners: dict | None = None, history: PolicyHistory | None = None):
+        """PPO on the true state (or on a learner's latent, `learners` given; a sequential
+        learner's also needs the worlds' `history`): rollouts of all seeds' worlds at once,
+        per-seed updates.
         Returns the new PPO state, env state, update metrics, per-seed finished-episode return
-        sum and count, and the stored steps (render inputs, true states, action features, dones)
-        `[U*T, S*N, ...]`."""
+        sum and count, the stored steps (render inputs, true states, action features, dones)
+        `[U*T, S*N, ...]`, and the worlds' new `PolicyHistory` (None without one)."""
         c = self.config
+        window = None if history is None else self.policy_window(learners, history)
 
         def rl_update(carry, k):
-            ppo_state, es = carry
+            ppo_state, es, window = carry
             k_roll, k_upd = jax.random.split(k)
 
-            def step(es, kk):
-                nes, obs, action, logp, value = self._policy_step(ppo_state, es, kk, False, learners)
+            def step(carry, kk):
+                es, window = carry
+                nes, obs, action, logp, value, window = self._policy_step(ppo_state, es, kk, False,
+                                                                          learners, window)
                 tr = Transition(obs, action, self._per_seed(nes.reward), self._per_seed(nes.done),
                                 self._per_seed(nes.truncated), logp, value)
                 ep = (self._per_seed(nes.info["episode_return"] * nes.done).sum(1),
                       self._per_seed(nes.done).sum(1))
-                return nes, (tr, ep, (nes.render_input, nes.lowdim, self._action_features(action), nes.done))
+                return (nes, window), (tr, ep, (nes.render_input, nes.lowdim, self._action_features(action),
+                                                nes.done))
 
-            es, (traj, ep, stored) = jax.lax.scan(step, es, jax.random.split(k_roll, c.ppo.num_steps))
+            (es, window), (traj, ep, stored) = jax.lax.scan(step, (es, window),
+                                                            jax.random.split(k_roll, c.ppo.num_steps))
             traj = jax.tree.map(lambda x: x.swapaxes(0, 1), traj)  # [S, T, N, ...]
-            ppo_state, m = jax.vmap(self.ppo.update)(ppo_state, traj, self._policy_obs(es, learners),
+            ppo_state, m = jax.vmap(self.ppo.update)(ppo_state, traj, self._policy_obs(es, learners, window),
                                                     jax.random.split(k_upd, self.S))
-            return (ppo_state, es), (m, ep, stored)
+            return (ppo_state, es, window), (m, ep, stored)
 
-        (ppo_state, env_state), (m, ep, stored) = jax.lax.scan(
-            rl_update, (ppo_state, env_state), jax.random.split(key, c.ppo_updates_per_epoch))
+        (ppo_state, env_state, window), (m, ep, stored) = jax.lax.scan(
+            rl_update, (ppo_state, env_state, window), jax.random.split(key, c.ppo_updates_per_epoch))
         total = c.ppo_updates_per_epoch * c.ppo.num_steps
         steps = jax.tree.map(lambda x: x.reshape((total,) + x.shape[2:]), stored)
-        return ppo_state, env_state, jax.tree.map(lambda x: x.mean(0), m), ep[0].sum((0, 1)), ep[1].sum((0, 1)), steps
+        return (ppo_state, env_state, jax.tree.map(lambda x: x.mean(0), m), ep[0].sum((0, 1)),
+                ep[1].sum((0, 1)), steps, None if window is None else window.history)
 
     def replay_phase(self, buffers: dict, steps: tuple, key: jax.Array) -> dict:
         """Render a random subset of the epoch's stored steps (all worlds of each chosen step)
@@ -613,19 +779,21 @@ class Experiment:
         return out, metrics
 
     def eval_phase(self, ppo_state: PPOState, curr_env: EnvState, rand_env: EnvState, key: jax.Array,
-                   learners: dict | None = None):
+                   learners: dict | None = None, history: PolicyHistory | None = None):
         """Held-out windows (never in replay) from the current and from a random policy: each
         world's rollout of `ceil(eval_frames / N)` steps, rounded up to whole windows of
-        `eval_length` steps, cut into consecutive windows (and at episode boundaries)."""
+        `eval_length` steps, cut into consecutive windows (and at episode boundaries).
+        `history`: the current-policy worlds' `PolicyHistory` (PPO on a sequential learner's
+        latent). Returns both env states, the windows and the new history (None without one)."""
         le = self.eval_length
         rounds = -(-self.config.eval_frames // (self.N * le))
         starts = jnp.broadcast_to((jnp.arange(rounds) * le)[:, None], (rounds, self.S * self.N))
         k_curr, k_rand = jax.random.split(key)
-        curr_env, cst = self._rollout(ppo_state, curr_env, k_curr, rounds * le, random=False,
-                                      learners=learners)
-        rand_env, rst = self._rollout(ppo_state, rand_env, k_rand, rounds * le, random=True)
+        (curr_env, history), cst = self._rollout(ppo_state, curr_env, k_curr, rounds * le, random=False,
+                                                 learners=learners, history=history)
+        (rand_env, _), rst = self._rollout(ppo_state, rand_env, k_rand, rounds * le, random=True)
         return curr_env, rand_env, {"curr": self._windows(cst, starts, le),
-                                    "rand": self._windows(rst, starts, le)}
+                                    "rand": self._windows(rst, starts, le)}, history
 
     def _object_scorer(self, learner: Any) -> Callable[[jax.Array, Windows], dict] | None:
         """The object-level probe of one seed's held-out stream for a learner with boxes (SPAIR,
@@ -680,8 +848,11 @@ class Experiment:
     def _epoch(self, rs: RunState, key: jax.Array, probe: bool = True) -> tuple[RunState, dict[str, Any]]:
         """One epoch; with `probe=False` no held-out rollout or probe (metrics without `probes`)."""
         k_rl, k_rep, k_learn, k_eval, k_probe = jax.random.split(key, 5)
-        ppo_state, train_env, ppo_m, ret_sum, count, steps = self.rl_phase(rs.ppo, rs.train_env, k_rl,
-                                                                           rs.learners)
+        hist = dict(rs.policy_history)
+        ppo_state, train_env, ppo_m, ret_sum, count, steps, train_hist = self.rl_phase(
+            rs.ppo, rs.train_env, k_rl, rs.learners, hist.get("train"))
+        if train_hist is not None:
+            hist["train"] = train_hist
         buffers = self.replay_phase(rs.buffers, steps, k_rep)
         windows = self.window_phase(rs.windows, steps, jax.random.fold_in(k_rep, 1))
         learners, learn_m = self.learn_phase(rs.learners, buffers, k_learn, windows)
@@ -696,10 +867,13 @@ class Experiment:
         }
         curr_env, rand_env = rs.curr_env, rs.rand_env
         if probe:
-            curr_env, rand_env, held_out = self.eval_phase(ppo_state, curr_env, rand_env, k_eval, learners)
+            curr_env, rand_env, held_out, curr_hist = self.eval_phase(ppo_state, curr_env, rand_env, k_eval,
+                                                                      learners, hist.get("curr"))
+            if curr_hist is not None:
+                hist["curr"] = curr_hist
             metrics["probes"] = self.probe_phase(learners, buffers, held_out, k_probe, windows)
         new = RunState(ppo=ppo_state, learners=learners, buffers=buffers, windows=windows,
-                       train_env=train_env, curr_env=curr_env, rand_env=rand_env,
+                       train_env=train_env, curr_env=curr_env, rand_env=rand_env, policy_history=hist,
                        ref_spread=rs.ref_spread, epoch=rs.epoch + 1)
         if self.sharded:  # the next epoch gets the layout this one got
             new = jax.lax.with_sharding_constraint(new, self._state_sh)

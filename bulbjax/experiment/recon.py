@@ -59,6 +59,8 @@ class RunFigures:
         exp, le = self.exp, self.exp.eval_length
         # Experiment's own rollout and window cutting (as its eval phase), one round only.
         extra = {"learners": rs.learners} if getattr(exp, "rl_learner", None) else {}  # PPO on a latent
+        if rs.policy_history:  # ... of a sequential learner: the worlds' windows go on from the run's
+            extra["history"] = rs.policy_history["curr"]
         _, steps = exp._rollout(rs.ppo, rs.curr_env, key, le, random=False, **extra)
         starts = jnp.zeros((1, exp.S * exp.N), jnp.int32)
         w = exp._windows(steps, starts, le)  # [S, N, L, ...]
