@@ -184,6 +184,24 @@ def test_report_redraws_a_run_in_progress(straight, tmp_path):
     assert main(["report", str(tmp_path / "nothing")]) == 2
 
 
+def test_report_reads_gzipped_metrics(straight, tmp_path):
+    """Committed long runs keep metrics.jsonl.gz: report and read_jsonl take it as it is."""
+    import gzip
+    import shutil
+    d, _ = straight
+    shutil.copy(os.path.join(d, "config.json"), tmp_path / "config.json")
+    with open(os.path.join(d, "metrics.jsonl"), "rb") as f, gzip.open(tmp_path / "metrics.jsonl.gz", "wb") as g:
+        g.write(f.read())
+    assert report.metrics_path(str(tmp_path)).endswith(".gz")
+    assert report.read_jsonl(str(tmp_path / "metrics.jsonl.gz")) == report.read_jsonl(os.path.join(d, "metrics.jsonl"))
+    report.redraw(str(tmp_path))
+    tab = (tmp_path / "table.md").read_text()
+    assert "4 epochs" in tab and "epoch 1, 2, 3;" in tab and os.path.getsize(tmp_path / "fig2.png") > 10_000
+    os.remove(tmp_path / "metrics.jsonl.gz")
+    with pytest.raises(ValueError, match="does not exist"):
+        report.metrics_path(str(tmp_path))
+
+
 def test_report_reads_old_run_folders(tmp_path):
     """Runs written before config.json had sections (docs/results) redraw too."""
     import shutil

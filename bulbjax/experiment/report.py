@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import gzip
 import json
 import math
 import os
@@ -63,9 +64,10 @@ def write_jsonl(path: str, records: Sequence[dict[str, Any]]) -> None:
 
 
 def read_jsonl(path: str, tolerate_partial: bool = False) -> list[dict[str, Any]]:
-    """The records of a JSON-lines file; with `tolerate_partial`, a last line still being
-    written (no newline yet, not valid JSON) is skipped."""
-    with open(path) as f:
+    """The records of a JSON-lines file (gzip-compressed if `path` ends in .gz); with
+    `tolerate_partial`, a last line still being written (no newline yet, not valid JSON) is
+    skipped."""
+    with (gzip.open(path, "rt") if path.endswith(".gz") else open(path)) as f:
         lines = f.read().split("\n")
     out = []
     for i, line in enumerate(lines):
@@ -362,6 +364,16 @@ def write_reports(run_dir: str, records: Sequence[dict[str, Any]], cfg: Any,
     return tab
 
 
+def metrics_path(run_dir: str) -> str:
+    """A run's metrics file: `metrics.jsonl`, else `metrics.jsonl.gz` (committed results keep
+    long runs' metrics compressed); a clear error if neither is there."""
+    path = os.path.join(run_dir, "metrics.jsonl")
+    for p in (path, path + ".gz"):
+        if os.path.exists(p):
+            return p
+    raise ValueError(f"{path} (or .gz) does not exist: is {run_dir} the --out folder of a `bulbjax run`?")
+
+
 def redraw(run_dir: str) -> str:
     """`bulbjax report RUN_DIR`: fig2.png and table.md again from config.json and metrics.jsonl
     (also while the run is still writing them: incomplete epochs are left out)."""
@@ -369,10 +381,7 @@ def redraw(run_dir: str) -> str:
     from bulbjax.experiment.config import read_run_config
 
     cfg, _ = read_run_config(run_dir)
-    path = os.path.join(run_dir, "metrics.jsonl")
-    if not os.path.exists(path):
-        raise ValueError(f"{path} does not exist: is {run_dir} the --out folder of a `bulbjax run`?")
-    records = read_jsonl(path, tolerate_partial=True)
+    records = read_jsonl(metrics_path(run_dir), tolerate_partial=True)
     cls = env_class(cfg.env)
     return write_reports(run_dir, records, cfg, cls.state_spec, cls.solved_return,
                          footer=f"redrawn by `bulbjax report` from {len(records)} records")
@@ -423,9 +432,9 @@ def rl_compare(run_dirs: Sequence[str], out_dir: str, solved_return: float | Non
         cfg, _ = read_run_config(d)
         target = targets.setdefault(cfg.env, solved_return if solved_return is not None
                                     else env_class(cfg.env).solved_return)
-        records = read_jsonl(os.path.join(d, "metrics.jsonl"), tolerate_partial=True)
+        records = read_jsonl(metrics_path(d), tolerate_partial=True)
         if not records:
-            raise ValueError(f"{d}/metrics.jsonl has no epoch yet")
+            raise ValueError(f"{metrics_path(d)} has no epoch yet")
         epochs, r = rl_curve(records)
         ep, mean, half = _rl_band(epochs, r)
         line, = ax.plot(ep, mean, label=cfg.rl_input)
