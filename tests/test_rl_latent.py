@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from bulbjax.experiment import ExperimentConfig, small_config
-from bulbjax.experiment.loop import Experiment
+from bulbjax.experiment.loop import Experiment, Rendered
 
 
 def test_latent_fed_to_ppo_is_the_learners_encoding(tmp_path) -> None:
@@ -35,6 +35,12 @@ def test_latent_fed_to_ppo_is_the_learners_encoding(tmp_path) -> None:
         np.testing.assert_allclose(np.asarray(obs[s]), np.asarray(direct), rtol=1e-5, atol=1e-5)
     # the two seeds' learners differ, so their latents differ
     assert not np.allclose(np.asarray(obs[0]), np.asarray(obs[1]))
+    # the policy's rollouts keep the frames it rendered for replay and windows: those of each step
+    (es, _), stored = jax.jit(lambda k: exp._rollout(rs.ppo, rs.train_env, k, 3, False, rs.learners))(
+        jax.random.PRNGKey(2))
+    assert isinstance(stored[0], Rendered) and stored[0].frames.shape == (3,) + frames.shape
+    np.testing.assert_array_equal(np.asarray(stored[0].frames[-1]),
+                                  np.asarray(exp.env.render_frames(es.render_input)))
     # two epochs of the run loop on this experiment: PPO trains on the latents
     out = tmp_path / "run"
     run(cfg, RunOptions(), str(out), experiment=exp, progress=False, log=lambda m: None)

@@ -77,7 +77,7 @@ def test_latent_is_encode_of_the_window_ending_at_the_step(exp: Experiment) -> N
     obs, counts = [], []
     for k in jax.random.split(jax.random.PRNGKey(1), T):
         counts.append(np.asarray(window.history.count).reshape(-1))
-        es, o, action, _, _, window = step(es, window, k)
+        es, o, action, _, _, window, _ = step(es, window, k)
         obs.append(np.asarray(o).reshape(S * N, -1))
         frames.append(np.asarray(render(es.render_input)))
         actions.append(np.asarray(exp._action_features(action)))

@@ -97,6 +97,23 @@ def push_window(x: jax.Array, new: jax.Array, count: jax.Array, fresh: jax.Array
 
 
 @struct.dataclass
+class Rendered:
+    """Frames of stored steps, uint8 `[..., S*N, H, W, 3]`, kept in place of their render inputs
+    where the policy rendered them already (PPO on pixels or a latent): `Experiment._frames_at`
+    gathers them instead of rendering the steps again (replay, windows, held-out windows). Costs
+    the memory of an epoch's frames (fig2: 128 steps x 384 worlds, ~600 MB); saves about a
+    quarter of a probing fig2 epoch's renders (~24k of ~92k frames)."""
+
+    frames: jax.Array
+
+
+# What a frame-observing policy carries from step to step (`Experiment._policy_view`): every
+# world's current frame `[S, N, H, W, 3]` (pixels, a frame learner's latent), its `PolicyWindow`
+# (a sequential learner's latent), or None (the true state, the random policy).
+PolicyView = jax.Array | PolicyWindow | None
+
+
+@struct.dataclass
 class RunState:
     """Carry of the jitted epoch."""
 
@@ -489,13 +506,12 @@ class Experiment:
         passes per world, once per rollout (the params changed since the history was built)."""
         return PolicyWindow(history, self._frame_features(learners, history.frames))
 
-    def _window_push(self, learners: dict, window: PolicyWindow, es: EnvState,
+    def _window_push(self, learners: dict, window: PolicyWindow, es: EnvState, frames: jax.Array,
                      action: jax.Array) -> PolicyWindow:
-        """The window after an env step: `es`'s frames (rendered here, one conv pass each)
+        """The window after an env step: `es`'s frames `[S, N, H, W, 3]` (one conv pass each)
         appended with the actions that led into them `[S, N(, A)]`; a world whose step ended an
         episode (`es.done`: its frame is the next episode's first) starts its window over."""
         h = window.history
-        frames = self._current_frames(es)
         feats = self._frame_features(learners, frames[:, :, None])[:, :, 0]
         act = self._per_seed(self._action_features(action))
         fresh = self._per_seed(es.done) > 0
@@ -517,22 +533,39 @@ class Experiment:
         h = window.history
         return self.over_seeds(one_seed, learners[self.rl_learner].params, window.features, h.actions, h.count)
 
-    def _policy_obs(self, es: EnvState, learners: dict | None, window: PolicyWindow | None = None
-                    ) -> jax.Array:
+    @property
+    def policy_renders(self) -> bool:
+        """Whether PPO observes frames (pixels or a learner's latent): its rollouts render every
+        step's frame, and keep it for replay, windows and probes (`Rendered`)."""
+        return self.rl_pixels or self.rl_learner is not None
+
+    def _policy_view(self, es: EnvState, learners: dict | None, history: PolicyHistory | None,
+                     random: bool) -> PolicyView:
+        """What a rollout from `es` starts with (`PolicyView`): for a sequential learner the
+        worlds' `history` with its features, for pixels or a frame learner the current frames
+        (rendered here), None for the true state or the random policy."""
+        if random or not self.policy_renders:
+            return None
+        if self.rl_sequential:
+            if history is None:
+                raise ValueError("PPO observes a sequential learner's latent: pass the worlds' PolicyHistory")
+            return self.policy_window(learners, history)
+        return self._current_frames(es)
+
+    def _policy_obs(self, es: EnvState, learners: dict | None, view: PolicyView = None) -> jax.Array:
         """PPO's observation of every world, per seed `[S, N, ...]`: the true state; with
-        `rl_input="pixels"` the world's current frame (uint8, rendered here); with
+        `rl_input="pixels"` the world's current frame (uint8; `view`, or rendered here); with
         `rl_input="latent:<name>"` that learner's latent of the current frame, encoded with the
         seed's current parameters; for a sequential learner, its latent of the current step of
-        `window` (the last L steps up to the current one, `PolicyHistory`)."""
+        the `view`'s window (the last L steps up to the current one, `PolicyHistory`)."""
         if self.rl_learner is None and not self.rl_pixels:
             return self._per_seed(es.obs)
         if self.rl_sequential:
-            if learners is None or window is None:
+            if learners is None or not isinstance(view, PolicyWindow):
                 raise ValueError("PPO observes a sequential learner's latent: pass the learners' "
                                  "states and the worlds' PolicyWindow")
-            return self._window_obs(learners, window)
-        ri = jax.tree.map(lambda x: x[None], es.render_input)
-        frames = self._per_seed(self._render_sequence(ri)[0])  # [S, N, H, W, 3]
+            return self._window_obs(learners, view)
+        frames = self._current_frames(es) if view is None else view  # [S, N, H, W, 3]
         if self.rl_pixels:
             return frames
         if learners is None:
@@ -540,26 +573,43 @@ class Experiment:
         return self.over_seeds(self._encode_frames, learners[self.rl_learner].params, frames)
 
     def _policy_step(self, ppo_state: PPOState, es: EnvState, key: jax.Array, random: bool,
-                     learners: dict | None = None, window: PolicyWindow | None = None):
+                     learners: dict | None = None, view: PolicyView = None):
         """One step of all worlds: PPO's observation, its action (or a random one), the env step.
-        Returns `(next env state, obs, action, logp, value, window)`, the `PolicyWindow` (PPO on
-        a sequential learner's latent; None otherwise) moved on to the next env state."""
+        Returns `(next env state, obs, action, logp, value, view, stored)`: the `PolicyView`
+        moved on to the next env state (its frames rendered here, once per step) and the step
+        as rollouts store it (`_stored`)."""
         keys = jax.random.split(key, self.S)
         if random:  # the random policy observes nothing: no frame is rendered for it
             obs = self._per_seed(es.obs)
             action = jax.vmap(lambda k: self.ppo.random_act(k, self.N))(keys)
             logp = value = jnp.zeros((self.S, self.N))
         else:
-            obs = self._policy_obs(es, learners, window)
+            obs = self._policy_obs(es, learners, view)
             action, logp, value = jax.vmap(self.ppo.act)(ppo_state, obs, keys)
         nes = self._env_step(es, self._flat(self.ppo.env_action(action)))
-        if window is not None:
-            window = self._window_push(learners, window, nes, action)
-        return nes, obs, action, logp, value, window
+        frames = None
+        if view is not None:
+            frames = self._current_frames(nes)
+            view = self._window_push(learners, view, nes, frames, action) if self.rl_sequential else frames
+        return nes, obs, action, logp, value, view, self._stored(nes, action, frames)
+
+    def _stored(self, es: EnvState, action: jax.Array, frames: jax.Array | None) -> tuple:
+        """A step as rollouts store it: (render input, or the `Rendered` frames where the policy
+        rendered them, true state, action features, done), each `[S*N, ...]`."""
+        ri = es.render_input if frames is None else Rendered(self._flat(frames))
+        return ri, es.lowdim, self._action_features(action), es.done
+
+    def _frames_at(self, render_inputs: Any) -> jax.Array:
+        """Frames `[K, S*N, H, W, 3]` of stored steps `[K, S*N]`: rendered from their render
+        inputs, or the policy's own frames where it kept them (`Rendered`): the same pixels,
+        rendered once."""
+        if isinstance(render_inputs, Rendered):
+            return render_inputs.frames
+        return self._render_sequence(render_inputs)
 
     def _frames_of_steps(self, render_inputs: Any, lowdim: jax.Array) -> tuple[jax.Array, jax.Array]:
         """Render stored steps `[K, S*N]` -> per-seed frames `[S, K*N, H, W, 3]` and states."""
-        frames = self._render_sequence(render_inputs)  # [K, S*N, H, W, 3]
+        frames = self._frames_at(render_inputs)  # [K, S*N, H, W, 3]
         k = frames.shape[0]
         frames = frames.reshape((k, self.S, self.N) + frames.shape[2:]).swapaxes(0, 1)
         lowdim = lowdim.reshape((k, self.S, self.N, -1)).swapaxes(0, 1)
@@ -575,18 +625,19 @@ class Experiment:
     def _rollout(self, ppo_state: PPOState, es: EnvState, key: jax.Array, steps: int, random: bool,
                  learners: dict | None = None, history: PolicyHistory | None = None):
         """Run `steps` steps, storing (render inputs, true states, action features, dones), each
-        `[steps, S*N, ...]`, unrendered. `learners`: for a policy that observes a latent;
+        `[steps, S*N, ...]`, unrendered (the random policy, PPO on the state). `learners`: for a policy that observes a latent;
         `history`: the worlds' `PolicyHistory` for one that observes a sequential learner's.
+        A policy that observes frames keeps them in place of the render inputs (`Rendered`).
         Returns `((env state, history after the steps or None), stored)`."""
-        window = None if history is None else self.policy_window(learners, history)
+        view = self._policy_view(es, learners, history, random)
 
         def body(carry, k):
-            es, window = carry
-            nes, _, action, _, _, window = self._policy_step(ppo_state, es, k, random, learners, window)
-            return (nes, window), (nes.render_input, nes.lowdim, self._action_features(action), nes.done)
+            es, view = carry
+            nes, _, _, _, _, view, stored = self._policy_step(ppo_state, es, k, random, learners, view)
+            return (nes, view), stored
 
-        (es, window), stored = jax.lax.scan(body, (es, window), jax.random.split(key, steps))
-        return (es, None if window is None else window.history), stored
+        (es, view), stored = jax.lax.scan(body, (es, view), jax.random.split(key, steps))
+        return (es, view.history if isinstance(view, PolicyWindow) else None), stored
 
     def _collect(self, ppo_state: PPOState, es: EnvState, key: jax.Array, steps: int, random: bool):
         """Run `steps` steps and render every one of them (initial replay frames)."""
@@ -595,13 +646,14 @@ class Experiment:
         return es, frames, states
 
     def _windows(self, steps: tuple, starts: jax.Array, length: int) -> Windows:
-        """Render windows of `length` steps from stored steps `[T, S*N]`, one per world and round
-        (`starts [R, S*N]`), cut at episode boundaries -> per-seed `Windows [S, R*N, length]`."""
+        """Render windows of `length` steps from stored steps `[T, S*N]` (or gather the policy's
+        frames, `Rendered`), one per world and round (`starts [R, S*N]`), cut at episode
+        boundaries -> per-seed `Windows [S, R*N, length]`."""
         ri, low, act, done = steps
         r = starts.shape[0]
         src, valid = jax.vmap(lambda st: sequence.window_indices(done, st, length))(starts)
         src, valid = src.reshape((r * length, -1)), valid.reshape((r * length, -1))
-        frames = self._render_sequence(jax.tree.map(lambda x: sequence.gather_steps(x, src), ri))
+        frames = self._frames_at(jax.tree.map(lambda x: sequence.gather_steps(x, src), ri))
         act = sequence.gather_steps(act, src) * valid[..., None]
 
         def per_seed(x: jax.Array) -> jax.Array:  # [R*L, S*N, ...] -> [S, R*N, L, ...]
@@ -680,43 +732,44 @@ class Experiment:
         learner's also needs the worlds' `history`): rollouts of all seeds' worlds at once,
         per-seed updates.
         Returns the new PPO state, env state, update metrics, per-seed finished-episode return
-        sum and count, the stored steps (render inputs, true states, action features, dones)
-        `[U*T, S*N, ...]`, and the worlds' new `PolicyHistory` (None without one)."""
+        sum and count, the stored steps (render inputs, or the policy's frames: `_stored`; true
+        states, action features, dones) `[U*T, S*N, ...]`, and the worlds' new `PolicyHistory`
+        (None without one)."""
         c = self.config
-        window = None if history is None else self.policy_window(learners, history)
+        view = self._policy_view(env_state, learners, history, False)
 
         def rl_update(carry, k):
-            ppo_state, es, window = carry
+            ppo_state, es, view = carry
             k_roll, k_upd = jax.random.split(k)
 
             def step(carry, kk):
-                es, window = carry
-                nes, obs, action, logp, value, window = self._policy_step(ppo_state, es, kk, False,
-                                                                          learners, window)
+                es, view = carry
+                nes, obs, action, logp, value, view, stored = self._policy_step(ppo_state, es, kk, False,
+                                                                                learners, view)
                 tr = Transition(obs, action, self._per_seed(nes.reward), self._per_seed(nes.done),
                                 self._per_seed(nes.truncated), logp, value)
                 ep = (self._per_seed(nes.info["episode_return"] * nes.done).sum(1),
                       self._per_seed(nes.done).sum(1))
-                return (nes, window), (tr, ep, (nes.render_input, nes.lowdim, self._action_features(action),
-                                                nes.done))
+                return (nes, view), (tr, ep, stored)
 
-            (es, window), (traj, ep, stored) = jax.lax.scan(step, (es, window),
-                                                            jax.random.split(k_roll, c.ppo.num_steps))
+            (es, view), (traj, ep, stored) = jax.lax.scan(step, (es, view),
+                                                          jax.random.split(k_roll, c.ppo.num_steps))
             traj = jax.tree.map(lambda x: x.swapaxes(0, 1), traj)  # [S, T, N, ...]
-            ppo_state, m = jax.vmap(self.ppo.update)(ppo_state, traj, self._policy_obs(es, learners, window),
+            ppo_state, m = jax.vmap(self.ppo.update)(ppo_state, traj, self._policy_obs(es, learners, view),
                                                     jax.random.split(k_upd, self.S))
-            return (ppo_state, es, window), (m, ep, stored)
+            return (ppo_state, es, view), (m, ep, stored)
 
-        (ppo_state, env_state, window), (m, ep, stored) = jax.lax.scan(
-            rl_update, (ppo_state, env_state, window), jax.random.split(key, c.ppo_updates_per_epoch))
+        (ppo_state, env_state, view), (m, ep, stored) = jax.lax.scan(
+            rl_update, (ppo_state, env_state, view), jax.random.split(key, c.ppo_updates_per_epoch))
         total = c.ppo_updates_per_epoch * c.ppo.num_steps
         steps = jax.tree.map(lambda x: x.reshape((total,) + x.shape[2:]), stored)
         return (ppo_state, env_state, jax.tree.map(lambda x: x.mean(0), m), ep[0].sum((0, 1)),
-                ep[1].sum((0, 1)), steps, None if window is None else window.history)
+                ep[1].sum((0, 1)), steps, view.history if isinstance(view, PolicyWindow) else None)
 
     def replay_phase(self, buffers: dict, steps: tuple, key: jax.Array) -> dict:
-        """Render a random subset of the epoch's stored steps (all worlds of each chosen step)
-        and write those frames of the current policy into every replay buffer."""
+        """Render a random subset of the epoch's stored steps (all worlds of each chosen step;
+        the policy's own frames where it kept them, `Rendered`) and write those frames of the
+        current policy into every replay buffer."""
         c = self.config
         ri, low = steps[:2]
         k_pick, k_ins = jax.random.split(key)
