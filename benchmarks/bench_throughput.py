@@ -76,6 +76,7 @@ class BenchSettings:
     learners: tuple[str, ...] = ("vae",)
     deconv_impls: tuple[str, ...] = ("transpose", "subpixel")
     precisions: tuple[str, ...] = ("default",)
+    rnn_unroll: int = 1  # sequential learners' LSTM steps per scan iteration (LearnerConfig.rnn_unroll)
     parts: tuple[str, ...] = PARTS
     torch_compile: bool = True
     torch_channels_last: bool = False
@@ -283,7 +284,7 @@ def bench_vae(dtype: str, s: BenchSettings, name: str = "vae", impl: str = "tran
     decoder form `impl`, matmul/conv precision `precision` (JAX's default_matmul_precision)."""
     learner = make_learner(name, latent_dim=s.latent_dim, action_dim=1,
                            config=LearnerConfig(batch_size=s.vae_batch, compute_dtype=dtype,
-                                                deconv_impl=impl))
+                                                deconv_impl=impl, rnn_unroll=s.rnn_unroll))
     shape = (s.resolution, s.resolution, 3)
     key = jax.random.PRNGKey(s.seed)
     k_init, k_steps = jax.random.split(key)
@@ -310,7 +311,7 @@ def bench_vae(dtype: str, s: BenchSettings, name: str = "vae", impl: str = "tran
     batch = learner.batch_size if name == "spair" or is_sequential(learner) else s.vae_batch
     return {"learner": name, "dtype": dtype, "deconv_impl": impl, "precision": precision,
             "batch": batch, "frames_per_batch": batch * getattr(learner, "window_length", 1),
-            "resolution": s.resolution,
+            "resolution": s.resolution, "rnn_unroll": s.rnn_unroll,
             "latent_dim": s.latent_dim, "steps": s.vae_steps, "warmup_steps": s.vae_warmup,
             "init_s": init_s, "compile_s": compile_s, "warmup_s": warmup_s, "elapsed_s": elapsed,
             "updates_per_s": s.vae_steps / elapsed, "final_loss": float(metrics["loss"])}
@@ -400,6 +401,8 @@ def parse_args(argv: list[str] | None = None) -> BenchSettings:
     p.add_argument("--latent-dim", type=int, default=d.latent_dim)
     p.add_argument("--dtypes", default=",".join(d.dtypes), help="learner compute dtypes")
     p.add_argument("--learners", default=",".join(d.learners), help="learners to time (vae, svae, pred, dsa, spair, ...)")
+    p.add_argument("--rnn-unroll", type=int, default=d.rnn_unroll,
+                   help="sequential learners: LSTM steps per scan iteration (same function; try the window length)")
     p.add_argument("--deconv-impls", default=",".join(d.deconv_impls), help="decoder forms: transpose, subpixel")
     p.add_argument("--precisions", default=",".join(d.precisions),
                    help="fp32 matmul/conv precisions: default, tensorfloat32, highest")
@@ -417,6 +420,7 @@ def parse_args(argv: list[str] | None = None) -> BenchSettings:
         repeats=a.repeats, resolution=a.resolution, vae_batch=a.vae_batch, vae_steps=a.vae_steps,
         vae_warmup=a.vae_warmup, latent_dim=a.latent_dim, dtypes=split(a.dtypes), parts=split(a.parts),
         learners=split(a.learners), deconv_impls=split(a.deconv_impls), precisions=split(a.precisions),
+        rnn_unroll=a.rnn_unroll,
         torch_compile=not a.no_torch_compile, torch_channels_last=a.torch_channels_last,
         torch_timeout_s=a.torch_timeout, seed=a.seed, out_dir=a.out_dir,
         verbose=a.verbose)

@@ -178,3 +178,22 @@ def test_paper_sized_shapes() -> None:
 def test_nan_loss_is_reported() -> None:
     with pytest.raises(FloatingPointError, match="lower the learning rate"):
         check_finite({"loss": jnp.array([1.0, jnp.nan])}, "svae update, epoch 3")
+
+
+@pytest.mark.parametrize("name", ["svae", "dsa"])
+def test_rnn_unroll_gives_the_same_function(name: str) -> None:
+    """`rnn_unroll` only changes how the LSTM scans are laid out: the same loss, gradients and
+    latents from the same parameters (up to float reassociation)."""
+    plain = make_learner(name, LATENT, SMALL, action_dim=ACT)
+    unrolled = make_learner(name, LATENT, {**SMALL, "rnn_unroll": L}, action_dim=ACT)
+    params = plain.init(jax.random.key(1), (RES, RES, 3)).params
+    k = jax.random.key(2)
+    (l0, _), g0 = jax.jit(jax.value_and_grad(plain.loss, has_aux=True))(params, WINDOWS, k)
+    (l1, _), g1 = jax.jit(jax.value_and_grad(unrolled.loss, has_aux=True))(params, WINDOWS, k)
+    np.testing.assert_allclose(float(l1), float(l0), rtol=1e-5)
+    for a, b in zip(jax.tree.leaves(g0), jax.tree.leaves(g1)):
+        np.testing.assert_allclose(np.asarray(b), np.asarray(a), rtol=1e-3, atol=1e-6)
+    np.testing.assert_allclose(np.asarray(unrolled.encode(params, WINDOWS)),
+                               np.asarray(plain.encode(params, WINDOWS)), rtol=1e-5, atol=1e-6)
+    with pytest.raises(ValueError, match="rnn_unroll"):
+        make_learner(name, LATENT, {**SMALL, "rnn_unroll": 0}, action_dim=ACT)

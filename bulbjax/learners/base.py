@@ -50,6 +50,7 @@ class LearnerConfig:
     sequence_length: int = 24  # steps per window (paper: 24 pendulums, 16 locomotion)
     pred_horizon: int = 4  # PRED reconstructs sequence_length + pred_horizon frames
     dsa_encoder: str = "bilstm"  # DSA's static/dynamic encoders: one of DSA_ENCODERS
+    rnn_unroll: int = 1  # recurrent steps per scan iteration (networks.SequenceModel.unroll; same numbers)
     # SPAIR only (spair.py); the other learners ignore these. Defaults follow the original
     # (Crawford & Pineau 2019) where it says, and the bulb paper (28 px glimpses, 4x4 grid).
     spair_grid: int = 4  # G: cells per side of the grid (paper: 4 or 6)
@@ -88,6 +89,8 @@ class LearnerConfig:
             raise ValueError(f"sequence_length must be >= 2, got {self.sequence_length!r}")
         if self.pred_horizon < 0:
             raise ValueError(f"pred_horizon must be >= 0, got {self.pred_horizon!r}")
+        if self.rnn_unroll < 1:
+            raise ValueError(f"rnn_unroll must be >= 1, got {self.rnn_unroll!r}")
         if self.dsa_encoder not in DSA_ENCODERS:
             raise ValueError(f"dsa_encoder must be one of {DSA_ENCODERS}, got {self.dsa_encoder!r}")
         for name in ("spair_grid", "spair_glimpse", "spair_what_dim", "spair_bg_dim",

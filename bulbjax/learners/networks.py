@@ -239,6 +239,11 @@ class SequenceModel(nn.Module):
 
     kind: str = "lstm"
     hidden: int = 512
+    # Steps of the recurrent scan unrolled per loop iteration (`nn.RNN(unroll=...)`): the same
+    # function; larger values trade compile time for fewer loop iterations (each a small kernel
+    # group and, on the GPU, a predicate copy), which is what a 24-step LSTM over ~42 windows is
+    # bound by. Ignored by `conv` and `fc`.
+    unroll: int = 1
 
     def _cell(self, kind: str) -> nn.RNNCellBase:
         inits = dict(kernel_init=lecun_normal_flat, recurrent_kernel_init=lecun_normal_flat)
@@ -254,10 +259,10 @@ class SequenceModel(nn.Module):
             raise ValueError(f"unknown sequence model {self.kind!r}; accepted: {', '.join(SEQUENCE_MODELS)}")
         x = x.astype(jnp.float32)
         if self.kind in ("lstm", "gru", "rnn"):
-            return nn.RNN(self._cell(self.kind), name="rnn")(x)
+            return nn.RNN(self._cell(self.kind), unroll=self.unroll, name="rnn")(x)
         if self.kind == "bilstm":
-            fwd = nn.RNN(self._cell("lstm"), name="forward")
-            bwd = nn.RNN(self._cell("lstm"), name="backward")
+            fwd = nn.RNN(self._cell("lstm"), unroll=self.unroll, name="forward")
+            bwd = nn.RNN(self._cell("lstm"), unroll=self.unroll, name="backward")
             return nn.Bidirectional(fwd, bwd, name="bi")(x)
         if self.kind == "conv":
             for i in range(2):

@@ -281,7 +281,7 @@ class SVAE(SequentialVAE):
 
     @property
     def _rnn(self) -> SequenceModel:
-        return SequenceModel("lstm", self.config.hidden)
+        return SequenceModel("lstm", self.config.hidden, unroll=self.config.rnn_unroll)
 
     def _init_parts(self, key: jax.Array, resolution: int) -> dict[str, Any]:
         k1, k2, k3 = jax.random.split(key, 3)
@@ -381,7 +381,7 @@ class DSA(SequentialVAE):
         return FrameFeatures(c.conv_features, c.hidden, c.dtype)
 
     def _seq(self, kind: str | None = None) -> SequenceModel:
-        return SequenceModel(kind or self.config.dsa_encoder, self.config.hidden)
+        return SequenceModel(kind or self.config.dsa_encoder, self.config.hidden, unroll=self.config.rnn_unroll)
 
     def _init_parts(self, key: jax.Array, resolution: int) -> dict[str, Any]:
         ks = jax.random.split(key, 7)
