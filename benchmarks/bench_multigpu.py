@@ -41,8 +41,10 @@ from bulbjax.experiment.config import preset, small_config  # noqa: E402
 from bulbjax.experiment.run import provenance  # noqa: E402
 
 
-def measure(cfg, devices, epochs: int) -> dict:
-    """Init, first epoch (compile) and `epochs` timed epochs of `cfg` on `devices`."""
+def measure(cfg, devices, epochs: int, probe: bool = True) -> dict:
+    """Init, first epoch (compile) and `epochs` timed epochs of `cfg` on `devices`; `probe=False`
+    times the epoch without held-out rollouts and probes (what `--probe-every k` runs k-1 times
+    in k)."""
     t = time.perf_counter()
     exp = Experiment(cfg, devices=devices)
     rs = exp.init(exp.put_key(jax.random.PRNGKey(0)))
@@ -53,12 +55,12 @@ def measure(cfg, devices, epochs: int) -> dict:
     for i in range(epochs + 1):
         key, k = jax.random.split(key)
         t = time.perf_counter()
-        rs, m = exp.epoch(rs, k)
+        rs, m = exp.epoch(rs, k, probe=probe)
         jax.block_until_ready((rs, m))
         times.append(time.perf_counter() - t)
     med = statistics.median(times[1:])
     return {"devices": len(devices), "mesh": dict(exp.mesh.shape), "seeds": cfg.seeds,
-            "build_init_s": t_init, "first_epoch_s": times[0], "epoch_s": times[1:],
+            "probe": probe, "build_init_s": t_init, "first_epoch_s": times[0], "epoch_s": times[1:],
             "median_epoch_s": med, "epochs_per_s": 1.0 / med, "seed_epochs_per_s": cfg.seeds / med}
 
 
@@ -70,6 +72,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--epochs", type=int, default=5, help="timed epochs after the first (compile) one")
     p.add_argument("--learners", default=None, help="override the preset's learners (smoke runs)")
     p.add_argument("--bf16", action="store_true", help="bf16 learner compute (GPU)")
+    p.add_argument("--no-probe", action="store_true",
+                   help="time epochs without probing (the epochs between probes; a third of the compile)")
     p.add_argument("--small", action="store_true", help="CPU-sized settings (not the paper's)")
     p.add_argument("--out-dir", default=os.path.join(HERE, "results"))
     args = p.parse_args(argv)
@@ -97,7 +101,7 @@ def main(argv: list[str] | None = None) -> int:
         one = None
         for n in counts:
             try:
-                r = measure(cfg, all_devs[:n], args.epochs)
+                r = measure(cfg, all_devs[:n], args.epochs, probe=not args.no_probe)
             except Exception as err:  # recorded, the other cases go on
                 r = {"devices": n, "seeds": seeds, "error": f"{type(err).__name__}: {err}"}
             if n == 1 and "error" not in r:
