@@ -113,6 +113,11 @@ class Rendered:
 PolicyView = jax.Array | PolicyWindow | None
 
 
+def _history_of(view: PolicyView) -> PolicyHistory | None:
+    """The worlds' `PolicyHistory` a rollout hands on: a sequential learner's window, else None."""
+    return view.history if isinstance(view, PolicyWindow) else None
+
+
 @struct.dataclass
 class RunState:
     """Carry of the jitted epoch."""
@@ -637,7 +642,7 @@ class Experiment:
             return (nes, view), stored
 
         (es, view), stored = jax.lax.scan(body, (es, view), jax.random.split(key, steps))
-        return (es, view.history if isinstance(view, PolicyWindow) else None), stored
+        return (es, _history_of(view)), stored
 
     def _collect(self, ppo_state: PPOState, es: EnvState, key: jax.Array, steps: int, random: bool):
         """Run `steps` steps and render every one of them (initial replay frames)."""
@@ -764,7 +769,7 @@ class Experiment:
         total = c.ppo_updates_per_epoch * c.ppo.num_steps
         steps = jax.tree.map(lambda x: x.reshape((total,) + x.shape[2:]), stored)
         return (ppo_state, env_state, jax.tree.map(lambda x: x.mean(0), m), ep[0].sum((0, 1)),
-                ep[1].sum((0, 1)), steps, view.history if isinstance(view, PolicyWindow) else None)
+                ep[1].sum((0, 1)), steps, _history_of(view))
 
     def replay_phase(self, buffers: dict, steps: tuple, key: jax.Array) -> dict:
         """Render a random subset of the epoch's stored steps (all worlds of each chosen step;

@@ -51,6 +51,17 @@ def _normal(key: jax.Array, like: jax.Array) -> jax.Array:
     return jax.random.normal(key, (like.size,), like.dtype).reshape(like.shape)
 
 
+def _unit_frames(frames: jax.Array) -> jax.Array:
+    """uint8 frames -> float32 in [0, 1], what the conv stacks and the likelihood see."""
+    return frames.astype(jnp.float32) / 255.0
+
+
+def _prev_actions(actions: jax.Array) -> jax.Array:
+    """Actions into each frame `[B, T, A]` -> what step t is conditioned on: the action into
+    frame t, zero at t = 0 (the action before a window is context it does not have)."""
+    return actions.astype(jnp.float32).at[:, 0].set(0.0)
+
+
 def _kl_std_normal(mean: jax.Array, logvar: jax.Array) -> jax.Array:
     """KL(N(mean, exp(logvar)) || N(0, I)), summed over the last axis."""
     return (0.5 * (jnp.exp(logvar) + jnp.square(mean) - 1.0 - logvar)).sum(-1)
@@ -147,9 +158,7 @@ class SequentialVAE:
             raise ValueError(f"these params were initialised for {r}x{r}x3 frames; got frames "
                              f"of shape {tuple(f.shape[2:])}")
         w = windows.head(length)
-        x = w.frames.astype(jnp.float32) / 255.0
-        a_prev = w.actions.astype(jnp.float32).at[:, 0].set(0.0)
-        return x, a_prev, w.valid.astype(jnp.float32)
+        return _unit_frames(w.frames), _prev_actions(w.actions), w.valid.astype(jnp.float32)
 
     def _features(self, module: nn.Module, params: Any, x: jax.Array) -> jax.Array:
         """Per-frame module over [B, T, ...] frames -> [B, T, F]."""
@@ -212,7 +221,7 @@ class SequentialVAE:
         keep them per frame and get `encode`'s latents from `encode_features`."""
         if frames.dtype != jnp.uint8 or frames.ndim != 5:
             raise TypeError(f"frames must be uint8 [B, T, R, R, 3], got {frames.dtype} {frames.shape}")
-        return self._features(self._conv, params["conv"], frames.astype(jnp.float32) / 255.0)
+        return self._features(self._conv, params["conv"], _unit_frames(frames))
 
     def encode_features(self, params: Any, features: jax.Array, actions: jax.Array) -> jax.Array:
         """`encode` from `frame_features` of a window's frames: features `[B, T, F]` and the
@@ -223,8 +232,7 @@ class SequentialVAE:
                 or actions.shape[-1] != self.action_dim:
             raise ValueError(f"features [B, T >= {l}, F] and actions [B, T, {self.action_dim}] expected, "
                              f"got {features.shape} and {actions.shape}")
-        a_prev = actions[:, :l].astype(jnp.float32).at[:, 0].set(0.0)
-        return self._means_of_features(params, features[:, :l], a_prev)[:, :l]
+        return self._means_of_features(params, features[:, :l], _prev_actions(actions[:, :l]))[:, :l]
 
     # ------------------------------------------------------------------ per learner
     def _init_parts(self, key: jax.Array, resolution: int) -> dict[str, Any]:
