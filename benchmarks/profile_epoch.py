@@ -45,7 +45,8 @@ from bulbjax.experiment.loop import Experiment  # noqa: E402
 
 
 def build_config(a: argparse.Namespace) -> ExperimentConfig:
-    """The preset with the domain's PPO settings, then --small, --seeds, --learners, --bf16."""
+    """The preset with the domain's PPO settings, then --small, --seeds, --learners, --bf16,
+    --deconv-impl, --rnn-unroll."""
     cfg = preset(a.preset)
     cfg = cfg.replace(ppo=registry.ppo_config_for(cfg.env, cfg.ppo))
     if a.small:
@@ -54,13 +55,14 @@ def build_config(a: argparse.Namespace) -> ExperimentConfig:
         cfg = cfg.replace(seeds=a.seeds)
     if a.learners:
         cfg = cfg.replace(learners=tuple(x for x in a.learners.split(",") if x))
-    if a.bf16 or a.deconv_impl:
-        lc = cfg.learner
-        if a.bf16:
-            lc = dataclasses.replace(lc, compute_dtype="bfloat16")
-        if a.deconv_impl:
-            lc = dataclasses.replace(lc, deconv_impl=a.deconv_impl)
-        cfg = cfg.replace(learner=lc)
+    lc = cfg.learner
+    if a.bf16:
+        lc = dataclasses.replace(lc, compute_dtype="bfloat16")
+    if a.deconv_impl:
+        lc = dataclasses.replace(lc, deconv_impl=a.deconv_impl)
+    if a.rnn_unroll:
+        lc = dataclasses.replace(lc, rnn_unroll=a.rnn_unroll)
+    cfg = cfg.replace(learner=lc)
     return cfg
 
 
@@ -191,6 +193,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     p.add_argument("--learners", default="", help="override the preset's learners (comma-separated)")
     p.add_argument("--bf16", action="store_true")
     p.add_argument("--deconv-impl", default="", help="decoder form (transpose, subpixel)")
+    p.add_argument("--rnn-unroll", type=int, default=0, help="sequential learners' LSTM unroll (default: the preset's)")
     p.add_argument("--repeats", type=int, default=5)
     p.add_argument("--warm-epochs", type=int, default=2, help="untimed epochs after compile")
     p.add_argument("--trace", default="", help="write a JAX profiler trace of two epochs here")

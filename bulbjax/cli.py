@@ -73,6 +73,8 @@ def build_config(args: argparse.Namespace, base=None, domain_ppo: bool = True):
         cfg = cfg.replace(learner=dataclasses.replace(cfg.learner, lr=args.lr))
     if args.bf16:
         cfg = cfg.replace(learner=dataclasses.replace(cfg.learner, compute_dtype="bfloat16"))
+    if getattr(args, "rnn_unroll", None) is not None:
+        cfg = cfg.replace(learner=dataclasses.replace(cfg.learner, rnn_unroll=args.rnn_unroll))
     return cfg
 
 
@@ -285,6 +287,9 @@ def main(argv: Sequence[str] | None = None) -> int:
                         "conv updates on a GPU), auto (map on one GPU, else vmap; default)")
     r.add_argument("--small", action="store_true", help="CPU-sized settings (not the paper's)")
     r.add_argument("--bf16", action="store_true", help="bf16 compute in the learners (GPU)")
+    r.add_argument("--rnn-unroll", type=int, default=None, metavar="N",
+                   help="LSTM steps per loop iteration in the sequential learners (same function; "
+                        "default 1; on the GPU the sequence length, see benchmarks/README)")
     r.add_argument("--rl-input", default=None,
                    help="what PPO observes: state (default), latent:<learner> (the learner's latent of "
                         "the current frame, its current parameters, no gradient into it; for svae, pred, "

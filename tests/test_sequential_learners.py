@@ -197,3 +197,40 @@ def test_rnn_unroll_gives_the_same_function(name: str) -> None:
                                np.asarray(plain.encode(params, WINDOWS)), rtol=1e-5, atol=1e-6)
     with pytest.raises(ValueError, match="rnn_unroll"):
         make_learner(name, LATENT, {**SMALL, "rnn_unroll": 0}, action_dim=ACT)
+
+
+@pytest.mark.parametrize("kind", ["lstm", "bilstm"])
+def test_sequence_model_lstm_is_flax_lstm(kind: str) -> None:
+    """SequenceModel's LSTMs (input projection hoisted out of the loop, both directions in one
+    loop) compute flax's `nn.RNN(nn.OptimizedLSTMCell)` / `nn.Bidirectional` from the same
+    parameters, and create those parameters as flax does (same tree, same values): the outputs
+    and the input-kernel gradients match flax's own modules."""
+    import flax.linen as nn
+
+    from bulbjax.learners.networks import SequenceModel, lecun_normal_flat
+
+    class FlaxReference(nn.Module):
+        @nn.compact
+        def __call__(self, x):
+            cells = [nn.OptimizedLSTMCell(8, kernel_init=lecun_normal_flat,
+                                          recurrent_kernel_init=lecun_normal_flat)
+                     for _ in range(1 if kind == "lstm" else 2)]
+            if kind == "lstm":
+                return nn.RNN(cells[0])(x)
+            return nn.Bidirectional(nn.RNN(cells[0]), nn.RNN(cells[1]))(x)
+
+    x = jax.random.normal(jax.random.key(1), (3, 7, 5))
+    ours, ref = SequenceModel(kind, 8), FlaxReference()
+    p = ours.init(jax.random.key(0), x)["params"]
+    p_ref = ref.init(jax.random.key(0), x)["params"]
+    assert jax.tree.structure(p) == jax.tree.structure(p_ref)
+    for a, b in zip(jax.tree.leaves(p), jax.tree.leaves(p_ref)):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+    p = jax.tree.map(lambda a: a + 0.1 * jax.random.normal(jax.random.key(3), a.shape), p)  # nonzero biases
+    out, out_ref = ours.apply({"params": p}, x), ref.apply({"params": p}, x)
+    assert out.shape == (3, 7, 8 if kind == "lstm" else 16)
+    np.testing.assert_allclose(np.asarray(out), np.asarray(out_ref), rtol=1e-5, atol=1e-6)
+    g = jax.grad(lambda q: (ours.apply({"params": q}, x) ** 2).sum())(p)
+    g_ref = jax.grad(lambda q: (ref.apply({"params": q}, x) ** 2).sum())(p)
+    for a, b in zip(jax.tree.leaves(g), jax.tree.leaves(g_ref)):
+        np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=1e-4, atol=1e-5)
