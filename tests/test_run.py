@@ -18,7 +18,7 @@ from bulbjax.eval.probe import ProbeConfig
 from bulbjax.experiment import Experiment, ExperimentConfig, report
 from bulbjax.experiment.checkpoint import Checkpointer
 from bulbjax.experiment.config import PRESETS, config_from_dict, small_config
-from bulbjax.experiment.run import RunOptions, check_resume, run
+from bulbjax.experiment.run import RunOptions, check_resume, run, source_hash
 from bulbjax.learners import LearnerConfig
 from bulbjax.rl.ppo import PPOConfig
 
@@ -134,6 +134,7 @@ def test_provenance_in_config_json(straight):
         assert p["versions"][pkg], pkg
     assert p["versions"]["jax"] == jax.__version__
     assert len(p["git_commit"]) == 40 and isinstance(p["git_dirty"], bool)
+    assert p["source_sha256"] == source_hash() and len(p["source_sha256"]) == 64
     assert p["device_count"] == jax.device_count() and p["device_kind"] and p["mesh"] == {"seeds": 1, "worlds": 1}
     assert config_from_dict(raw["experiment"]) == tiny()
 
@@ -219,3 +220,17 @@ def test_config_json_round_trip():
         assert config_from_dict(json.loads(json.dumps(dataclasses.asdict(c)))) == c
     with pytest.raises(ValueError, match="another version"):
         config_from_dict({"envv": "CartPole"})
+
+
+def test_source_hash_names_the_code(tmp_path):
+    """The same sources give the same hash wherever they are; one changed byte changes it."""
+    import shutil
+
+    import bulbjax
+
+    copy = str(tmp_path / "bulbjax")
+    shutil.copytree(os.path.dirname(bulbjax.__file__), copy, ignore=shutil.ignore_patterns("__pycache__"))
+    assert source_hash(copy) == source_hash()
+    with open(os.path.join(copy, "experiment", "run.py"), "a") as f:
+        f.write("\n")
+    assert source_hash(copy) != source_hash()

@@ -340,7 +340,7 @@ def title_of(cfg: Any, epochs_done: int) -> str:
 def write_reports(run_dir: str, records: Sequence[dict[str, Any]], cfg: Any,
                   spec: Sequence[StateEntry], solved_return: float | None = None,
                   footer: str = "") -> str:
-    """`fig2.png` and `table.md` (and `objects.png` when learners with boxes were probed in a
+    """`fig2.png`, `table.md`, `findings.md` (the paper's Fig. 2 claims checked, `findings`) (and `objects.png` when learners with boxes were probed in a
     domain with objects) of a run from its records (all epochs written so far); returns the table. Epochs whose seeds are not all written yet (a run in progress) are left out."""
     seeds = sorted({r["seed"] for r in records})
     per_epoch: dict[int, int] = {}
@@ -361,6 +361,12 @@ def write_reports(run_dir: str, records: Sequence[dict[str, Any]], cfg: Any,
         plot_objects(records, os.path.join(run_dir, "objects.png"), title)
     with open(os.path.join(run_dir, "table.md"), "w") as f:
         f.write(f"# {title}\n\n{tab}\n" + (f"\n{footer}\n" if footer else ""))
+    from bulbjax.experiment import findings  # it builds on this module
+
+    verdicts, epochs = findings.check(records, spec, cfg.env, last=last)
+    with open(os.path.join(run_dir, "findings.md"), "w") as f:
+        f.write(f"# {title}: the paper's Fig. 2 findings\n\n"
+                f"{findings.markdown(verdicts, epochs, len(seeds))}\n")
     return tab
 
 

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import dataclasses
 import datetime
+import hashlib
 import importlib.metadata
 import json
 import os
@@ -99,10 +100,27 @@ def provenance(argv: Sequence[str] | None = None, experiment: Experiment | None 
         "device_kind": devs[0].device_kind,
         "device_count": len(devs),
         **git_state(),
+        "source_sha256": source_hash(),
     }
     if experiment is not None:
         out["mesh"] = dict(experiment.mesh.shape)
     return out
+
+
+def source_hash(package_dir: str | None = None) -> str:
+    """SHA-256 of the bulbjax package's Python sources (relative paths and contents, in sorted
+    order). Names the code a run used where git cannot: a copy of the tree on another machine
+    whose `.git` is stale or missing reports a wrong or no commit, but the same hash as the
+    commit's own checkout."""
+    root = package_dir or os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    h = hashlib.sha256()
+    files = sorted(os.path.relpath(os.path.join(d, f), root)
+                   for d, _, fs in os.walk(root) for f in fs if f.endswith(".py"))
+    for rel in files:
+        h.update(rel.replace(os.sep, "/").encode() + b"\0")
+        with open(os.path.join(root, rel), "rb") as f:
+            h.update(f.read() + b"\0")
+    return h.hexdigest()
 
 
 def git_state() -> dict[str, Any]:

@@ -1,0 +1,144 @@
+"""The paper's Fig. 2 findings, checked on a run's metrics with 90% bands.
+
+Every learner of a seed sees the same PPO run and the same frames, so learners are compared by
+their per-seed difference (paired over seeds): a claim "A's error is lower than B's" holds when
+the 90% Student-t band of `err_B - err_A` over seeds lies above 0, does not hold when it lies
+below 0, and is undecided when it contains 0. Errors are the normalised MAEs of the reports
+(`report.table`), each seed's averaged over the last probed epochs.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any, Sequence
+
+import numpy as np
+
+from bulbjax.eval.spec import StateEntry
+from bulbjax.experiment.report import ci90, groups_of, probed
+
+PENDULUMS = ("CartPole", "InvertedPendulum")
+LOCOMOTION = ("HalfCheetah", "Ant")
+SEQUENTIAL = ("svae", "pred", "dsa")
+
+
+@dataclasses.dataclass(frozen=True)
+class Verdict:
+    """One claim: `holds`, `does not hold`, `undecided` or `not tested`, and the numbers."""
+
+    claim: str
+    verdict: str
+    detail: str
+
+
+def per_seed_error(records: Sequence[dict[str, Any]], learner: str, stream: str, group: str | None,
+                   epochs: Sequence[int]) -> np.ndarray:
+    """`[seeds]` normalised error of `learner` on `stream` (`group`, or overall when None),
+    each seed's mean over `epochs`; `learner="constant"` gives the constant predictor's."""
+    seeds = sorted({r["seed"] for r in records})
+    out = np.full(len(seeds), np.nan)
+    for i, s in enumerate(seeds):
+        vals = []
+        for r in records:
+            if r["seed"] != s or r["epoch"] not in epochs or not r.get("probes"):
+                continue
+            name = next(iter(r["probes"])) if learner == "constant" else learner
+            x = r["probes"][name][stream]
+            x = x["overall"] if group is None else x["groups"][group]
+            vals.append(x["baseline_norm" if learner == "constant" else "mae_norm"])
+        if vals:
+            out[i] = float(np.mean(vals))
+    return out
+
+
+def _lower(records, a: str, b: str, stream: str, group: str | None, epochs) -> tuple[str, str]:
+    """Verdict and numbers for "a's error is lower than b's" (paired over seeds)."""
+    ea, eb = (per_seed_error(records, x, stream, group, epochs) for x in (a, b))
+    mean, half = ci90(eb - ea)
+    verdict = "holds" if mean - half > 0 else "does not hold" if mean + half < 0 else "undecided"
+    what = group or "overall"
+    return verdict, (f"{what}, {stream_label(stream)}: {a} {np.nanmean(ea):.3f}, {b} {np.nanmean(eb):.3f}; "
+                     f"{b} - {a} = {mean:+.3f} ± {half:.3f}")
+
+
+def stream_label(stream: str) -> str:
+    return {"curr": "π_curr", "rand": "π_rand"}.get(stream, stream)
+
+
+def _velocity_group(spec: Sequence[StateEntry]) -> str | None:
+    return next((g for g in groups_of(spec) if "vel" in g.lower()), None)
+
+
+def _combine(verdicts: Sequence[str]) -> str:
+    """All parts hold -> holds; any part does not hold -> does not hold; else undecided."""
+    if "does not hold" in verdicts:
+        return "does not hold"
+    return "holds" if all(v == "holds" for v in verdicts) else "undecided"
+
+
+def check(records: Sequence[dict[str, Any]], spec: Sequence[StateEntry], env: str,
+          last: int = 3) -> tuple[list[Verdict], list[int]]:
+    """The Fig. 2 claims on the last `last` probed epochs; returns the verdicts and those epochs."""
+    epochs = sorted({r["epoch"] for r in probed(records)})[-last:]
+    have = set(probed(records)[0]["probes"]) if probed(records) else set()
+    vel = _velocity_group(spec)
+    out: list[Verdict] = []
+
+    def missing(*names: str) -> str | None:
+        lack = [n for n in names if n not in have]
+        return f"not tested (the run has no {', '.join(lack)})" if lack else None
+
+    claim = "replay fixes VAE_v0 on π_rand (vae_rpl's error below vae's)"
+    if m := missing("vae", "vae_rpl"):
+        out.append(Verdict(claim, m, ""))
+    else:
+        out.append(Verdict(claim, *_lower(records, "vae_rpl", "vae", "rand", None, epochs)))
+
+    claim = "β-VAE no better than VAE_rpl (beta_vae's error not below vae_rpl's on either stream)"
+    if m := missing("beta_vae", "vae_rpl"):
+        out.append(Verdict(claim, m, ""))
+    else:
+        parts = [_lower(records, "beta_vae", "vae_rpl", s, None, epochs) for s in ("rand", "curr")]
+        better = any(v == "holds" for v, _ in parts)  # beta_vae significantly lower somewhere
+        worse_or_same = "does not hold" if better else "holds"
+        out.append(Verdict(claim, worse_or_same, "; ".join(d for _, d in parts)))
+
+    for name in SEQUENTIAL:
+        claim = f"sequential learners better on velocity: {name} below vae_rpl on {vel or 'velocity'}"
+        if vel is None:
+            out.append(Verdict(claim, "not tested (no velocity group in this domain's state)", ""))
+        elif m := missing(name, "vae_rpl"):
+            out.append(Verdict(claim, m, ""))
+        else:
+            parts = [_lower(records, name, "vae_rpl", s, vel, epochs) for s in ("rand", "curr")]
+            out.append(Verdict(claim, _combine([v for v, _ in parts]), "; ".join(d for _, d in parts)))
+
+    claim = "PRED best on the pendulums (pred's error below every other learner's on π_rand)"
+    if env not in PENDULUMS:
+        out.append(Verdict(claim, "not tested (not a pendulum domain)", ""))
+    elif m := missing("pred"):
+        out.append(Verdict(claim, m, ""))
+    else:
+        parts = [_lower(records, "pred", o, "rand", None, epochs) for o in sorted(have - {"pred"})]
+        out.append(Verdict(claim, _combine([v for v, _ in parts]), "; ".join(d for _, d in parts)))
+
+    claim = "on locomotion PRED ahead of VAE_rpl on π_curr"
+    if env not in LOCOMOTION:
+        out.append(Verdict(claim, "not tested (not a locomotion domain)", ""))
+    elif m := missing("pred", "vae_rpl"):
+        out.append(Verdict(claim, m, ""))
+    else:
+        out.append(Verdict(claim, *_lower(records, "pred", "vae_rpl", "curr", None, epochs)))
+    return out, epochs
+
+
+def markdown(verdicts: Sequence[Verdict], epochs: Sequence[int], seeds: int) -> str:
+    """The verdicts as a markdown table, with the rule that decides them."""
+    lines = ["| claim (paper, Fig. 2) | verdict | numbers (normalised MAE; difference ± 90% band) |",
+             "|---|---|---|"]
+    lines += [f"| {v.claim} | **{v.verdict}** | {v.detail} |" for v in verdicts]
+    lines += ["", f"Epochs {', '.join(map(str, epochs))}; each seed's error averaged over them; "
+              f"differences paired by seed ({seeds} seeds), 90% Student-t band. A claim holds when "
+              "the band lies on its side of 0, does not hold when it lies on the other side, and is "
+              "undecided when it contains 0."]
+    return "\n".join(lines)
