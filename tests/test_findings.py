@@ -64,3 +64,12 @@ def test_locomotion_claim_and_missing_learners() -> None:
     assert any(x.startswith("not tested (the run has no vae") for x in got.values())
     md = findings.markdown(v, [0, 1, 2], 6)
     assert md.count("\n| ") == len(v) and "90% Student-t band" in md
+
+
+def test_one_seed_decides_nothing() -> None:
+    """With one seed there is no band: every comparison is undecided, however large the gap."""
+    got = verdicts({"vae": (1.0, 1.0), "vae_rpl": (0.2, 0.2), "beta_vae": (0.9, 0.9),
+                    "svae": (0.1, 0.1), "pred": (0.1, 0.1), "dsa": (0.1, 0.1)}, seeds=1)
+    assert got["replay fixes VAE_v0 on π_rand"] == "undecided"
+    assert got["svae below vae_rpl on velocity"] == "undecided"
+    assert got["β-VAE no better than VAE_rpl"] == "undecided"

@@ -54,7 +54,8 @@ def per_seed_error(records: Sequence[dict[str, Any]], learner: str, stream: str,
 def _lower(records, a: str, b: str, stream: str, group: str | None, epochs) -> tuple[str, str]:
     """Verdict and numbers for "a's error is lower than b's" (paired over seeds)."""
     ea, eb = (per_seed_error(records, x, stream, group, epochs) for x in (a, b))
-    mean, half = ci90(eb - ea)
+    diff = (eb - ea)[np.isfinite(eb - ea)]
+    mean, half = ci90(diff) if diff.size >= 2 else (float(np.mean(diff)) if diff.size else np.nan, np.inf)
     verdict = "holds" if mean - half > 0 else "does not hold" if mean + half < 0 else "undecided"
     what = group or "overall"
     return verdict, (f"{what}, {stream_label(stream)}: {a} {np.nanmean(ea):.3f}, {b} {np.nanmean(eb):.3f}; "
@@ -100,7 +101,8 @@ def check(records: Sequence[dict[str, Any]], spec: Sequence[StateEntry], env: st
     else:
         parts = [_lower(records, "beta_vae", "vae_rpl", s, None, epochs) for s in ("rand", "curr")]
         better = any(v == "holds" for v, _ in parts)  # beta_vae significantly lower somewhere
-        worse_or_same = "does not hold" if better else "holds"
+        seeds = len({r["seed"] for r in records})
+        worse_or_same = "does not hold" if better else "holds" if seeds >= 2 else "undecided"
         out.append(Verdict(claim, worse_or_same, "; ".join(d for _, d in parts)))
 
     for name in SEQUENTIAL:
