@@ -72,6 +72,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--epochs", type=int, default=5, help="timed epochs after the first (compile) one")
     p.add_argument("--learners", default=None, help="override the preset's learners (smoke runs)")
     p.add_argument("--bf16", action="store_true", help="bf16 learner compute (GPU)")
+    p.add_argument("--rnn-unroll", type=int, default=1,
+                   help="sequential learners' LSTM unroll (24 on the GPU: see benchmarks/README)")
     p.add_argument("--no-probe", action="store_true",
                    help="time epochs without probing (the epochs between probes; a third of the compile)")
     p.add_argument("--small", action="store_true", help="CPU-sized settings (not the paper's)")
@@ -90,6 +92,7 @@ def main(argv: list[str] | None = None) -> int:
         base = small_config(base)
     if args.bf16:
         base = base.replace(learner=dataclasses.replace(base.learner, compute_dtype="bfloat16"))
+    base = base.replace(learner=dataclasses.replace(base.learner, rnn_unroll=args.rnn_unroll))
     kind = all_devs[0].device_kind
     stamp = dt.datetime.now().strftime("%Y%m%d_%H%M%S")
     os.makedirs(args.out_dir, exist_ok=True)
