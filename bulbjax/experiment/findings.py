@@ -15,7 +15,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from bulbjax.eval.spec import StateEntry
-from bulbjax.experiment.report import ci90, groups_of, probed
+from bulbjax.experiment.report import STREAMS, ci90, groups_of, probed
 
 PENDULUMS = ("CartPole", "InvertedPendulum")
 LOCOMOTION = ("HalfCheetah", "Ant")
@@ -63,7 +63,7 @@ def _lower(records, a: str, b: str, stream: str, group: str | None, epochs) -> t
 
 
 def stream_label(stream: str) -> str:
-    return {"curr": "π_curr", "rand": "π_rand"}.get(stream, stream)
+    return dict(STREAMS).get(stream, stream)
 
 
 def _velocity_group(spec: Sequence[StateEntry]) -> str | None:
