@@ -39,35 +39,25 @@ def summarise(path: str, top: int = 40) -> dict[str, Any]:
     for plane in data.planes:
         if not plane.name.startswith("/device:GPU"):
             continue
-        per_line: dict[str, collections.Counter] = {}
+        # kernel streams are summed as one line ("streams"); other lines (XLA Ops, Modules) apart
+        time_ns: dict[str, collections.Counter] = collections.defaultdict(collections.Counter)
+        count: dict[str, collections.Counter] = collections.defaultdict(collections.Counter)
         kernels: list[tuple[int, int]] = []
-        counts: dict[str, collections.Counter] = {}
         for line in plane.lines:
-            c = per_line.setdefault(line.name, collections.Counter())
-            n = counts.setdefault(line.name, collections.Counter())
+            stream = line.name.startswith("Stream")
+            key = "streams" if stream else line.name
             for ev in line.events:
-                c[ev.name] += ev.duration_ns
-                n[ev.name] += 1
-                if line.name.startswith("Stream"):
+                time_ns[key][ev.name] += ev.duration_ns
+                count[key][ev.name] += 1
+                if stream:
                     kernels.append((int(ev.start_ns), int(ev.start_ns + ev.duration_ns)))
         span = (max(e for _, e in kernels) - min(s for s, _ in kernels)) if kernels else 0
         dev: dict[str, Any] = {"span_ms": span / 1e6, "busy_ms": _merge(kernels) / 1e6,
                                "kernel_launches": len(kernels), "lines": {}}
-        for name, c in per_line.items():
-            key = "streams" if name.startswith("Stream") else name
-            if key == "streams":
-                agg = dev["lines"].setdefault("streams", collections.Counter())
-                agg.update(c)
-                cnt = dev.setdefault("_stream_counts", collections.Counter())
-                cnt.update(counts[name])
-            else:
-                dev["lines"][key] = c
-        for name, c in list(dev["lines"].items()):
-            cnt = dev.get("_stream_counts") if name == "streams" else counts[name]
-            dev["lines"][name] = {"total_ms": sum(c.values()) / 1e6,
-                                  "top": [{"name": k[:160], "ms": v / 1e6, "count": cnt[k]}
-                                          for k, v in c.most_common(top)]}
-        dev.pop("_stream_counts", None)
+        for key, c in time_ns.items():
+            dev["lines"][key] = {"total_ms": sum(c.values()) / 1e6,
+                                 "top": [{"name": k[:160], "ms": v / 1e6, "count": count[key][k]}
+                                         for k, v in c.most_common(top)]}
         out["devices"][plane.name] = dev
     return out
 

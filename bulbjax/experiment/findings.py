@@ -15,7 +15,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from bulbjax.eval.spec import StateEntry
-from bulbjax.experiment.report import STREAMS, ci90, groups_of, probed
+from bulbjax.experiment.report import STREAMS, ci90, groups_of, per_seed_error, probed
 
 PENDULUMS = ("CartPole", "InvertedPendulum")
 LOCOMOTION = ("HalfCheetah", "Ant")
@@ -29,26 +29,6 @@ class Verdict:
     claim: str
     verdict: str
     detail: str
-
-
-def per_seed_error(records: Sequence[dict[str, Any]], learner: str, stream: str, group: str | None,
-                   epochs: Sequence[int]) -> np.ndarray:
-    """`[seeds]` normalised error of `learner` on `stream` (`group`, or overall when None),
-    each seed's mean over `epochs`; `learner="constant"` gives the constant predictor's."""
-    seeds = sorted({r["seed"] for r in records})
-    out = np.full(len(seeds), np.nan)
-    for i, s in enumerate(seeds):
-        vals = []
-        for r in records:
-            if r["seed"] != s or r["epoch"] not in epochs or not r.get("probes"):
-                continue
-            name = next(iter(r["probes"])) if learner == "constant" else learner
-            x = r["probes"][name][stream]
-            x = x["overall"] if group is None else x["groups"][group]
-            vals.append(x["baseline_norm" if learner == "constant" else "mae_norm"])
-        if vals:
-            out[i] = float(np.mean(vals))
-    return out
 
 
 def _lower(records, a: str, b: str, stream: str, group: str | None, epochs) -> tuple[str, str]:

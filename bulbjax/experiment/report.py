@@ -268,6 +268,27 @@ def _plot_rl(axes: Any, records: Sequence[dict[str, Any]], solved_return: float 
     axes[0].legend(fontsize=8)
 
 
+def per_seed_error(records: Sequence[dict[str, Any]], learner: str, stream: str, group: str | None,
+                   at: Sequence[int], x_key: str = "epoch") -> np.ndarray:
+    """`[seeds]` normalised error of `learner` on `stream` (`group`, or overall when None), each
+    seed's mean over its probed records whose `x_key` is in `at` (NaN for a seed without any);
+    `learner="constant"` gives the constant predictor's (`baseline_norm`)."""
+    seeds = sorted({r["seed"] for r in records})
+    out = np.full(len(seeds), np.nan)
+    for i, s in enumerate(seeds):
+        vals = []
+        for r in records:
+            if r["seed"] != s or r[x_key] not in at or not r.get("probes"):
+                continue
+            name = next(iter(r["probes"])) if learner == "constant" else learner
+            x = r["probes"][name][stream]
+            x = x["overall"] if group is None else x["groups"][group]
+            vals.append(x["baseline_norm" if learner == "constant" else "mae_norm"])
+        if vals:
+            out[i] = float(np.nanmean(vals))
+    return out
+
+
 def table(records: Sequence[dict[str, Any]], spec: Sequence[StateEntry], last: int = 1,
           x_key: str = "epoch", streams: Sequence[tuple[str, str]] = STREAMS) -> str:
     """Markdown table of the final normalised group errors (mean +- 90% CI over seeds, averaged
@@ -281,22 +302,14 @@ def table(records: Sequence[dict[str, Any]], spec: Sequence[StateEntry], last: i
     lines = [head, "|" + "---|" * (3 + len(groups))]
     seeds = sorted({r["seed"] for r in recs})
 
-    def cell(vals: list[list[float]]) -> str:
-        v = np.array([np.nanmean(x) for x in vals])  # per seed, mean over the last epochs
+    def cell(name: str, stream: str, g: str) -> str:
+        v = per_seed_error(recs, name, stream, None if g == "overall" else g, epochs, x_key)
         mean, half = ci90(v)
         return f"{mean:.3f} ± {half:.3f}"
 
     for stream, label in streams:
         for name in learners + ["constant"]:
-            cells = []
-            for g in groups + ["overall"]:
-                vals = []
-                for s in seeds:
-                    rs = [r for r in recs if r["seed"] == s]
-                    src = [r["probes"][learners[0] if name == "constant" else name][stream] for r in rs]
-                    pick = [(x["overall"] if g == "overall" else x["groups"][g]) for x in src]
-                    vals.append([p["baseline_norm" if name == "constant" else "mae_norm"] for p in pick])
-                cells.append(cell(vals))
+            cells = [cell(name, stream, g) for g in groups + ["overall"]]
             lines.append(f"| {name} | {label} | " + " | ".join(cells) + " |")
     lines.append("")
     lines.append(f"{x_key} {', '.join(str(e) for e in epochs)}; mean ± 90% CI over {len(seeds)} seeds.")
