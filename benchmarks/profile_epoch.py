@@ -12,7 +12,9 @@ its metrics (`jax.device_get`) and the host-side record building (`report.epoch_
 The phases timed one by one add up to more than the fused epoch (no overlap between them,
 one dispatch each): their shares say what to make cheaper, the fused numbers what a run costs.
 
-Optionally (`--trace DIR`) a JAX profiler trace of two fused epochs for TensorBoard/Perfetto.
+Optionally (`--trace DIR`) a JAX profiler trace of two fused epochs of each executable (probing,
+not probing) under DIR/probe and DIR/no_probe, each with its optimised HLO (`epoch.hlo.txt`), for
+`trace_summary.py DIR/probe` (device time by phase scope) or TensorBoard/Perfetto.
 Writes `<out-dir>/profile_<preset>_<device>_<timestamp>.json` and prints a table.
 
 GPU:  python benchmarks/profile_epoch.py --preset fig2-invpend --bf16
@@ -107,6 +109,7 @@ def profile(cfg: ExperimentConfig, repeats: int, warm_epochs: int, trace_dir: st
     save(out)
 
     # the fused epoch: compile, first call, then timed calls (probing and not)
+    compiled_by_tag = {}
     for probe in (True, False):
         tag = "probe" if probe else "no_probe"
         k = jax.random.fold_in(key, 100 + probe)
@@ -114,7 +117,7 @@ def profile(cfg: ExperimentConfig, repeats: int, warm_epochs: int, trace_dir: st
         lowered = exp.epoch.lower(rs, k, probe=probe)
         lower_s = time.perf_counter() - t0  # tracing + lowering to StableHLO
         t0 = time.perf_counter()
-        compiled = lowered.compile()
+        compiled = compiled_by_tag[tag] = lowered.compile()
         compile_s = time.perf_counter() - t0  # XLA compile (or a persistent-cache hit)
         log(f"fused epoch ({tag}): lower {lower_s:.1f} s, compile {compile_s:.1f} s")
         times, get_s, rec_s = [], [], []
@@ -140,12 +143,16 @@ def profile(cfg: ExperimentConfig, repeats: int, warm_epochs: int, trace_dir: st
     out["epoch_s_probe_every_10"] = (f_p + 9 * f_n) / 10  # issue 13's target: <= 1.5 s
     out["epoch_s_probe_every_1"] = f_p  # target: <= 3 s
 
-    if trace_dir:
-        os.makedirs(trace_dir, exist_ok=True)
-        with jax.profiler.trace(trace_dir):
-            for i in range(2):
-                rs, m = exp.epoch(rs, jax.random.fold_in(key, 200 + i))
-            jax.block_until_ready(rs)
+    if trace_dir:  # per executable: <dir>/<tag>/ with two traced epochs and its optimised HLO
+        for tag, comp in compiled_by_tag.items():
+            d = os.path.join(trace_dir, tag)
+            os.makedirs(d, exist_ok=True)
+            with open(os.path.join(d, "epoch.hlo.txt"), "w") as f:
+                f.write(comp.as_text())  # instruction -> phase scope (trace_summary.hlo_scopes)
+            with jax.profiler.trace(d):
+                for i in range(2):
+                    rs, m = comp(rs, jax.random.fold_in(key, 200 + i))
+                jax.block_until_ready(rs)
         out["trace_dir"] = trace_dir
 
     if not phases:
@@ -192,7 +199,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     p.add_argument("--seeds", type=int, default=0, help="override the preset's seeds")
     p.add_argument("--learners", default="", help="override the preset's learners (comma-separated)")
     p.add_argument("--bf16", action="store_true")
-    p.add_argument("--deconv-impl", default="", help="decoder form (transpose, subpixel)")
+    p.add_argument("--deconv-impl", default="", help="decoder form (transpose, subpixel, subpixel2, subpixel2mm)")
     p.add_argument("--rnn-unroll", type=int, default=0, help="sequential learners' LSTM unroll (default: the preset's)")
     p.add_argument("--repeats", type=int, default=5)
     p.add_argument("--warm-epochs", type=int, default=2, help="untimed epochs after compile")

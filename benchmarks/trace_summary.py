@@ -4,6 +4,10 @@ ops and kernels that took the most device time. A trace is tens of MB and needs 
 read; this keeps what decides where an epoch's time goes, small enough to bring back from the GPU.
 
     python benchmarks/trace_summary.py TRACE_DIR --out summary.json [--top 40]
+
+Where TRACE_DIR holds `*.hlo.txt` (the traced executables' optimised HLO; profile_epoch.py
+writes them), the device time is also split by the epoch's phase scopes (`bj.rl`,
+`bj.learn.vae`, `bj.eval`, ...: `jax.named_scope`s in `Experiment._epoch`).
 """
 
 from __future__ import annotations
@@ -13,7 +17,8 @@ import collections
 import glob
 import json
 import os
-from typing import Any
+import re
+from typing import Any, Iterator
 
 from jax.profiler import ProfileData
 
@@ -32,32 +37,86 @@ def _merge(intervals: list[tuple[int, int]]) -> int:
     return total + (end - start if end is not None else 0)
 
 
-def summarise(path: str, top: int = 40) -> dict[str, Any]:
-    """Per GPU plane: busy time of all kernel streams merged, span, and the top XLA ops / kernels."""
+SCOPE_RE = re.compile(r"bj\.[\w.]+")
+
+
+def hlo_scopes(hlo_text: str) -> dict[str, str]:
+    """Instruction name -> the innermost `bj.*` named scope in its op_name metadata (the epoch's
+    phases: `bj.rl`, `bj.learn.vae`, ...), from an executable's optimised HLO (`compiled.as_text()`):
+    the names that a trace's kernels carry in their `hlo_op` stat."""
+    out: dict[str, str] = {}
+    for m in re.finditer(r'^\s*(?:ROOT )?%?([\w.\-]+) = [^\n]*?op_name="([^"]*)"', hlo_text, re.M):
+        found = SCOPE_RE.findall(m.group(2))
+        if found:
+            out[m.group(1)] = found[-1]
+    return out
+
+
+def _scope_of(ev: Any, scopes: dict[str, str]) -> str:
+    """The `bj.*` scope of a trace event: from a string stat that carries op_name metadata, else
+    its `hlo_op` (or name) looked up in `scopes`; "(unscoped)" where neither says."""
+    op = ev.name
+    for k, v in ev.stats:
+        if isinstance(v, str):
+            found = SCOPE_RE.findall(v)
+            if found:
+                return found[-1]
+            if k == "hlo_op":
+                op = v
+    return scopes.get(op.lstrip("%"), "(unscoped)")
+
+
+def _op_events(plane: Any) -> Iterator[tuple[str, Any]]:
+    """(line name, event) of the plane's ops: GPU kernel streams, or on the CPU the thunks that
+    carry an `hlo_op` stat (so the same summary runs on a CPU trace)."""
+    for line in plane.lines:
+        for ev in line.events:
+            if line.name.startswith("Stream") or (plane.name.startswith("/host:CPU")
+                                                   and any(k == "hlo_op" for k, _ in ev.stats)):
+                yield line.name, ev
+
+
+def summarise(path: str, top: int = 40, scopes: dict[str, str] | None = None) -> dict[str, Any]:
+    """Per device plane (every GPU, or the host CPU where there is none): busy time of all op
+    streams merged, span, the top XLA ops / kernels, and device time by the epoch's phase scope
+    (`scopes`: `hlo_scopes` of the traced executables)."""
     data = ProfileData.from_file(path)
+    scopes = scopes or {}
+    planes = [p for p in data.planes if p.name.startswith("/device:GPU")]
+    if not planes:
+        planes = [p for p in data.planes if p.name.startswith("/host:CPU")]
     out: dict[str, Any] = {"trace": os.path.basename(path), "devices": {}}
-    for plane in data.planes:
-        if not plane.name.startswith("/device:GPU"):
-            continue
-        # kernel streams are summed as one line ("streams"); other lines (XLA Ops, Modules) apart
+    for plane in planes:
         time_ns: dict[str, collections.Counter] = collections.defaultdict(collections.Counter)
         count: dict[str, collections.Counter] = collections.defaultdict(collections.Counter)
         kernels: list[tuple[int, int]] = []
-        for line in plane.lines:
-            stream = line.name.startswith("Stream")
-            key = "streams" if stream else line.name
-            for ev in line.events:
-                time_ns[key][ev.name] += ev.duration_ns
-                count[key][ev.name] += 1
-                if stream:
-                    kernels.append((int(ev.start_ns), int(ev.start_ns + ev.duration_ns)))
+        by_scope: dict[str, list[tuple[int, int]]] = collections.defaultdict(list)
+        unscoped: collections.Counter = collections.Counter()
+        for line in plane.lines:  # non-kernel lines (XLA Ops, XLA Modules) summed by name
+            if not line.name.startswith("Stream") and plane.name.startswith("/device:GPU"):
+                for ev in line.events:
+                    time_ns[line.name][ev.name] += ev.duration_ns
+                    count[line.name][ev.name] += 1
+        for _, ev in _op_events(plane):
+            iv = (int(ev.start_ns), int(ev.start_ns + ev.duration_ns))
+            kernels.append(iv)
+            time_ns["streams"][ev.name] += ev.duration_ns
+            count["streams"][ev.name] += 1
+            scope = _scope_of(ev, scopes)
+            by_scope[scope].append(iv)
+            if scope == "(unscoped)":
+                unscoped[ev.name] += ev.duration_ns
         span = (max(e for _, e in kernels) - min(s for s, _ in kernels)) if kernels else 0
         dev: dict[str, Any] = {"span_ms": span / 1e6, "busy_ms": _merge(kernels) / 1e6,
-                               "kernel_launches": len(kernels), "lines": {}}
+                               "kernel_launches": len(kernels), "lines": {}, "scopes": {}}
         for key, c in time_ns.items():
             dev["lines"][key] = {"total_ms": sum(c.values()) / 1e6,
                                  "top": [{"name": k[:160], "ms": v / 1e6, "count": count[key][k]}
                                          for k, v in c.most_common(top)]}
+        for scope, ivs in sorted(by_scope.items(), key=lambda kv: -sum(e - s for s, e in kv[1])):
+            dev["scopes"][scope] = {"kernel_ms": sum(e - s for s, e in ivs) / 1e6,
+                                    "busy_ms": _merge(ivs) / 1e6, "launches": len(ivs)}
+        dev["unscoped_top"] = [{"name": k[:160], "ms": v / 1e6} for k, v in unscoped.most_common(top)]
         out["devices"][plane.name] = dev
     return out
 
@@ -71,11 +130,17 @@ def main() -> None:
     files = sorted(glob.glob(os.path.join(a.trace_dir, "**", "*.xplane.pb"), recursive=True))
     if not files:
         raise SystemExit(f"no *.xplane.pb under {a.trace_dir}: was the trace written (profile_epoch.py --trace)?")
-    res = summarise(files[-1], a.top)
+    scopes: dict[str, str] = {}
+    for h in sorted(glob.glob(os.path.join(a.trace_dir, "**", "*.hlo.txt"), recursive=True)):
+        with open(h) as f:
+            scopes.update(hlo_scopes(f.read()))
+    res = summarise(files[-1], a.top, scopes)
     with open(a.out, "w") as f:
         json.dump(res, f, indent=1)
     for dev, d in res["devices"].items():
         print(f"{dev}: span {d['span_ms']:.0f} ms, kernels busy {d['busy_ms']:.0f} ms, {d['kernel_launches']} launches")
+        for scope, v in d["scopes"].items():
+            print(f"  scope {scope:24} kernels {v['kernel_ms']:9.1f} ms, busy {v['busy_ms']:9.1f} ms, x{v['launches']}")
         for line, v in d["lines"].items():
             print(f"  [{line}] total {v['total_ms']:.0f} ms")
             for row in v["top"][:15]:

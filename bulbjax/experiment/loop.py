@@ -832,7 +832,8 @@ class Experiment:
 
             keys = jax.random.split(jax.random.fold_in(key, i), self.S)
             buf = (windows if seq else buffers)[buffer_key(self.retention[name])]
-            out[name], m = self.over_seeds(train_seed, learners[name], buf, keys)
+            with jax.named_scope(f"bj.learn.{name}"):
+                out[name], m = self.over_seeds(train_seed, learners[name], buf, keys)
             metrics[name] = jax.tree.map(lambda x: x.mean(-1), m)
         return out, metrics
 
@@ -899,20 +900,25 @@ class Experiment:
             keys = jax.random.split(jax.random.fold_in(key, i), self.S)
             k_s, k_p = jax.vmap(jax.random.split)(keys).swapaxes(0, 1)
             buf = (windows if seq else buffers)[buffer_key(self.retention[name])]
-            out[name] = probe_over_seeds(self.seed_loop, latents_seed, fit_seed, k_p,
-                                         k_s, learners[name], buf, held_out)
+            with jax.named_scope(f"bj.probe.{name}"):
+                out[name] = probe_over_seeds(self.seed_loop, latents_seed, fit_seed, k_p,
+                                             k_s, learners[name], buf, held_out)
         return out
 
     def _epoch(self, rs: RunState, key: jax.Array, probe: bool = True) -> tuple[RunState, dict[str, Any]]:
         """One epoch; with `probe=False` no held-out rollout or probe (metrics without `probes`)."""
         k_rl, k_rep, k_learn, k_eval, k_probe = jax.random.split(key, 5)
         hist = dict(rs.policy_history)
-        ppo_state, train_env, ppo_m, ret_sum, count, steps, train_hist = self.rl_phase(
-            rs.ppo, rs.train_env, k_rl, rs.learners, hist.get("train"))
+        # named scopes label each phase's ops in a profiler trace (benchmarks/trace_summary.py)
+        with jax.named_scope("bj.rl"):
+            ppo_state, train_env, ppo_m, ret_sum, count, steps, train_hist = self.rl_phase(
+                rs.ppo, rs.train_env, k_rl, rs.learners, hist.get("train"))
         if train_hist is not None:
             hist["train"] = train_hist
-        buffers = self.replay_phase(rs.buffers, steps, k_rep)
-        windows = self.window_phase(rs.windows, steps, jax.random.fold_in(k_rep, 1))
+        with jax.named_scope("bj.replay"):
+            buffers = self.replay_phase(rs.buffers, steps, k_rep)
+        with jax.named_scope("bj.windows"):
+            windows = self.window_phase(rs.windows, steps, jax.random.fold_in(k_rep, 1))
         learners, learn_m = self.learn_phase(rs.learners, buffers, k_learn, windows)
         metrics = {
             "rl_return": jnp.where(count > 0, ret_sum / jnp.maximum(count, 1), jnp.nan),
@@ -925,8 +931,9 @@ class Experiment:
         }
         curr_env, rand_env = rs.curr_env, rs.rand_env
         if probe:
-            curr_env, rand_env, held_out, curr_hist = self.eval_phase(ppo_state, curr_env, rand_env, k_eval,
-                                                                      learners, hist.get("curr"))
+            with jax.named_scope("bj.eval"):
+                curr_env, rand_env, held_out, curr_hist = self.eval_phase(ppo_state, curr_env, rand_env, k_eval,
+                                                                          learners, hist.get("curr"))
             if curr_hist is not None:
                 hist["curr"] = curr_hist
             metrics["probes"] = self.probe_phase(learners, buffers, held_out, k_probe, windows)
