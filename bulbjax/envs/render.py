@@ -30,6 +30,18 @@ def _quiet_warp() -> None:
 _quiet_warp()
 
 
+def warp_devices(devices: list[jax.Device] | None = None) -> list[str] | None:
+    """Warp device names (`cuda:<ordinal>`) of JAX GPU devices (default: JAX's default device);
+    None off the GPU (Warp's single CPU device). A render context must live on the GPU its
+    kernels run on, and Warp's own default is whichever CUDA context was current when Warp
+    started: after JAX has opened every GPU of a machine, often not JAX's default (seen on two
+    H200s: the context on cuda:1 while the env ran on cuda:0, a KeyError in the renderer)."""
+    devices = devices or jax.devices()[:1]
+    if devices[0].platform != "gpu":
+        return None
+    return [f"cuda:{d.local_hardware_id}" for d in devices]
+
+
 # Geom groups: 0-2 the robot and objects (MuJoCo's defaults), SCENERY_GROUP the floor and other
 # scenery that point clouds leave out (bulb keeps only the objects' points); frames show both.
 # Group 3 is never drawn (collision-only geoms, e.g. a YCB object's convex hull).
@@ -57,13 +69,13 @@ class Renderer:
                  devices: list[str] | None = None):
         """`devices`: Warp devices (e.g. ["cuda:0", "cuda:1"]) that each get a context of
         `nworld` worlds, for callers that render `nworld` worlds per device under `shard_map`;
-        default Warp's default device."""
+        default JAX's default device (`warp_devices`)."""
         self.nworld = nworld
         self.resolution = resolution
         self.depth = depth
         # The context object must stay alive as long as its pytree is used (see mjx-warp notes).
         self._context = mjx.create_render_context(
-            mj_model, nworld=nworld, devices=devices, cam_res=(resolution, resolution), render_rgb=True,
+            mj_model, nworld=nworld, devices=devices or warp_devices(), cam_res=(resolution, resolution), render_rgb=True,
             render_depth=depth, use_textures=True, use_shadows=False, cam_active=[camera],
             enabled_geom_groups=list(FRAME_GROUPS), background_color=(*background, 1.0))
         self._pytree = self._context.pytree()
@@ -118,7 +130,7 @@ class PointCloudRenderer:
         fovy = [float(mj_model.cam_fovy[i]) for i in self._cam_ids]
         self._rays = jnp.asarray(np.stack([camera_rays(f, resolution) for f in fovy]))  # [C, H, W, 3]
         self._context = mjx.create_render_context(
-            mj_model, nworld=nworld, cam_res=(resolution, resolution), render_rgb=False,
+            mj_model, nworld=nworld, devices=warp_devices(), cam_res=(resolution, resolution), render_rgb=False,
             render_depth=True, use_textures=False, use_shadows=False, cam_active=list(cameras),
             enabled_geom_groups=list(POINT_GROUPS))
         self._pytree = self._context.pytree()

@@ -32,6 +32,7 @@ import bulbjax
 from bulbjax.data import replay, sequence
 from bulbjax.data.sequence import Windows
 from bulbjax.envs.base import EnvState, MjxPixelEnv
+from bulbjax.envs.render import warp_devices
 from bulbjax.eval import objects, probe
 from bulbjax.experiment.config import SEED_LOOPS, ExperimentConfig
 from bulbjax.learners import is_sequential, make_learner
@@ -346,8 +347,8 @@ class Experiment:
         # of the true objects, None for domains without objects in the state (nothing computed).
         self.objects = objects.object_pixels(self.env)
         self.object_radius = objects.default_radius(c.resolution)
-        if self.sharded:
-            self._per_device_renderer()
+        if self.sharded or warp_devices(list(self.mesh.devices.flat)) != warp_devices():
+            self._per_device_renderer()  # (also one GPU that is not JAX's default)
         self._rep = NamedSharding(self.mesh, P())
         self._state_sh = self.state_shardings(jax.eval_shape(self._init, jax.random.PRNGKey(0)))
         self.init = jax.jit(self._init, out_shardings=self._state_sh)
@@ -369,8 +370,8 @@ class Experiment:
 
         r, env = self.env.renderer, self.env
         self._renderers: list[Renderer] = []
-        if jax.default_backend() == "gpu":
-            devs = [f"cuda:{d.local_hardware_id}" for d in self.mesh.devices.flat]
+        devs = warp_devices(list(self.mesh.devices.flat))
+        if devs is not None:
             env.renderer = Renderer(env.mj_model, env.num_envs, env.resolution, depth=r.depth, devices=devs)
         else:
             self._renderers = [Renderer(env.mj_model, env.num_envs, env.resolution, depth=r.depth)
