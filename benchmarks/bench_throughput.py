@@ -403,7 +403,7 @@ def parse_args(argv: list[str] | None = None) -> BenchSettings:
     p.add_argument("--learners", default=",".join(d.learners), help="learners to time (vae, svae, pred, dsa, spair, ...)")
     p.add_argument("--rnn-unroll", type=int, default=d.rnn_unroll,
                    help="sequential learners: LSTM steps per scan iteration (same function; try the window length)")
-    p.add_argument("--deconv-impls", default=",".join(d.deconv_impls), help="decoder forms: transpose, subpixel, subpixel2, subpixel2mm")
+    p.add_argument("--deconv-impls", default=",".join(d.deconv_impls), help="decoder forms: transpose, subpixel")
     p.add_argument("--precisions", default=",".join(d.precisions),
                    help="fp32 matmul/conv precisions: default, tensorfloat32, highest")
     p.add_argument("--parts", default=",".join(d.parts), help=f"subset of {','.join(PARTS)}")

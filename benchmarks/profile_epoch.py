@@ -199,7 +199,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     p.add_argument("--seeds", type=int, default=0, help="override the preset's seeds")
     p.add_argument("--learners", default="", help="override the preset's learners (comma-separated)")
     p.add_argument("--bf16", action="store_true")
-    p.add_argument("--deconv-impl", default="", help="decoder form (transpose, subpixel, subpixel2, subpixel2mm)")
+    p.add_argument("--deconv-impl", default="", help="decoder form (transpose, subpixel)")
     p.add_argument("--rnn-unroll", type=int, default=0, help="sequential learners' LSTM unroll (default: the preset's)")
     p.add_argument("--repeats", type=int, default=5)
     p.add_argument("--warm-epochs", type=int, default=2, help="untimed epochs after compile")

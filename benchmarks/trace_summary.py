@@ -63,7 +63,10 @@ def _scope_of(ev: Any, scopes: dict[str, str]) -> str:
                 return found[-1]
             if k == "hlo_op":
                 op = v
-    return scopes.get(op.lstrip("%"), "(unscoped)")
+    op = op.lstrip("%")
+    # kernels may carry the instruction name with its last "." written "_" (fusion.12 -> fusion_12)
+    head, _, tail = op.rpartition("_")
+    return scopes.get(op) or scopes.get(f"{head}.{tail}" if head else op) or "(unscoped)"
 
 
 def _op_events(plane: Any) -> Iterator[tuple[str, Any]]:

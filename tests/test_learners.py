@@ -202,15 +202,14 @@ def test_config_is_hashable_and_frozen() -> None:
         config.lr = 1.0  # type: ignore[misc]
 
 
-@pytest.mark.parametrize("impl", ["subpixel", "subpixel2", "subpixel2mm"])
-def test_subpixel_decoder_equals_transpose(impl: str) -> None:
-    """The decoder forms share parameters and compute the same function (and gradients),
+def test_subpixel_decoder_equals_transpose() -> None:
+    """The two decoder forms share parameters and compute the same function (and gradients),
     so switching `deconv_impl` for speed cannot change what a learner learns."""
     from bulbjax.learners.networks import DeconvDecoder
 
     z = jax.random.normal(jax.random.PRNGKey(3), (3, 6))
     a = DeconvDecoder(32, (8, 8, 16, 16), 32, impl="transpose")
-    b = DeconvDecoder(32, (8, 8, 16, 16), 32, impl=impl)
+    b = DeconvDecoder(32, (8, 8, 16, 16), 32, impl="subpixel")
     params = a.init(jax.random.PRNGKey(4), z)
     assert jax.tree.map(jnp.shape, params) == jax.tree.map(jnp.shape, b.init(jax.random.PRNGKey(4), z))
     # non-zero biases, so a misplaced bias shows

@@ -5,14 +5,11 @@ default), a 512-unit FC layer, then two linear heads for the posterior mean and
 log-variance. Decoder mirrors it: FC 512 -> FC to (R/16)x(R/16)x256 -> transposed convs
 (4x4, stride 2) with 128,64,64 filters and ReLU, and a last one to 3 channels of logits.
 
-The decoder's transposed convs have three exact implementations with the same parameters
-(`DECONV_IMPLS`): `transpose` (flax's `ConvTranspose`: a convolution over a zero-dilated input),
-`subpixel` (the same 4x4 stride-2 kernel rearranged into a 3x3 convolution with 4x the output
-channels, then depth-to-space: 9 taps per output phase where 4 are nonzero) and `subpixel2`
-(a 2x2 convolution with 4x the output channels over the input padded by one, then
-depth-to-space and a one-pixel crop: every tap nonzero, (H+1)^2/H^2 of the transposed conv's
-multiply-adds against subpixel's 9/4). They compute the same function; which is faster depends
-on the device (XLA's dilated-input convolutions are slow on GPU in fp32): see `benchmarks/`.
+The decoder's transposed convs have two exact implementations with the same parameters
+(`DECONV_IMPLS`): `transpose` (flax's `ConvTranspose`: a convolution over a zero-dilated input)
+and `subpixel` (the same 4x4 stride-2 kernel rearranged into a 3x3 convolution with 4x the output
+channels, then depth-to-space). They compute the same function; which is faster depends on the
+device (XLA's dilated-input convolutions are slow on GPU in fp32): see `benchmarks/`.
 
 The two are separate modules so the sequential learners can reuse them. Params are
 always float32; `dtype` sets the compute dtype of the conv/FC stacks. The posterior
@@ -22,7 +19,6 @@ outputs are float32.
 
 from __future__ import annotations
 
-import functools
 import math
 from typing import Any, Sequence
 
@@ -112,7 +108,7 @@ class ConvEncoder(nn.Module):
         return mean, logvar
 
 
-DECONV_IMPLS: tuple[str, ...] = ("transpose", "subpixel", "subpixel2", "subpixel2mm")
+DECONV_IMPLS: tuple[str, ...] = ("transpose", "subpixel")
 
 # For a 4x4 stride-2 'SAME' transposed conv (lax.conv_transpose pads the 2x-dilated input by 2
 # on each side): output 2i+0 reads input i-1 with tap 0 and i with tap 2; output 2i+1 reads i
@@ -155,55 +151,6 @@ class SubpixelConvTranspose(nn.Module):
         return y.reshape((b, 2 * h, 2 * w, self.features)) + bias.astype(self.dtype)
 
 
-# subpixel2: a 2x2 window at position j (j = 0..H over the input padded by one) covers inputs
-# j-1 and j. Output 2j reads them with taps 0 and 2 and output 2j-1 with taps 1 and 3, so the
-# window yields the output pair (2j-1, 2j): _PAIR_TAPS[q][d] is the tap that pair member q
-# (0: output 2j-1, 1: output 2j) applies at window offset d.
-_PAIR_TAPS: tuple[tuple[int, ...], ...] = ((1, 3), (0, 2))
-
-
-class Subpixel2ConvTranspose(nn.Module):
-    """`nn.ConvTranspose(features, (4, 4), strides=(2, 2), padding="SAME")` computed as a 2x2
-    stride-1 convolution to 4 * features channels over the input padded by one pixel, then
-    depth-to-space and a one-pixel crop. Same parameters and function as
-    `SubpixelConvTranspose` and flax's module, with no zero taps (the 3x3 form multiplies 5 of
-    its 9 taps by zero)."""
-
-    features: int
-    dtype: jnp.dtype = jnp.float32
-    param_dtype: jnp.dtype = jnp.float32
-    kernel_init: Any = lecun_normal_flat
-    matmul: bool = False  # the 2x2 conv as one matmul over the four shifted inputs (im2col)
-
-    @nn.compact
-    def __call__(self, x: jax.Array) -> jax.Array:
-        cin = x.shape[-1]
-        kernel = self.param("kernel", self.kernel_init, (4, 4, cin, self.features), self.param_dtype)
-        bias = self.param("bias", nn.initializers.zeros_init(), (self.features,), self.param_dtype)
-        taps = jnp.asarray(_PAIR_TAPS)  # [q, d]
-        # k2[dy, dx, c, qy, qx, f] = kernel[taps[qy, dy], taps[qx, dx], c, f]
-        k2 = kernel[taps.T[:, None, :, None], taps.T[None, :, None, :]]  # [dy, dx, qy, qx, c, f]
-        k2 = k2.transpose((0, 1, 4, 2, 3, 5)).reshape((2, 2, cin, 4 * self.features)).astype(self.dtype)
-        x = x.astype(self.dtype)
-        if self.matmul:  # the four window offsets side by side on channels, then one matmul
-            xp = jnp.pad(x, ((0, 0), (1, 1), (1, 1), (0, 0)))
-            hh, ww = x.shape[1] + 1, x.shape[2] + 1
-            cols = jnp.concatenate([xp[:, dy:dy + hh, dx:dx + ww] for dy in (0, 1) for dx in (0, 1)], -1)
-            y = cols @ k2.reshape((4 * cin, 4 * self.features))
-        else:
-            y = jax.lax.conv_general_dilated(x, k2, (1, 1), ((1, 1), (1, 1)),
-                                             dimension_numbers=("NHWC", "HWIO", "NHWC"))
-        b, h, w, _ = y.shape  # h = H + 1 windows: outputs -1 .. 2H
-        y = y.reshape((b, h, w, 2, 2, self.features)).transpose((0, 1, 3, 2, 4, 5))
-        y = y.reshape((b, 2 * h, 2 * w, self.features))[:, 1:-1, 1:-1]
-        return y + bias.astype(self.dtype)
-
-
-_DECONV_MODULES: dict[str, Any] = {
-    "subpixel": SubpixelConvTranspose, "subpixel2": Subpixel2ConvTranspose,
-    "subpixel2mm": functools.partial(Subpixel2ConvTranspose, matmul=True)}
-
-
 class DeconvDecoder(nn.Module):
     """Latents [B, latent_dim] -> pixel logits [B, R, R, 3] float32 (sigmoid gives [0, 1]).
 
@@ -231,8 +178,8 @@ class DeconvDecoder(nn.Module):
         h = h.reshape((h.shape[0], start, start, self.features[-1]))
         out_features = (*reversed(self.features[:-1]), self.channels)
         for i, f in enumerate(out_features):
-            if self.impl in _DECONV_MODULES:
-                h = _DECONV_MODULES[self.impl](f, name=f"deconv{i}", **dense)(h)
+            if self.impl == "subpixel":
+                h = SubpixelConvTranspose(f, name=f"deconv{i}", **dense)(h)
             else:
                 h = nn.ConvTranspose(
                     f, (4, 4), strides=(2, 2), padding="SAME", name=f"deconv{i}", **dense

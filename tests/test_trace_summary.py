@@ -1,0 +1,62 @@
+"""benchmarks/trace_summary.py: a profiler trace split by the epoch's named phase scopes, and the
+render contexts' Warp device (`warp_devices`)."""
+
+from __future__ import annotations
+
+import glob
+import importlib.util
+import os
+from types import SimpleNamespace
+
+import jax
+import jax.numpy as jnp
+
+from bulbjax.envs.render import warp_devices
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+
+
+def _trace_summary():
+    path = os.path.join(os.path.dirname(HERE), "benchmarks", "trace_summary.py")
+    spec = importlib.util.spec_from_file_location("trace_summary", path)
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def test_trace_split_by_phase_scope(tmp_path) -> None:
+    """A jitted function with two named scopes, one ~30x the work of the other: the summary finds
+    both scopes from the executable's HLO and gives the heavy one more device time."""
+    ts = _trace_summary()
+
+    def f(x):
+        with jax.named_scope("bj.heavy"):
+            y = jax.lax.fori_loop(0, 30, lambda i, a: jnp.tanh(a @ x), x)
+        with jax.named_scope("bj.light"):
+            z = jnp.tanh(y @ x)
+        return z
+
+    x = jnp.full((384, 384), 0.01, jnp.float32)
+    comp = jax.jit(f).lower(x).compile()
+    scopes = ts.hlo_scopes(comp.as_text())
+    assert set(scopes.values()) >= {"bj.heavy", "bj.light"}
+    jax.block_until_ready(comp(x))
+    with jax.profiler.trace(str(tmp_path)):
+        for _ in range(3):
+            jax.block_until_ready(comp(x))
+    (pb,) = glob.glob(str(tmp_path / "**" / "*.xplane.pb"), recursive=True)
+    out = ts.summarise(pb, scopes=scopes)
+    (dev,) = out["devices"].values()
+    got = dev["scopes"]
+    assert "bj.heavy" in got and "bj.light" in got, got
+    assert got["bj.heavy"]["busy_ms"] > 5 * got["bj.light"]["busy_ms"] > 0, got
+    assert dev["busy_ms"] <= dev["span_ms"] + 1e-6
+
+
+def test_warp_devices_follow_jax() -> None:
+    """Render contexts go on the CUDA ordinal of the JAX device they serve (Warp's own default is
+    whichever CUDA context was current); off the GPU none is named (Warp's single CPU device)."""
+    assert warp_devices() is None  # CPU here
+    gpus = [SimpleNamespace(platform="gpu", local_hardware_id=i) for i in (1, 0)]
+    assert warp_devices(gpus) == ["cuda:1", "cuda:0"]
+    assert warp_devices(gpus[:1]) == ["cuda:1"]
