@@ -148,9 +148,16 @@ def cmd_report(args: argparse.Namespace) -> int:
         tab = report.rl_compare(args.run_dirs, out)
         print(f"{tab}\nplot: {os.path.join(out, 'rl_compare.png')}\ntable: {os.path.join(out, 'rl_compare.md')}")
         return 0
+    if args.merge_seeds:
+        if not args.out:
+            raise ValueError("--merge-seeds writes a new run folder: give it with --out DIR")
+        tab = report.merge_seeds(args.run_dirs, args.out)
+        print(f"{tab}\nplot: {os.path.join(args.out, 'fig2.png')}\ntable: {os.path.join(args.out, 'table.md')}")
+        return 0
     if len(args.run_dirs) != 1:
         raise ValueError("`bulbjax report` redraws one run; to compare PPO returns of several runs "
-                         "add --compare-rl")
+                         "add --compare-rl, to pool the seeds of runs of one configuration "
+                         "--merge-seeds --out DIR")
     run_dir = args.run_dirs[0]
     tab = report.redraw(run_dir)
     print(f"{tab}\nplot: {os.path.join(run_dir, 'fig2.png')}\ntable: {os.path.join(run_dir, 'table.md')}")
@@ -331,8 +338,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     rp.add_argument("--compare-rl", action="store_true",
                     help="PPO return of several runs (state / pixels / latent:<learner>) in one plot, "
                          "rl_compare.png and rl_compare.md, with the epochs each seed needed to solve")
+    rp.add_argument("--merge-seeds", action="store_true",
+                    help="one report over the seeds of several runs of one configuration made with "
+                         "different --seed (e.g. half the seeds on each of two GPUs), into --out")
     rp.add_argument("--out", default=None, help="folder of the --compare-rl outputs (default: the "
-                                                 "first run's parent folder)")
+                                                 "first run's parent folder) or of --merge-seeds")
     rp.set_defaults(fn=cmd_report)
     o = sub.add_parser("fit", help="offline: train learners on one cached random-policy dataset, "
                                    "probe every M updates")

@@ -406,6 +406,64 @@ def redraw(run_dir: str) -> str:
                          footer=f"redrawn by `bulbjax report` from {len(records)} records")
 
 
+def merge_seeds(run_dirs: Sequence[str], out_dir: str) -> str:
+    """`bulbjax report RUN_A RUN_B ... --merge-seeds --out DIR`: one report over the seeds of
+    several runs of one configuration made with different base seeds (`--seed`): e.g. half the
+    seeds on each of two GPUs side by side, or in two sessions. Seeds are renumbered run after
+    run; the reports keep the epochs that every seed has written. Writes `config.json` (the
+    merged config and where each seed came from), `metrics.jsonl` and the reports into
+    `out_dir`; returns the table. Runs that differ in anything but `seeds` and `epochs`, or share
+    a base seed (their seeds would be the same draws), are an error."""
+    import dataclasses
+
+    from bulbjax.envs.registry import env_class
+    from bulbjax.experiment.config import read_run_config
+    from bulbjax.experiment.run import run_options_of
+
+    if len(run_dirs) < 2:
+        raise ValueError("--merge-seeds needs two or more RUN_DIRs")
+    if any(os.path.abspath(out_dir) == os.path.abspath(d) for d in run_dirs):
+        raise ValueError("--merge-seeds writes a new folder: give an --out that is none of the runs")
+    runs = [(d, *read_run_config(d)) for d in run_dirs]
+    d0, c0, raw0 = runs[0]
+    opts0 = run_options_of(raw0)
+    ref = dataclasses.asdict(c0.replace(seeds=1, epochs=1))
+    base_seeds: dict[int, str] = {}
+    merged: list[dict[str, Any]] = []
+    sources = []
+    for d, c, raw in runs:
+        mine = dataclasses.asdict(c.replace(seeds=1, epochs=1))
+        diff = sorted(k for k in ref if ref[k] != mine[k])
+        opts = run_options_of(raw)
+        if opts["probe_every"] != opts0["probe_every"]:
+            diff.append("probe_every")
+        if diff:
+            raise ValueError(f"--merge-seeds: {d} differs from {d0} in {', '.join(diff)}; only runs of "
+                             "one configuration (seeds and epochs aside) can be merged")
+        seed = opts["seed"] if opts["seed"] is not None else 0
+        if seed in base_seeds:
+            raise ValueError(f"--merge-seeds: {d} and {base_seeds[seed]} share base seed {seed}: their "
+                             "seeds are the same draws; rerun one with another --seed")
+        base_seeds[seed] = d
+        offset = len({r["seed"] for r in merged})
+        recs = read_jsonl(metrics_path(d), tolerate_partial=True)
+        merged += [{**r, "seed": offset + r["seed"]} for r in recs]
+        sources.append({"run_dir": d, "base_seed": seed, "seeds": c.seeds,
+                        "merged_seeds": [offset, offset + c.seeds - 1],
+                        "provenance": raw.get("provenance")})
+    os.makedirs(out_dir, exist_ok=True)
+    total = sum(c.seeds for _, c, _ in runs)
+    cfg = c0.replace(seeds=total)
+    with open(os.path.join(out_dir, "config.json"), "w") as f:
+        json.dump({"experiment": dataclasses.asdict(cfg), "run": {**opts0, "seed": None},
+                   "merged_from": sources}, f, indent=1)
+    write_jsonl(os.path.join(out_dir, "metrics.jsonl"), merged)
+    cls = env_class(cfg.env)
+    names = ", ".join(f"{s['run_dir']} (seed {s['base_seed']}: {s['seeds']} seeds)" for s in sources)
+    return write_reports(out_dir, merged, cfg, cls.state_spec, cls.solved_return,
+                         footer=f"seeds of {len(runs)} runs merged by `bulbjax report --merge-seeds`: {names}")
+
+
 def _to_numpy(tree: Any) -> Any:
     if isinstance(tree, dict):
         return {k: _to_numpy(v) for k, v in tree.items()}

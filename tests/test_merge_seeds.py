@@ -1,0 +1,67 @@
+"""`bulbjax report --merge-seeds`: the seeds of two runs of one configuration (different base
+seeds, e.g. one per GPU) pooled into one report; mismatched runs refused."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import os
+
+import numpy as np
+import pytest
+
+from bulbjax.experiment import report
+from bulbjax.experiment.config import preset, read_run_config
+
+
+def _run_dir(path: str, seeds: int, base_seed: int, level: float, epochs: int = 3, **changes) -> str:
+    """A run folder as `bulbjax run` leaves it (config.json, metrics.jsonl) with synthetic probed
+    epochs: every learner's normalised error is `level` + the seed index / 100."""
+    cfg = preset("fig2-invpend").replace(seeds=seeds, **changes)
+    os.makedirs(path)
+    with open(os.path.join(path, "config.json"), "w") as f:
+        json.dump({"experiment": dataclasses.asdict(cfg), "run": {"seed": base_seed, "probe_every": 1}}, f)
+    recs = []
+    for e in range(epochs):
+        for s in range(seeds):
+            x = level + s / 100
+            stream = {"overall": {"mae_norm": x, "baseline_norm": 1.4},
+                      "groups": {"position": {"mae_norm": x, "baseline_norm": 1.5},
+                                 "velocity": {"mae_norm": x, "baseline_norm": 1.2}}}
+            recs.append({"epoch": e, "seed": s, "rl_return": 100.0 * (e + 1),
+                         "probes": {n: {"curr": stream, "rand": stream} for n in cfg.learners}})
+    report.write_jsonl(os.path.join(path, "metrics.jsonl"), recs)
+    return path
+
+
+def test_merge_pools_seeds(tmp_path) -> None:
+    a = _run_dir(str(tmp_path / "a"), 2, 0, 0.5)
+    b = _run_dir(str(tmp_path / "b"), 3, 1, 0.9, epochs=2)  # one epoch behind: left out
+    out = str(tmp_path / "m")
+    report.merge_seeds([a, b], out)
+    cfg, raw = read_run_config(out)
+    assert cfg.seeds == 5 and [s["merged_seeds"] for s in raw["merged_from"]] == [[0, 1], [2, 4]]
+    recs = report.read_jsonl(os.path.join(out, "metrics.jsonl"))
+    assert sorted({r["seed"] for r in recs}) == [0, 1, 2, 3, 4]
+    # seed 3 of the merge is seed 1 of run b
+    r = next(r for r in recs if r["seed"] == 3 and r["epoch"] == 0)
+    assert r["probes"]["vae"]["curr"]["overall"]["mae_norm"] == pytest.approx(0.91)
+    per_seed = report.per_seed_error(recs, "vae", "curr", None, [1])
+    np.testing.assert_allclose(per_seed, [0.5, 0.51, 0.9, 0.91, 0.92])
+    table = open(os.path.join(out, "table.md")).read()
+    assert "5 seeds, 2 epochs" in table and "epoch 0, 1;" in table  # epoch 2 lacks run b's seeds
+    assert "| vae | π_curr | 0.748 ± " in table  # the mean of the five seeds' 0.5 .. 0.92
+    for name in ("fig2.png", "findings.md"):
+        assert os.path.getsize(os.path.join(out, name)) > 0
+
+
+def test_merge_refuses_mismatch(tmp_path) -> None:
+    a = _run_dir(str(tmp_path / "a"), 2, 0, 0.5)
+    b = _run_dir(str(tmp_path / "b"), 2, 0, 0.5)
+    c = _run_dir(str(tmp_path / "c"), 2, 1, 0.5, num_envs=32)
+    with pytest.raises(ValueError, match="share base seed 0"):
+        report.merge_seeds([a, b], str(tmp_path / "m1"))
+    with pytest.raises(ValueError, match="num_envs"):
+        report.merge_seeds([a, c], str(tmp_path / "m2"))
+    with pytest.raises(ValueError, match="none of the runs"):
+        report.merge_seeds([a, c], a)
