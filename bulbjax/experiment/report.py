@@ -445,7 +445,7 @@ def merge_seeds(run_dirs: Sequence[str], out_dir: str) -> str:
             raise ValueError(f"--merge-seeds: {d} and {base_seeds[seed]} share base seed {seed}: their "
                              "seeds are the same draws; rerun one with another --seed")
         base_seeds[seed] = d
-        offset = len({r["seed"] for r in merged})
+        offset = sum(s["seeds"] for s in sources)  # by config: a run may not have written every seed yet
         recs = read_jsonl(metrics_path(d), tolerate_partial=True)
         merged += [{**r, "seed": offset + r["seed"]} for r in recs]
         sources.append({"run_dir": d, "base_seed": seed, "seeds": c.seeds,
