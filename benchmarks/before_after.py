@@ -92,13 +92,20 @@ def cmd_compare(a: argparse.Namespace) -> None:
         lines.append(f"| {n} | {dict(report.STREAMS)[s]} | {mb:.3f} ± {hb:.3f} | {ma:.3f} ± {ha:.3f} | "
                      f"{md:+.3f} ± {hd:.3f} | {'yes' if same else 'no'} |")
     n_seeds = len(next(iter(before.values())))
+    key = lambda r: (r["epoch"], r["seed"])  # noqa: E731
+    ret_b = np.array([r["rl_return"] for r in sorted(rec_b, key=key)], float)
+    ret_a = np.array([r["rl_return"] for r in sorted(rec_a, key=key)], float)
+    same_rl = ret_b.shape == ret_a.shape and bool(np.array_equal(ret_b, ret_a, equal_nan=True))
     head = (f"Overall normalised error, epochs {', '.join(map(str, ep_b))}; mean ± 90% CI over {n_seeds} "
             f"seeds; the difference is paired by seed (same base seed in both runs). Within noise: "
-            f"the 90% band of the difference contains 0.")
+            f"the 90% band of the difference contains 0. PPO's returns (on the true state, so the frame "
+            f"stream the learners see): {'identical in every epoch and seed' if same_rl else 'NOT identical'} "
+            f"in the two runs.")
     with open(os.path.join(a.out, "before_after.md"), "w") as f:
         f.write(f"# Before / after: {a.before} -> {a.after}\n\n{head}\n\n" + "\n".join(lines) + "\n")
     with open(os.path.join(a.out, "before_after.json"), "w") as f:
-        json.dump({"before": a.before, "after": a.after, "epochs": ep_b, "rows": rows}, f, indent=1)
+        json.dump({"before": a.before, "after": a.after, "epochs": ep_b, "ppo_returns_identical": same_rl,
+                   "rows": rows}, f, indent=1)
 
     import matplotlib
     matplotlib.use("Agg")
@@ -109,10 +116,10 @@ def cmd_compare(a: argparse.Namespace) -> None:
     for j, n in enumerate(learners):
         for i, (s, label) in enumerate(report.STREAMS):
             ax = axes[i][j]
-            for recs, label, c in ((rec_b, "before", "tab:gray"), (rec_a, "after", "tab:blue")):
+            for recs, version, c in ((rec_b, "before", "tab:gray"), (rec_a, "after", "tab:blue")):
                 ep, v = _overall_curve(recs, n, s)
                 m, h = report.ci90(v)
-                ax.plot(ep, m, color=c, label=label)
+                ax.plot(ep, m, color=c, label=version)
                 ax.fill_between(ep, m - h, m + h, color=c, alpha=0.2)
             ax.set_title(f"{n} {label}", fontsize=8)
             if j == 0:
