@@ -58,17 +58,6 @@ def _errors(run_dir: str, last: int) -> tuple[dict[str, np.ndarray], list[int], 
     return out, epochs, learners, recs
 
 
-def _overall_curve(recs: list[dict[str, Any]], learner: str, stream: str) -> tuple[np.ndarray, np.ndarray]:
-    """Probed epochs and `[seeds, epochs]` overall normalised error."""
-    probed = [r for r in recs if r.get("probes")]
-    epochs = sorted({r["epoch"] for r in probed})
-    seeds = sorted({r["seed"] for r in probed})
-    v = np.full((len(seeds), len(epochs)), np.nan)
-    for r in probed:
-        v[seeds.index(r["seed"]), epochs.index(r["epoch"])] = r["probes"][learner][stream]["overall"]["mae_norm"]
-    return np.asarray(epochs), v
-
-
 def cmd_compare(a: argparse.Namespace) -> None:
     sys.path.insert(0, os.path.dirname(HERE))
     from bulbjax.experiment import report
@@ -117,7 +106,7 @@ def cmd_compare(a: argparse.Namespace) -> None:
         for i, (s, label) in enumerate(report.STREAMS):
             ax = axes[i][j]
             for recs, version, c in ((rec_b, "before", "tab:gray"), (rec_a, "after", "tab:blue")):
-                ep, v = _overall_curve(recs, n, s)
+                ep, v = report.curves(recs, n, s, None)
                 m, h = report.ci90(v)
                 ax.plot(ep, m, color=c, label=version)
                 ax.fill_between(ep, m - h, m + h, color=c, alpha=0.2)

@@ -120,11 +120,13 @@ def probed(records: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
     return [r for r in records if r.get("probes")]
 
 
-def curves(records: Sequence[dict[str, Any]], learner: str, stream: str, group: str,
+def curves(records: Sequence[dict[str, Any]], learner: str, stream: str, group: str | None,
            key: str = "mae_norm", x_key: str = "epoch") -> tuple[np.ndarray, np.ndarray]:
-    """Probed epochs and `[seeds, epochs]` values of a group's error (or `baseline_norm`)."""
+    """Probed epochs and `[seeds, epochs]` values of a group's error (or `baseline_norm`);
+    `group=None`: the overall error (as in `per_seed_error`)."""
     def value(r: dict[str, Any]) -> Any:
-        g = r["probes"][learner][stream]["groups"].get(group)
+        x = r["probes"][learner][stream]
+        g = x["overall"] if group is None else x["groups"].get(group)
         return None if g is None else g[key]
     return _seed_epoch_matrix(probed(records), value, x_key)
 
