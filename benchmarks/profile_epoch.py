@@ -94,9 +94,13 @@ def time_fn(fn: Callable[[], Any], repeats: int) -> dict[str, float]:
 
 def profile(cfg: ExperimentConfig, repeats: int, warm_epochs: int, trace_dir: str | None,
             log: Callable[[str], None] = print, phases: bool = True,
-            save: Callable[[dict[str, Any]], None] = lambda out: None) -> dict[str, Any]:
+            save: Callable[[dict[str, Any]], None] = lambda out: None,
+            variants: dict[str, dict[str, Any]] | None = None,
+            tags: tuple[str, ...] = ("probe", "no_probe")) -> dict[str, Any]:
     """Every phase's time and the fused epoch's, as a JSON-able dict. `save(out)` is called
-    after every stage, so that a run cut short (a GPU call's time limit) keeps what it measured."""
+    after every stage, so that a run cut short (a GPU call's time limit) keeps what it measured.
+    `variants`: named XLA compile options, each compiling and timing the fused epoch (`tags`:
+    the probing and/or non-probing executable) in this process on the same run state."""
     out: dict[str, Any] = {"phases": {}, "fused": {}, "done": False}
     t0 = time.perf_counter()
     exp = Experiment(cfg)
@@ -108,40 +112,57 @@ def profile(cfg: ExperimentConfig, repeats: int, warm_epochs: int, trace_dir: st
     log(f"build {out['build_s']:.1f} s, init (compile + run) {out['init_s']:.1f} s")
     save(out)
 
-    # the fused epoch: compile, first call, then timed calls (probing and not)
+    # the fused epoch: compile, first call, then timed calls (probing and not), once per variant
+    # of XLA compile options (the first variant's numbers are the profile's `fused`)
     compiled_by_tag = {}
-    for probe in (True, False):
-        tag = "probe" if probe else "no_probe"
-        k = jax.random.fold_in(key, 100 + probe)
-        t0 = time.perf_counter()
-        lowered = exp.epoch.lower(rs, k, probe=probe)
-        lower_s = time.perf_counter() - t0  # tracing + lowering to StableHLO
-        t0 = time.perf_counter()
-        compiled = compiled_by_tag[tag] = lowered.compile()
-        compile_s = time.perf_counter() - t0  # XLA compile (or a persistent-cache hit)
-        log(f"fused epoch ({tag}): lower {lower_s:.1f} s, compile {compile_s:.1f} s")
-        times, get_s, rec_s = [], [], []
-        for i in range(warm_epochs + repeats):
+    variants = variants or {"default": {}}
+    out["variants"] = {}
+    for vi, (vname, vopts) in enumerate(variants.items()):
+        res_v = out["variants"][vname] = {"compiler_options": vopts}
+        for probe in (True, False):
+            tag = "probe" if probe else "no_probe"
+            if tag not in tags:
+                continue
+            k = jax.random.fold_in(key, 100 + probe)
             t0 = time.perf_counter()
-            rs, m = compiled(rs, jax.random.fold_in(k, i))
-            jax.block_until_ready(rs)
-            t1 = time.perf_counter()
-            m = jax.device_get(m)
-            t2 = time.perf_counter()
-            report.epoch_records(i, m, exp.spec)
-            t3 = time.perf_counter()
-            if i >= warm_epochs:
-                times.append(t1 - t0)
-                get_s.append(t2 - t1)
-                rec_s.append(t3 - t2)
-        out["fused"][tag] = {"lower_s": lower_s, "compile_s": compile_s, "median_s": statistics.median(times),
-                             "min_s": min(times), "device_get_s": statistics.median(get_s),
-                             "records_s": statistics.median(rec_s)}
-        log(f"fused epoch ({tag}): median {out['fused'][tag]['median_s']:.3f} s")
-        save(out)
-    f_p, f_n = out["fused"]["probe"]["median_s"], out["fused"]["no_probe"]["median_s"]
-    out["epoch_s_probe_every_10"] = (f_p + 9 * f_n) / 10  # issue 13's target: <= 1.5 s
-    out["epoch_s_probe_every_1"] = f_p  # target: <= 3 s
+            lowered = exp.epoch.lower(rs, k, probe=probe)
+            lower_s = time.perf_counter() - t0  # tracing + lowering to StableHLO
+            t0 = time.perf_counter()
+            compiled = lowered.compile(compiler_options=vopts or None)
+            compile_s = time.perf_counter() - t0  # XLA compile (or a persistent-cache hit)
+            if vi == 0:
+                compiled_by_tag[tag] = compiled
+            log(f"[{vname}] fused epoch ({tag}): lower {lower_s:.1f} s, compile {compile_s:.1f} s")
+            times, get_s, rec_s = [], [], []
+            for i in range(warm_epochs + repeats):
+                t0 = time.perf_counter()
+                rs, m = compiled(rs, jax.random.fold_in(k, i))
+                jax.block_until_ready(rs)
+                t1 = time.perf_counter()
+                m = jax.device_get(m)
+                t2 = time.perf_counter()
+                report.epoch_records(i, m, exp.spec)
+                t3 = time.perf_counter()
+                if i >= warm_epochs:
+                    times.append(t1 - t0)
+                    get_s.append(t2 - t1)
+                    rec_s.append(t3 - t2)
+            res_v[tag] = {"lower_s": lower_s, "compile_s": compile_s, "median_s": statistics.median(times),
+                          "min_s": min(times), "device_get_s": statistics.median(get_s),
+                          "records_s": statistics.median(rec_s), "times_s": times}
+            log(f"[{vname}] fused epoch ({tag}): median {res_v[tag]['median_s']:.3f} s")
+            del compiled
+            save(out)
+        if "probe" in res_v and "no_probe" in res_v:
+            f_p, f_n = res_v["probe"]["median_s"], res_v["no_probe"]["median_s"]
+            res_v["epoch_s_probe_every_10"] = (f_p + 9 * f_n) / 10  # issue 13's target: <= 1.5 s
+            res_v["epoch_s_probe_every_1"] = f_p  # target: <= 3 s
+    first = next(iter(out["variants"].values()))
+    out["fused"] = {t: first[t] for t in ("probe", "no_probe") if t in first}
+    for name in ("epoch_s_probe_every_10", "epoch_s_probe_every_1"):
+        if name in first:
+            out[name] = first[name]
+    save(out)
 
     if trace_dir:  # per executable: <dir>/<tag>/ with two traced epochs and its optimised HLO
         for tag, comp in compiled_by_tag.items():
@@ -192,6 +213,15 @@ def profile(cfg: ExperimentConfig, repeats: int, warm_epochs: int, trace_dir: st
     return out
 
 
+def parse_variant(text: str) -> tuple[str, dict[str, Any]]:
+    """`NAME=KEY:VALUE;KEY:VALUE` (or a bare `NAME`, no options) -> (name, compile options)."""
+    from bulbjax.experiment.loop import parse_compiler_options
+
+    name, _, rest = text.partition("=")
+    items = [kv.replace(":", "=", 1) for kv in rest.split(";") if kv]
+    return name, parse_compiler_options(items)
+
+
 def main(argv: list[str] | None = None) -> dict[str, Any]:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--preset", default="fig2-invpend")
@@ -207,6 +237,10 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     p.add_argument("--out-dir", default=os.path.join(HERE, "results"))
     p.add_argument("--tag", default="", help="label for the file name (e.g. before/after)")
     p.add_argument("--no-phases", action="store_true", help="time the fused epoch only (skip the phases one by one)")
+    p.add_argument("--variant", action="append", default=[], metavar="NAME[=KEY:VALUE;...]",
+                   help="time the fused epoch compiled with these XLA options (repeatable; the first "
+                        "is the profile's `fused`), e.g. while=xla_gpu_enable_command_buffer:FUSION,WHILE")
+    p.add_argument("--tags", default="probe,no_probe", help="fused executables to time (probe, no_probe)")
     p.add_argument("--compile-cache", default="",
                    help="JAX persistent compilation cache folder (default: none, so compile times are cold)")
     a = p.parse_args(argv)
@@ -231,15 +265,23 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
             json.dump(res, f, indent=1, default=str)
         os.replace(path + ".tmp", path)
 
-    profile(cfg, a.repeats, a.warm_epochs, a.trace or None, phases=not a.no_phases, save=save)
+    variants = dict(parse_variant(v) for v in a.variant) or None
+    tags = tuple(t for t in a.tags.split(",") if t)
+    profile(cfg, a.repeats, a.warm_epochs, a.trace or None, phases=not a.no_phases, save=save,
+            variants=variants, tags=tags)
     print(f"\n== epoch profile: {a.preset} on {res['device_kind']} ({cfg.seeds} seeds, "
           f"{len(cfg.learners)} learners, {cfg.learner.compute_dtype}) ==")
     print(f"build {res['build_s']:.1f} s, init {res['init_s']:.1f} s")
-    for tag, v in res["fused"].items():
-        print(f"fused epoch {tag:8}: lower {v['lower_s']:5.1f} s, compile {v['compile_s']:6.1f} s, median {v['median_s']:.3f} s, "
-              f"device_get {v['device_get_s'] * 1e3:.1f} ms, records {v['records_s'] * 1e3:.1f} ms")
-    print(f"epoch with probing every 10: {res['epoch_s_probe_every_10']:.3f} s; every epoch: "
-          f"{res['epoch_s_probe_every_1']:.3f} s")
+    for vname, rv in res["variants"].items():
+        for tag in ("probe", "no_probe"):
+            if tag in rv:
+                v = rv[tag]
+                print(f"[{vname}] fused epoch {tag:8}: lower {v['lower_s']:5.1f} s, compile {v['compile_s']:6.1f} s, "
+                      f"median {v['median_s']:.3f} s, device_get {v['device_get_s'] * 1e3:.1f} ms, "
+                      f"records {v['records_s'] * 1e3:.1f} ms")
+        if "epoch_s_probe_every_10" in rv:
+            print(f"[{vname}] epoch with probing every 10: {rv['epoch_s_probe_every_10']:.3f} s; every epoch: "
+                  f"{rv['epoch_s_probe_every_1']:.3f} s")
     print(f"{'phase (jitted alone)':40} {'median s':>9} {'share':>6} {'first s':>8}")
     for name, v in res["phases"].items():
         print(f"{name:40} {v['median_s']:9.3f} {100 * v['share']:5.1f}% {v['first_s']:8.1f}")

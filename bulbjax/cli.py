@@ -125,7 +125,10 @@ def cmd_run(args: argparse.Namespace) -> int:
         if not 1 <= args.devices <= len(devices):
             raise ValueError(f"--devices {args.devices}: this machine has {len(devices)} local devices")
         devices = devices[: args.devices]
-    run(cfg, opts, out, resume=bool(args.resume), devices=devices, argv=["bulbjax", *getattr(args, "argv", [])])
+    from bulbjax.experiment.loop import parse_compiler_options
+
+    run(cfg, opts, out, resume=bool(args.resume), devices=devices, argv=["bulbjax", *getattr(args, "argv", [])],
+        compiler_options=parse_compiler_options(args.xla_option or []))
     return 0
 
 
@@ -319,6 +322,9 @@ def main(argv: Sequence[str] | None = None) -> int:
                    help="stop this stretch after E epochs and checkpoint (0: no limit)")
     r.add_argument("--devices", type=int, default=None,
                    help="use the first D local devices (default all): seeds (then worlds) sharded over them")
+    r.add_argument("--xla-option", action="append", metavar="KEY=VALUE",
+                   help="an XLA compile option for the jitted init and epoch (repeatable; how the program "
+                        "runs, not what it computes), e.g. xla_gpu_enable_command_buffer=FUSION,CUBLAS,WHILE")
     r.add_argument("--tensorboard", action="store_true",
                    help="also write the metrics as TensorBoard events under RUN_DIR/tb (needs tensorboardX)")
     r.add_argument("--recon-every", type=int, default=0, metavar="N",

@@ -136,6 +136,7 @@ def test_provenance_in_config_json(straight):
     assert len(p["git_commit"]) == 40 and isinstance(p["git_dirty"], bool)
     assert p["source_sha256"] == source_hash() and len(p["source_sha256"]) == 64
     assert p["device_count"] == jax.device_count() and p["device_kind"] and p["mesh"] == {"seeds": 1, "worlds": 1}
+    assert p["compiler_options"] == {}
     assert config_from_dict(raw["experiment"]) == tiny()
 
 
@@ -234,3 +235,20 @@ def test_source_hash_names_the_code(tmp_path):
     with open(os.path.join(copy, "experiment", "run.py"), "a") as f:
         f.write("\n")
     assert source_hash(copy) != source_hash()
+
+
+def test_compiler_options_parse_and_reach_the_jits():
+    """`--xla-option KEY=VALUE` values are typed; a malformed one says the form; the options
+    reach the jitted init and epoch (XLA refuses an unknown key there, so a bogus one fails)."""
+    from bulbjax.experiment.loop import parse_compiler_options
+
+    opts = parse_compiler_options(["xla_gpu_enable_command_buffer=FUSION,WHILE",
+                                   "xla_gpu_graph_min_graph_size=1", "a=0.5", "b=true"])
+    assert opts == {"xla_gpu_enable_command_buffer": "FUSION,WHILE", "xla_gpu_graph_min_graph_size": 1,
+                    "a": 0.5, "b": True}
+    with pytest.raises(ValueError, match="KEY=VALUE"):
+        parse_compiler_options(["xla_gpu_graph_min_graph_size"])
+    bad = Experiment(tiny(), compiler_options={"xla_no_such_option": 1})
+    assert bad.compiler_options == {"xla_no_such_option": 1}
+    with pytest.raises(Exception, match="xla_no_such_option"):
+        bad.init.lower(jax.random.PRNGKey(0)).compile()

@@ -19,7 +19,7 @@ L steps ending at it (`PolicyHistory`, kept per world in the run state).
 from __future__ import annotations
 
 import math
-from typing import Any, Callable, Sequence
+from typing import Any, Callable, Mapping, Sequence
 
 import jax
 import jax.numpy as jnp
@@ -151,6 +151,30 @@ def make_mesh(devices: Sequence[jax.Device], seeds: int, worlds: int) -> Mesh:
     ds = max(d for d in range(1, min(seeds, n) + 1) if seeds % d == 0)
     dw = max(d for d in range(1, min(worlds, n // ds) + 1) if worlds % d == 0)
     return Mesh(np.array(devices[: ds * dw], dtype=object).reshape(ds, dw), (SEED_AXIS, WORLD_AXIS))
+
+
+def parse_compiler_options(items: Sequence[str]) -> dict[str, Any]:
+    """`["KEY=VALUE", ...]` -> XLA compile options for `jax.jit(..., compiler_options=...)`: values
+    that read as ints, floats or true/false become those, the rest stay strings (e.g.
+    `xla_gpu_enable_command_buffer=FUSION,CUBLAS,WHILE`). XLA rejects unknown keys at compile."""
+    out: dict[str, Any] = {}
+    for item in items:
+        key, sep, text = item.partition("=")
+        if not sep or not key.strip():
+            raise ValueError(f"compiler option {item!r} must read KEY=VALUE, e.g. "
+                             "xla_gpu_enable_command_buffer=FUSION,CUBLAS,WHILE")
+        value: Any = text.strip()
+        if value.lower() in ("true", "false"):
+            value = value.lower() == "true"
+        else:
+            for cast in (int, float):
+                try:
+                    value = cast(value)
+                    break
+                except ValueError:
+                    pass
+        out[key.strip()] = value
+    return out
 
 
 def learner_unroll() -> bool | int:
@@ -297,8 +321,12 @@ class Experiment:
     axis takes the other devices: physics and rendering split, PPO and learner updates of a
     seed replicated on its devices."""
 
-    def __init__(self, config: ExperimentConfig, devices: Sequence[jax.Device] | None = None):
+    def __init__(self, config: ExperimentConfig, devices: Sequence[jax.Device] | None = None,
+                 compiler_options: Mapping[str, Any] | None = None):
         self.config = c = config
+        # XLA options for compiling init and epoch (e.g. xla_gpu_enable_command_buffer): how the
+        # program runs, not what it computes (`parse_compiler_options`).
+        self.compiler_options = dict(compiler_options or {})
         self.mesh = make_mesh(devices or jax.devices()[:1], c.seeds, c.num_envs)
         self.sharded = self.mesh.size > 1
         self.seed_loop = resolve_seed_loop(c.learner_seed_loop, self.mesh)
@@ -351,13 +379,14 @@ class Experiment:
             self._per_device_renderer()  # (also one GPU that is not JAX's default)
         self._rep = NamedSharding(self.mesh, P())
         self._state_sh = self.state_shardings(jax.eval_shape(self._init, jax.random.PRNGKey(0)))
-        self.init = jax.jit(self._init, out_shardings=self._state_sh)
+        opts = self.compiler_options or None
+        self.init = jax.jit(self._init, out_shardings=self._state_sh, compiler_options=opts)
         # `epoch(rs, key, probe=False)` skips the held-out rollouts and probes (`--probe-every`).
         # Outputs laid out exactly as the inputs (state as `init` gives it, metrics replicated):
         # an equivalent but differently written sharding (XLA drops size-1 mesh axes) would
         # make the second call compile the epoch again.
         self.epoch = jax.jit(self._epoch, donate_argnums=0, static_argnames="probe",
-                             out_shardings=(self._state_sh, self._rep))
+                             out_shardings=(self._state_sh, self._rep), compiler_options=opts)
 
     # ------------------------------------------------------------------ devices
     def _per_device_renderer(self) -> None:

@@ -104,6 +104,7 @@ def provenance(argv: Sequence[str] | None = None, experiment: Experiment | None 
     }
     if experiment is not None:
         out["mesh"] = dict(experiment.mesh.shape)
+        out["compiler_options"] = dict(experiment.compiler_options)
     return out
 
 
@@ -275,10 +276,12 @@ def run(cfg: ExperimentConfig, opts: RunOptions, run_dir: str, *, resume: bool =
         devices: Sequence[jax.Device] | None = None,
         experiment: Experiment | None = None, argv: Sequence[str] | None = None,
         log: Callable[[str], None] = print, progress: bool = True,
-        on_epoch: Callable[[int], None] | None = None) -> RunResult:
+        on_epoch: Callable[[int], None] | None = None,
+        compiler_options: dict[str, Any] | None = None) -> RunResult:
     """Run (or, with `resume`, continue) the experiment `cfg` in `run_dir`; see the module doc.
     `devices` (default: all local devices) are the mesh of `Experiment`; `experiment` reuses a built `Experiment(cfg)` (tests: one compile for several runs);
-    `on_epoch(epochs_done)` is called after each epoch's metrics are written (tests)."""
+    `on_epoch(epochs_done)` is called after each epoch's metrics are written (tests);
+    `compiler_options`: XLA options for the jitted init and epoch (recorded in the provenance)."""
     from tqdm import tqdm
 
     from bulbjax.learners import check_finite
@@ -296,7 +299,8 @@ def run(cfg: ExperimentConfig, opts: RunOptions, run_dir: str, *, resume: bool =
                "run": {k: getattr(opts, k) for k in IDENTITY}}
     if experiment is not None and experiment.config != cfg:
         raise ValueError("run(experiment=...) was built for another config")
-    exp = experiment or Experiment(cfg, devices=jax.local_devices() if devices is None else devices)
+    exp = experiment or Experiment(cfg, devices=jax.local_devices() if devices is None else devices,
+                                   compiler_options=compiler_options)
     stretch = provenance(argv, exp)
     if resume:
         raw.setdefault("resumes", []).append(stretch)
