@@ -65,6 +65,8 @@ def build_config(a: argparse.Namespace) -> ExperimentConfig:
     if a.rnn_unroll:
         lc = dataclasses.replace(lc, rnn_unroll=a.rnn_unroll)
     cfg = cfg.replace(learner=lc)
+    if a.seed_loop:
+        cfg = cfg.replace(learner_seed_loop=a.seed_loop)
     return cfg
 
 
@@ -231,6 +233,8 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     p.add_argument("--bf16", action="store_true")
     p.add_argument("--deconv-impl", default="", help="decoder form (transpose, subpixel)")
     p.add_argument("--rnn-unroll", type=int, default=0, help="sequential learners' LSTM unroll (default: the preset's)")
+    p.add_argument("--seed-loop", default="", choices=("", "auto", "vmap", "map"),
+                   help="learner work over the seed axis (default: the preset's)")
     p.add_argument("--repeats", type=int, default=5)
     p.add_argument("--warm-epochs", type=int, default=2, help="untimed epochs after compile")
     p.add_argument("--trace", default="", help="write a JAX profiler trace of two epochs here")

@@ -252,3 +252,40 @@ def test_compiler_options_parse_and_reach_the_jits():
     assert bad.compiler_options == {"xla_no_such_option": 1}
     with pytest.raises(Exception, match="xla_no_such_option"):
         bad.init.lower(jax.random.PRNGKey(0)).compile()
+
+
+_PROGRAM_SCRIPT = """
+import hashlib, sys
+sys.path.insert(0, {tests!r})
+import jax
+from bulbjax.experiment import Experiment
+from test_run import tiny
+exp = Experiment(tiny())
+order = sys.argv[1]
+if order == "fresh":  # a new run: init runs, then the epochs are traced in the fixed order
+    exp.init.lower(jax.random.PRNGKey(0))
+if order != "no_probe_first":
+    exp.trace_epochs()
+text = exp.epoch.lower(exp.abstract_state(), exp.abstract_key(), probe=False).as_text()
+print(hashlib.sha256(text.encode()).hexdigest())
+"""
+
+
+def test_resumed_process_compiles_the_same_epoch_program():
+    """MuJoCo Warp names FFI targets by first-trace order, and the names are in the program (so in
+    the compilation cache key). `trace_epochs` fixes the order: the non-probing epoch of a fresh
+    run and of a resume (no init, first epoch not probing) lower to the same text; without it
+    (the non-probing epoch traced first) the text differs, which is what made resumed GPU
+    stretches recompile for minutes."""
+    import subprocess
+    import sys
+
+    here = os.path.dirname(os.path.abspath(__file__))
+    script = _PROGRAM_SCRIPT.format(tests=here)
+    procs = {o: subprocess.Popen([sys.executable, "-c", script, o], stdout=subprocess.PIPE, text=True,
+                                 cwd=os.path.dirname(here))
+             for o in ("fresh", "resume", "no_probe_first")}
+    out = {o: p.communicate(timeout=600)[0].strip().splitlines()[-1] for o, p in procs.items()}
+    assert all(p.returncode == 0 for p in procs.values()), out
+    assert out["fresh"] == out["resume"]
+    assert out["no_probe_first"] != out["fresh"]

@@ -448,6 +448,17 @@ class Experiment:
         return jax.tree.map(lambda x, sh: jax.ShapeDtypeStruct(x.shape, x.dtype, sharding=sh),
                             shapes, self._state_sh)
 
+    def trace_epochs(self, probes: Sequence[bool] = (True, False)) -> None:
+        """Trace the epoch (probing, then not) before it first runs. MuJoCo Warp names each FFI
+        target it registers by a per-process counter, in the order the targets are first traced,
+        and the names are part of the compiled program: a resumed run whose first epoch does not
+        probe would otherwise name them differently from the run that wrote the compilation cache
+        and miss it (minutes of compile per stretch on the GPU). Tracing in one fixed order makes
+        the programs, and so the cache keys, the same in every process."""
+        rs, key = self.abstract_state(), self.abstract_key()
+        for p in probes:
+            self.epoch.trace(rs, key, probe=p)
+
     def abstract_key(self) -> jax.ShapeDtypeStruct:
         return jax.ShapeDtypeStruct((2,), jnp.uint32, sharding=self._rep)
 
