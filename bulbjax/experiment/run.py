@@ -321,7 +321,9 @@ def run(cfg: ExperimentConfig, opts: RunOptions, run_dir: str, *, resume: bool =
         rs = exp.init(exp.put_key(jax.random.PRNGKey(opts.seed)))
         key, start, records = exp.put_key(jax.random.PRNGKey(opts.seed + 1)), 0, []
     _write_json_atomic(config_path, raw)
-    exp.trace_epochs()  # FFI target names in one order: a resumed stretch hits the compile cache
+    # FFI target names in one order, so a resumed stretch hits the compile cache; only the
+    # executables this run uses (probe_every is fixed for the run, so fresh and resumed agree)
+    exp.trace_epochs((True,) if opts.probe_every == 1 else (True, False))
     jax.block_until_ready(rs)
     t_init = time.time() - t0
     tb = _TensorBoard(run_dir, purge_step=start if resume else None) if opts.tensorboard else None
