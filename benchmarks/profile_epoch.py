@@ -40,6 +40,8 @@ sys.path.insert(0, REPO)
 
 import jax  # noqa: E402
 
+import warp_ffi_stats  # noqa: E402
+
 from bulbjax.envs import registry  # noqa: E402
 from bulbjax.experiment import report, small_config  # noqa: E402
 from bulbjax.experiment.config import ExperimentConfig, preset  # noqa: E402
@@ -98,11 +100,13 @@ def profile(cfg: ExperimentConfig, repeats: int, warm_epochs: int, trace_dir: st
             log: Callable[[str], None] = print, phases: bool = True,
             save: Callable[[dict[str, Any]], None] = lambda out: None,
             variants: dict[str, dict[str, Any]] | None = None,
-            tags: tuple[str, ...] = ("probe", "no_probe")) -> dict[str, Any]:
+            tags: tuple[str, ...] = ("probe", "no_probe"), warp_stats: bool = False) -> dict[str, Any]:
     """Every phase's time and the fused epoch's, as a JSON-able dict. `save(out)` is called
     after every stage, so that a run cut short (a GPU call's time limit) keeps what it measured.
     `variants`: named XLA compile options, each compiling and timing the fused epoch (`tags`:
-    the probing and/or non-probing executable) in this process on the same run state."""
+    the probing and/or non-probing executable) in this process on the same run state.
+    `warp_stats`: record MuJoCo Warp's FFI handler calls, graph captures and host seconds per
+    timed epoch (`warp_ffi_stats.install()` must have run before the build)."""
     out: dict[str, Any] = {"phases": {}, "fused": {}, "done": False}
     t0 = time.perf_counter()
     exp = Experiment(cfg)
@@ -112,6 +116,8 @@ def profile(cfg: ExperimentConfig, repeats: int, warm_epochs: int, trace_dir: st
     rs = jax.block_until_ready(exp.init(key))
     out["init_s"] = time.perf_counter() - t0  # compile + run of init
     log(f"build {out['build_s']:.1f} s, init (compile + run) {out['init_s']:.1f} s")
+    if warp_stats:
+        out["warp_ffi_after_init"] = warp_ffi_stats.snapshot()
     save(out)
 
     # the fused epoch: compile, first call, then timed calls (probing and not), once per variant
@@ -135,8 +141,9 @@ def profile(cfg: ExperimentConfig, repeats: int, warm_epochs: int, trace_dir: st
             if vi == 0:
                 compiled_by_tag[tag] = compiled
             log(f"[{vname}] fused epoch ({tag}): lower {lower_s:.1f} s, compile {compile_s:.1f} s")
-            times, get_s, rec_s = [], [], []
+            times, get_s, rec_s, ffi = [], [], [], []
             for i in range(warm_epochs + repeats):
+                snap = warp_ffi_stats.snapshot() if warp_stats else None
                 t0 = time.perf_counter()
                 rs, m = compiled(rs, jax.random.fold_in(k, i))
                 jax.block_until_ready(rs)
@@ -145,6 +152,8 @@ def profile(cfg: ExperimentConfig, repeats: int, warm_epochs: int, trace_dir: st
                 t2 = time.perf_counter()
                 report.epoch_records(i, m, exp.spec)
                 t3 = time.perf_counter()
+                if warp_stats:
+                    ffi.append(warp_ffi_stats.delta(warp_ffi_stats.snapshot(), snap))
                 if i >= warm_epochs:
                     times.append(t1 - t0)
                     get_s.append(t2 - t1)
@@ -152,6 +161,10 @@ def profile(cfg: ExperimentConfig, repeats: int, warm_epochs: int, trace_dir: st
             res_v[tag] = {"lower_s": lower_s, "compile_s": compile_s, "median_s": statistics.median(times),
                           "min_s": min(times), "device_get_s": statistics.median(get_s),
                           "records_s": statistics.median(rec_s), "times_s": times}
+            if warp_stats:  # per epoch: the first (after compile), then the timed ones
+                res_v[tag]["warp_ffi"] = {"first": ffi[0], "last": ffi[-1],
+                                          "per_epoch_totals": [f["total"] for f in ffi]}
+                log(f"[{vname}] warp ffi per epoch ({tag}): first {ffi[0]['total']}, last {ffi[-1]['total']}")
             log(f"[{vname}] fused epoch ({tag}): median {res_v[tag]['median_s']:.3f} s")
             del compiled
             save(out)
@@ -247,7 +260,14 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     p.add_argument("--tags", default="probe,no_probe", help="fused executables to time (probe, no_probe)")
     p.add_argument("--compile-cache", default="",
                    help="JAX persistent compilation cache folder (default: none, so compile times are cold)")
+    p.add_argument("--warp-stats", action="store_true",
+                   help="count MuJoCo Warp's FFI calls, graph captures and their host time per epoch")
+    p.add_argument("--warp-graph-cache", default="",
+                   help="capture cache per Warp callable (an int, or none: unbounded; default Warp's 32)")
     a = p.parse_args(argv)
+    if a.warp_stats or a.warp_graph_cache:
+        gcm = a.warp_graph_cache
+        warp_ffi_stats.install("default" if not gcm else None if gcm == "none" else int(gcm))
     cfg = build_config(a)
     if a.compile_cache:
         from bulbjax.compile_cache import enable as enable_compile_cache
@@ -256,7 +276,8 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     res: dict[str, Any] = {"preset": a.preset, "argv": sys.argv if argv is None else argv, "tag": a.tag,
                            "config": dataclasses.asdict(cfg), "device_kind": jax.devices()[0].device_kind,
                            "platform": jax.default_backend(), "jax": jax.__version__,
-                           "compile_cache": a.compile_cache or None}
+                           "compile_cache": a.compile_cache or None,
+                           "warp_graph_cache": a.warp_graph_cache or "default"}
     slug = res["device_kind"].lower().replace(" ", "_")
     stamp = dt.datetime.now().strftime("%Y%m%d_%H%M%S")
     os.makedirs(a.out_dir, exist_ok=True)
@@ -272,7 +293,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     variants = dict(parse_variant(v) for v in a.variant) or None
     tags = tuple(t for t in a.tags.split(",") if t)
     profile(cfg, a.repeats, a.warm_epochs, a.trace or None, phases=not a.no_phases, save=save,
-            variants=variants, tags=tags)
+            variants=variants, tags=tags, warp_stats=a.warp_stats)
     print(f"\n== epoch profile: {a.preset} on {res['device_kind']} ({cfg.seeds} seeds, "
           f"{len(cfg.learners)} learners, {cfg.learner.compute_dtype}) ==")
     print(f"build {res['build_s']:.1f} s, init {res['init_s']:.1f} s")
