@@ -263,7 +263,8 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     p.add_argument("--warp-stats", action="store_true",
                    help="count MuJoCo Warp's FFI calls, graph captures and their host time per epoch")
     p.add_argument("--warp-graph-cache", default="",
-                   help="capture cache per Warp callable (an int, or none: unbounded; default Warp's 32)")
+                   help="captured CUDA graphs kept per Warp callable (an int, or none: unbounded; default: "
+                        "bulbjax.envs.warp_graphs.GRAPH_CACHE_MAX; Warp's own default is 32)")
     a = p.parse_args(argv)
     if a.warp_stats or a.warp_graph_cache:
         gcm = a.warp_graph_cache

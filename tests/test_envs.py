@@ -21,6 +21,7 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 import pytest
+import warp  # annotations of the Warp callables in test_warp_graph_cache_holds_an_epoch
 
 import bulbjax
 from bulbjax.envs import EnvState, MjxPixelEnv, RenderInput
@@ -660,3 +661,26 @@ def test_version_is_refused_by_single_scene_domains():
         bulbjax.make("CartPole", num_envs=2, version=3, render=False)
     with pytest.raises(ValueError, match="no object versions"):
         bulbjax.make("InvertedPendulum", num_envs=2, version="random", render=False)
+
+
+def test_warp_graph_cache_holds_an_epoch(inv_pend: Bundle) -> None:
+    """Every MuJoCo Warp callable that stepping and rendering made keeps `GRAPH_CACHE_MAX`
+    captured CUDA graphs (Warp's own default, 32, made GPU epochs re-capture graphs every
+    epoch); a limit passed to `warp.jax_callable` explicitly is kept."""
+    from bulbjax.envs import warp_graphs
+
+    s = jax.eval_shape(inv_pend.env.reset, jax.random.PRNGKey(0))  # traces: makes the callables
+    jax.eval_shape(inv_pend.env.step, s, jnp.zeros((N, inv_pend.env.action_size)))
+    limits = warp_graphs.limits()
+    assert len(limits) >= 2 and set(limits.values()) == {warp_graphs.GRAPH_CACHE_MAX}, limits
+
+    def double(x: warp.array(dtype=float), y: warp.array(dtype=float)) -> None:
+        pass
+
+    def triple(x: warp.array(dtype=float), y: warp.array(dtype=float)) -> None:
+        pass
+
+    assert warp.jax_callable(double, num_outputs=1, graph_cache_max=7).graph_cache_max == 7
+    assert warp.jax_callable(triple, num_outputs=1).graph_cache_max == warp_graphs.GRAPH_CACHE_MAX
+    with pytest.raises(ValueError, match="at least 1"):
+        warp_graphs.install(0)

@@ -255,37 +255,53 @@ def test_compiler_options_parse_and_reach_the_jits():
 
 
 _PROGRAM_SCRIPT = """
-import hashlib, sys
+import hashlib, json, sys
 sys.path.insert(0, {tests!r})
 import jax
+from warp._src.jax.ffi import _FFI_CALLABLE_REGISTRY
 from bulbjax.experiment import Experiment
 from test_run import tiny
 exp = Experiment(tiny())
-order = sys.argv[1]
-if order == "fresh":  # a new run: init runs, then the epochs are traced in the fixed order
-    exp.init.lower(jax.random.PRNGKey(0))
-if order != "no_probe_first":
-    exp.trace_epochs()
-text = exp.epoch.lower(exp.abstract_state(), exp.abstract_key(), probe=False).as_text()
-print(hashlib.sha256(text.encode()).hexdigest())
+mode = sys.argv[1]
+if mode == "no_probe_first":  # the non-probing epoch traced first: other FFI target names
+    exp.epoch.trace(exp.abstract_state(), exp.abstract_key(), probe=False)
+if mode == "init_traced_twice":  # what a retrace of init does (a fresh GPU run's init call did)
+    exp.init.trace(jax.ShapeDtypeStruct((2,), jax.numpy.uint32))
+progs = exp.programs()
+text = progs._traced[False].lower().as_text()
+calls = lambda: {{c.name: c.call_id for c in _FFI_CALLABLE_REGISTRY.values()}}
+before, traced_after = calls(), None
+if mode == "fresh":  # a new run: init and one epoch run, and nothing is traced again
+    rs = progs.init(jax.random.PRNGKey(0))
+    rs, m = progs.epoch(rs, jax.random.PRNGKey(1), probe=False)
+    jax.block_until_ready(m)
+    traced_after = calls() != before
+print(json.dumps({{"hash": hashlib.sha256(text.encode()).hexdigest(), "traced_after": traced_after}}))
 """
 
 
 def test_resumed_process_compiles_the_same_epoch_program():
-    """MuJoCo Warp names FFI targets by first-trace order, and the names are in the program (so in
-    the compilation cache key). `trace_epochs` fixes the order: the non-probing epoch of a fresh
-    run and of a resume (no init, first epoch not probing) lower to the same text; without it
-    (the non-probing epoch traced first) the text differs, which is what made resumed GPU
+    """MuJoCo Warp numbers its FFI targets and call sites by per-process trace order, and the
+    numbers are in the program (so in the compilation cache key). `Experiment.programs` traces
+    init and the epochs in one order and then only calls what it compiled: the non-probing
+    epoch of a fresh run (which runs init and an epoch, tracing nothing more) and of a resume
+    (no init) lower to the same text; the non-probing epoch traced first, or init traced one
+    more time (what a fresh GPU run's init call did), give another text: what made resumed GPU
     stretches recompile for minutes."""
+    import json
     import subprocess
     import sys
 
     here = os.path.dirname(os.path.abspath(__file__))
     script = _PROGRAM_SCRIPT.format(tests=here)
+    modes = ("fresh", "resume", "no_probe_first", "init_traced_twice")
     procs = {o: subprocess.Popen([sys.executable, "-c", script, o], stdout=subprocess.PIPE, text=True,
                                  cwd=os.path.dirname(here))
-             for o in ("fresh", "resume", "no_probe_first")}
-    out = {o: p.communicate(timeout=600)[0].strip().splitlines()[-1] for o, p in procs.items()}
+             for o in modes}
+    out = {o: p.communicate(timeout=900)[0].strip().splitlines()[-1] for o, p in procs.items()}
     assert all(p.returncode == 0 for p in procs.values()), out
-    assert out["fresh"] == out["resume"]
-    assert out["no_probe_first"] != out["fresh"]
+    out = {o: json.loads(v) for o, v in out.items()}
+    assert out["fresh"]["traced_after"] is False
+    assert out["fresh"]["hash"] == out["resume"]["hash"]
+    assert out["no_probe_first"]["hash"] != out["fresh"]["hash"]
+    assert out["init_traced_twice"]["hash"] != out["fresh"]["hash"]

@@ -21,6 +21,7 @@ from mujoco import mjx
 
 from bulbjax.envs.camera import PAN_CAMERAS, CameraConfig, add_bulb_camera, pan_cameras
 from bulbjax.envs.colours import NUM_SCHEMES, scheme_table
+from bulbjax.envs import warp_graphs
 from bulbjax.envs.render import PointCloudRenderer, Renderer, exclude_from_pointcloud
 from bulbjax.eval.spec import StateEntry
 
@@ -146,6 +147,7 @@ class MjxPixelEnv:
             for i, cam in enumerate(pan_cameras(self.camera)):
                 add_bulb_camera(spec, cam, name=f"pan{i}")
         self.mj_model = spec.compile()
+        warp_graphs.install()  # keep every CUDA graph an epoch captures (GPU), see warp_graphs
         self.mx = self._post_put(mjx.put_model(self.mj_model, impl="warp"))
         self._data0 = mjx.make_data(self.mj_model, impl="warp", njmax=self.njmax,
                                     naconmax=self.naconmax_per_world * self.num_envs)

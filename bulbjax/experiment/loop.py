@@ -378,7 +378,14 @@ class Experiment:
         if self.sharded or warp_devices(list(self.mesh.devices.flat)) != warp_devices():
             self._per_device_renderer()  # (also one GPU that is not JAX's default)
         self._rep = NamedSharding(self.mesh, P())
-        self._state_sh = self.state_shardings(jax.eval_shape(self._init, jax.random.PRNGKey(0)))
+        shapes = jax.eval_shape(self._init, jax.random.PRNGKey(0))
+        self._state_sh = self.state_shardings(shapes)
+        # traced once here: every later use reads this, so that a process's sequence of traces
+        # (which names MuJoCo Warp's FFI calls, see `programs`) does not depend on how often
+        # it asks for the state's shapes
+        self._programs: dict[tuple[bool, ...], Programs] = {}
+        self._abstract_state = jax.tree.map(lambda x, sh: jax.ShapeDtypeStruct(x.shape, x.dtype, sharding=sh),
+                                            shapes, self._state_sh)
         opts = self.compiler_options or None
         self.init = jax.jit(self._init, out_shardings=self._state_sh, compiler_options=opts)
         # `epoch(rs, key, probe=False)` skips the held-out rollouts and probes (`--probe-every`).
@@ -444,20 +451,16 @@ class Experiment:
 
     def abstract_state(self) -> RunState:
         """Shapes, dtypes and shardings of the RunState (what a checkpoint is restored into)."""
-        shapes = jax.eval_shape(self._init, jax.random.PRNGKey(0))
-        return jax.tree.map(lambda x, sh: jax.ShapeDtypeStruct(x.shape, x.dtype, sharding=sh),
-                            shapes, self._state_sh)
+        return self._abstract_state
 
-    def trace_epochs(self, probes: Sequence[bool] = (True, False)) -> None:
-        """Trace the epoch (probing, then not) before it first runs. MuJoCo Warp names each FFI
-        target it registers by a per-process counter, in the order the targets are first traced,
-        and the names are part of the compiled program: a resumed run whose first epoch does not
-        probe would otherwise name them differently from the run that wrote the compilation cache
-        and miss it (minutes of compile per stretch on the GPU). Tracing in one fixed order makes
-        the programs, and so the cache keys, the same in every process."""
-        rs, key = self.abstract_state(), self.abstract_key()
-        for p in probes:
-            self.epoch.trace(rs, key, probe=p)
+    def programs(self, probes: Sequence[bool] = (True, False)) -> "Programs":
+        """The init and epoch executables of a run (`probes`: which epochs it runs), traced in
+        one fixed order before anything runs; see `Programs`. Kept per `probes`, so that several
+        runs of one experiment in a process (tests) compile once."""
+        probes = tuple(bool(p) for p in probes)
+        if probes not in self._programs:
+            self._programs[probes] = Programs(self, probes)
+        return self._programs[probes]
 
     def abstract_key(self) -> jax.ShapeDtypeStruct:
         return jax.ShapeDtypeStruct((2,), jnp.uint32, sharding=self._rep)
@@ -984,3 +987,43 @@ class Experiment:
         if self.sharded:  # the next epoch gets the layout this one got
             new = jax.lax.with_sharding_constraint(new, self._state_sh)
         return new, metrics
+
+
+class Programs:
+    """A run's init and epoch executables, traced in one fixed order and then only called.
+
+    MuJoCo Warp writes two per-process counters into every program that steps or renders: the
+    FFI target's name (`<function>_<n>`, numbered in the order the targets are first traced)
+    and each call site's `call_id` (numbered in the order the call sites are traced). Both are
+    part of the compiled program and so of its persistent compile-cache key. A process that
+    traced anything else first, or traced the same function twice (a jit call whose arguments
+    differ in placement from an earlier trace retraces it: on the GPU a fresh run's `init` call
+    did, a resumed run never calls `init`), numbers the calls differently and misses the
+    cache: minutes of compile for every resumed stretch on the GPU. Here every process, fresh
+    or resumed, traces `init` and then the epochs (probing first) on abstract arguments right
+    after building the experiment, and later calls go to executables compiled from exactly
+    those traces (compiled on first use), so nothing is traced again."""
+
+    def __init__(self, exp: Experiment, probes: Sequence[bool]) -> None:
+        key, rs = exp.abstract_key(), exp.abstract_state()
+        self._exp = exp
+        self._traced: dict[Any, Any] = {"init": exp.init.trace(key)}
+        for p in probes:
+            self._traced[bool(p)] = exp.epoch.trace(rs, key, probe=bool(p))
+        self._compiled: dict[Any, Any] = {}
+
+    def _get(self, which: Any) -> Any:
+        if which not in self._compiled:
+            if which not in self._traced:
+                raise KeyError(f"this run's programs were traced for probe in {sorted(k for k in self._traced if k != 'init')}, "
+                               f"not {which!r}: pass every probe value the run uses to Experiment.programs")
+            self._compiled[which] = self._traced[which].lower().compile()
+        return self._compiled[which]
+
+    def init(self, key: jax.Array) -> RunState:
+        """`Experiment.init` of a host PRNG key (placed on the mesh here)."""
+        return self._get("init")(self._exp.put_key(key))
+
+    def epoch(self, rs: RunState, key: jax.Array, probe: bool = True) -> tuple[RunState, Any]:
+        """`Experiment.epoch` (`rs` donated); the key is placed on the mesh here."""
+        return self._get(bool(probe))(rs, self._exp.put_key(key))

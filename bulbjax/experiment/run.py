@@ -308,6 +308,10 @@ def run(cfg: ExperimentConfig, opts: RunOptions, run_dir: str, *, resume: bool =
     else:
         raw["provenance"] = stretch
     ckpt = Checkpointer(run_dir, keep=opts.keep)
+    # init and the epochs this run uses, traced before anything else in this process so that a
+    # resumed stretch compiles the same programs as the fresh one (and hits the compile cache);
+    # probe_every is part of a run's identity, so fresh and resumed stretches trace the same ones
+    programs = exp.programs((True,) if opts.probe_every == 1 else (True, False))
     if resume:
         like = {"run": exp.abstract_state(), "key": exp.abstract_key()}
         state, host, start = ckpt.restore(like)
@@ -318,12 +322,9 @@ def run(cfg: ExperimentConfig, opts: RunOptions, run_dir: str, *, resume: bool =
         raw["resumes"][-1]["from_epoch"] = start
         log(f"resuming {run_dir} at epoch {start} (checkpoints: {ckpt.steps()})")
     else:
-        rs = exp.init(exp.put_key(jax.random.PRNGKey(opts.seed)))
+        rs = programs.init(jax.random.PRNGKey(opts.seed))
         key, start, records = exp.put_key(jax.random.PRNGKey(opts.seed + 1)), 0, []
     _write_json_atomic(config_path, raw)
-    # FFI target names in one order, so a resumed stretch hits the compile cache; only the
-    # executables this run uses (probe_every is fixed for the run, so fresh and resumed agree)
-    exp.trace_epochs((True,) if opts.probe_every == 1 else (True, False))
     jax.block_until_ready(rs)
     t_init = time.time() - t0
     tb = _TensorBoard(run_dir, purge_step=start if resume else None) if opts.tensorboard else None
@@ -346,7 +347,7 @@ def run(cfg: ExperimentConfig, opts: RunOptions, run_dir: str, *, resume: bool =
                     stopped = "stop-after"
                     break
                 key, k = jax.random.split(key)
-                rs, m = exp.epoch(rs, k, probe=_probe_now(epoch, cfg, opts))
+                rs, m = programs.epoch(rs, k, probe=_probe_now(epoch, cfg, opts))
                 m = jax.device_get(m)
                 if t_first is None:
                     t_first = time.time() - t0 - t_init
