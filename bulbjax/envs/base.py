@@ -19,9 +19,9 @@ import numpy as np
 from flax import struct
 from mujoco import mjx
 
+from bulbjax.envs import warp_graphs
 from bulbjax.envs.camera import PAN_CAMERAS, CameraConfig, add_bulb_camera, pan_cameras
 from bulbjax.envs.colours import NUM_SCHEMES, scheme_table
-from bulbjax.envs import warp_graphs
 from bulbjax.envs.render import PointCloudRenderer, Renderer, exclude_from_pointcloud
 from bulbjax.eval.spec import StateEntry
 

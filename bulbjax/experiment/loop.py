@@ -380,10 +380,10 @@ class Experiment:
         self._rep = NamedSharding(self.mesh, P())
         shapes = jax.eval_shape(self._init, jax.random.PRNGKey(0))
         self._state_sh = self.state_shardings(shapes)
-        # traced once here: every later use reads this, so that a process's sequence of traces
-        # (which names MuJoCo Warp's FFI calls, see `programs`) does not depend on how often
-        # it asks for the state's shapes
         self._programs: dict[tuple[bool, ...], Programs] = {}
+        # traced once here: every later use reads this, so that a process's sequence of traces
+        # (which numbers MuJoCo Warp's FFI calls, see `Programs`) does not depend on how often
+        # it asks for the state's shapes
         self._abstract_state = jax.tree.map(lambda x, sh: jax.ShapeDtypeStruct(x.shape, x.dtype, sharding=sh),
                                             shapes, self._state_sh)
         opts = self.compiler_options or None
@@ -1000,9 +1000,9 @@ class Programs:
     differ in placement from an earlier trace retraces it: on the GPU a fresh run's `init` call
     did, a resumed run never calls `init`), numbers the calls differently and misses the
     cache: minutes of compile for every resumed stretch on the GPU. Here every process, fresh
-    or resumed, traces `init` and then the epochs (probing first) on abstract arguments right
-    after building the experiment, and later calls go to executables compiled from exactly
-    those traces (compiled on first use), so nothing is traced again."""
+    or resumed, traces `init` and then the epochs (probing first) on abstract arguments before
+    anything runs, and later calls go to executables compiled from exactly those traces
+    (compiled on first use), so nothing is traced again."""
 
     def __init__(self, exp: Experiment, probes: Sequence[bool]) -> None:
         key, rs = exp.abstract_key(), exp.abstract_state()
@@ -1015,8 +1015,9 @@ class Programs:
     def _get(self, which: Any) -> Any:
         if which not in self._compiled:
             if which not in self._traced:
-                raise KeyError(f"this run's programs were traced for probe in {sorted(k for k in self._traced if k != 'init')}, "
-                               f"not {which!r}: pass every probe value the run uses to Experiment.programs")
+                traced = sorted(k for k in self._traced if k != "init")
+                raise KeyError(f"this run's epochs were traced for probe in {traced}, not {which!r}: "
+                               "pass every probe value the run uses to Experiment.programs")
             self._compiled[which] = self._traced[which].lower().compile()
         return self._compiled[which]
 
