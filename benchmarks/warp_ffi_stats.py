@@ -23,7 +23,8 @@ import time
 from collections import defaultdict
 from typing import Any
 
-_STATS: dict[str, dict[str, float]] = defaultdict(lambda: {"calls": 0, "captures": 0, "host_s": 0.0})
+_COUNTERS = ("calls", "captures", "host_s")
+_STATS: dict[str, dict[str, float]] = defaultdict(lambda: dict.fromkeys(_COUNTERS, 0))
 _INSTALLED = False
 _graph_cache_max: int | None | str = "default"
 
@@ -85,8 +86,7 @@ def snapshot() -> dict[str, Any]:
 
     out: dict[str, Any] = {}
     for c in wffi._FFI_CALLABLE_REGISTRY.values():
-        s = _STATS.get(c.name, {"calls": 0, "captures": 0, "host_s": 0.0})
-        out[c.name] = {**s, "call_id": c.call_id, "graph_mode": int(c.graph_mode),
+        out[c.name] = {**_STATS[c.name], "call_id": c.call_id, "graph_mode": int(c.graph_mode),
                        "graph_cache_size": len(c.captures), "graph_cache_max": c.graph_cache_max}
     return out
 
@@ -95,11 +95,11 @@ def delta(after: dict[str, Any], before: dict[str, Any]) -> dict[str, Any]:
     """Calls, captures and host seconds between two snapshots, with their totals."""
     out: dict[str, Any] = {}
     for name, a in after.items():
-        b = before.get(name, {"calls": 0, "captures": 0, "host_s": 0.0})
-        d = {k: a[k] - b[k] for k in ("calls", "captures", "host_s")}
+        b = before.get(name, dict.fromkeys(_COUNTERS, 0))
+        d = {k: a[k] - b[k] for k in _COUNTERS}
         if d["calls"]:
             out[name] = d
-    out["total"] = {k: sum(v[k] for v in out.values()) for k in ("calls", "captures", "host_s")}
+    out["total"] = {k: sum(v[k] for v in out.values()) for k in _COUNTERS}
     return out
 
 
@@ -115,7 +115,7 @@ if __name__ == "__main__":
         args = args[1:]
     install(gcm)
     atexit.register(lambda: print("WARP_FFI_STATS " + json.dumps(snapshot()), file=sys.stderr))
-    if args[:2] != ["bulbjax", "run"] and args[:1] != ["bulbjax"]:
+    if args[:1] != ["bulbjax"]:
         raise SystemExit("usage: warp_ffi_stats.py [--graph-cache N|none] -- bulbjax ARGS...")
     from bulbjax.cli import main as cli_main
 
