@@ -202,14 +202,15 @@ def test_config_is_hashable_and_frozen() -> None:
         config.lr = 1.0  # type: ignore[misc]
 
 
-def test_subpixel_decoder_equals_transpose() -> None:
-    """The two decoder forms share parameters and compute the same function (and gradients),
-    so switching `deconv_impl` for speed cannot change what a learner learns."""
+@pytest.mark.parametrize("impl", ["subpixel", "dgrad"])
+def test_decoder_forms_equal_transpose(impl: str) -> None:
+    """The decoder forms share parameters and compute the same function (and gradients), so
+    switching `deconv_impl` for speed cannot change what a learner learns."""
     from bulbjax.learners.networks import DeconvDecoder
 
     z = jax.random.normal(jax.random.PRNGKey(3), (3, 6))
     a = DeconvDecoder(32, (8, 8, 16, 16), 32, impl="transpose")
-    b = DeconvDecoder(32, (8, 8, 16, 16), 32, impl="subpixel")
+    b = DeconvDecoder(32, (8, 8, 16, 16), 32, impl=impl)
     params = a.init(jax.random.PRNGKey(4), z)
     assert jax.tree.map(jnp.shape, params) == jax.tree.map(jnp.shape, b.init(jax.random.PRNGKey(4), z))
     # non-zero biases, so a misplaced bias shows
@@ -222,5 +223,12 @@ def test_subpixel_decoder_equals_transpose() -> None:
     for x, y in zip(jax.tree.leaves(ga), jax.tree.leaves(gb)):
         scale = float(np.abs(np.asarray(x)).max())  # float32 sums in another order: relative to the leaf
         np.testing.assert_allclose(np.asarray(y), np.asarray(x), rtol=1e-4, atol=1e-5 * max(scale, 1.0))
+    # and under vmap (the seed axis): the custom gradient batches
+    za = jnp.stack([z, 2 * z])
+    ys = jax.vmap(lambda zz: b.apply(params, zz))(za)
+    np.testing.assert_allclose(np.asarray(ys[1]), np.asarray(a.apply(params, 2 * z)), rtol=1e-5, atol=1e-5)
+
+
+def test_unknown_decoder_form_is_refused() -> None:
     with pytest.raises(ValueError, match="deconv_impl"):
         LearnerConfig(deconv_impl="nearest")

@@ -44,8 +44,10 @@ class LearnerConfig:
     compute_dtype: str = "float32"
     retain_fraction: float = 0.0
     # How the decoder's transposed convs are computed (networks.DECONV_IMPLS; same parameters,
-    # same function): "transpose" (flax ConvTranspose) or "subpixel" (3x3 conv + depth-to-space).
-    deconv_impl: str = "subpixel"
+    # same function): "transpose" (flax ConvTranspose), "subpixel" (3x3 conv + depth-to-space) or
+    # "dgrad" (a stride-2 conv's input gradient, as PyTorch runs ConvTranspose2d; fastest on the
+    # H100 and on the CPU, and the quickest to compile: benchmarks/README.md).
+    deconv_impl: str = "dgrad"
     # Sequential learners only (svae, pred, dsa); the frame learners ignore these.
     sequence_length: int = 24  # steps per window (paper: 24 pendulums, 16 locomotion)
     pred_horizon: int = 4  # PRED reconstructs sequence_length + pred_horizon frames

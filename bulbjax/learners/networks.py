@@ -5,10 +5,12 @@ default), a 512-unit FC layer, then two linear heads for the posterior mean and
 log-variance. Decoder mirrors it: FC 512 -> FC to (R/16)x(R/16)x256 -> transposed convs
 (4x4, stride 2) with 128,64,64 filters and ReLU, and a last one to 3 channels of logits.
 
-The decoder's transposed convs have two exact implementations with the same parameters
-(`DECONV_IMPLS`): `transpose` (flax's `ConvTranspose`: a convolution over a zero-dilated input)
-and `subpixel` (the same 4x4 stride-2 kernel rearranged into a 3x3 convolution with 4x the output
-channels, then depth-to-space). They compute the same function; which is faster depends on the
+The decoder's transposed convs have three exact implementations with the same parameters
+(`DECONV_IMPLS`): `transpose` (flax's `ConvTranspose`: a convolution over a zero-dilated input),
+`subpixel` (the same 4x4 stride-2 kernel rearranged into a 3x3 convolution with 4x the output
+channels, then depth-to-space) and `dgrad` (the input-gradient of a 4x4 stride-2 convolution, with
+the gradients of a convolution as its own gradients: the form PyTorch's `ConvTranspose2d` runs,
+cuDNN's data-gradient kernels). They compute the same function; which is faster depends on the
 device (XLA's dilated-input convolutions are slow on GPU in fp32): see `benchmarks/`.
 
 The two are separate modules so the sequential learners can reuse them. Params are
@@ -108,7 +110,7 @@ class ConvEncoder(nn.Module):
         return mean, logvar
 
 
-DECONV_IMPLS: tuple[str, ...] = ("transpose", "subpixel")
+DECONV_IMPLS: tuple[str, ...] = ("transpose", "subpixel", "dgrad")
 
 # For a 4x4 stride-2 'SAME' transposed conv (lax.conv_transpose pads the 2x-dilated input by 2
 # on each side): output 2i+0 reads input i-1 with tap 0 and i with tap 2; output 2i+1 reads i
@@ -151,6 +153,62 @@ class SubpixelConvTranspose(nn.Module):
         return y.reshape((b, 2 * h, 2 * w, self.features)) + bias.astype(self.dtype)
 
 
+_DOWN_DIMS = ("NHWC", "HWIO", "NHWC")
+
+
+def _conv_down(u: jax.Array, w: jax.Array) -> jax.Array:
+    """4x4 stride-2 'SAME' convolution [B, 2H, 2W, Cout] -> [B, H, W, Cin], w [4, 4, Cout, Cin]."""
+    return jax.lax.conv_general_dilated(u, w, (2, 2), ((1, 1), (1, 1)), dimension_numbers=_DOWN_DIMS)
+
+
+@jax.custom_vjp
+def conv_up(x: jax.Array, w: jax.Array) -> jax.Array:
+    """The transpose of `_conv_down(., w)`: [B, H, W, Cin] -> [B, 2H, 2W, Cout]. Forward and both
+    gradients are the three patterns of an ordinary convolution's autodiff (data gradient, forward,
+    filter gradient), which XLA hands to cuDNN's kernels for them."""
+    b, h, wd, _ = x.shape
+    u = jax.ShapeDtypeStruct((b, 2 * h, 2 * wd, w.shape[2]), x.dtype)
+    (y,) = jax.linear_transpose(lambda v: _conv_down(v, w), u)(x)
+    return y
+
+
+def _conv_up_fwd(x: jax.Array, w: jax.Array) -> tuple[jax.Array, tuple[jax.Array, jax.Array]]:
+    return conv_up(x, w), (x, w)
+
+
+def _conv_up_bwd(res: tuple[jax.Array, jax.Array], g: jax.Array) -> tuple[jax.Array, jax.Array]:
+    # y = A_w^T x with A_w = _conv_down(., w): dx = A_w g, and <g, A_w^T x> = <A_w g, x> gives dw
+    # as the filter gradient of _conv_down at input g with output cotangent x.
+    x, w = res
+    _, vjp_w = jax.vjp(lambda v: _conv_down(g, v), w)
+    return _conv_down(g, w), vjp_w(x)[0]
+
+
+conv_up.defvjp(_conv_up_fwd, _conv_up_bwd)
+
+
+class DgradConvTranspose(nn.Module):
+    """`nn.ConvTranspose(features, (4, 4), strides=(2, 2), padding="SAME")` computed as `conv_up`,
+    the input-gradient of a stride-2 convolution whose kernel is this one flipped in space with
+    its channel axes swapped. Same parameters (`kernel [4, 4, in, features]`, `bias [features]`,
+    same init) and the same function as the other forms."""
+
+    features: int
+    dtype: jnp.dtype = jnp.float32
+    param_dtype: jnp.dtype = jnp.float32
+    kernel_init: Any = lecun_normal_flat
+
+    @nn.compact
+    def __call__(self, x: jax.Array) -> jax.Array:
+        cin = x.shape[-1]
+        kernel = self.param("kernel", self.kernel_init, (4, 4, cin, self.features), self.param_dtype)
+        bias = self.param("bias", nn.initializers.zeros_init(), (self.features,), self.param_dtype)
+        # flax's output 2i+a reads input j with tap 2j-(2i+a)+2; the transpose of the stride-2
+        # conv (padding 1) reads it with tap (2i+a)-2j+1 = 3 - that: the kernel flipped in space.
+        w = jnp.flip(kernel, (0, 1)).swapaxes(2, 3).astype(self.dtype)
+        return conv_up(x.astype(self.dtype), w) + bias.astype(self.dtype)
+
+
 class DeconvDecoder(nn.Module):
     """Latents [B, latent_dim] -> pixel logits [B, R, R, 3] float32 (sigmoid gives [0, 1]).
 
@@ -180,6 +238,8 @@ class DeconvDecoder(nn.Module):
         for i, f in enumerate(out_features):
             if self.impl == "subpixel":
                 h = SubpixelConvTranspose(f, name=f"deconv{i}", **dense)(h)
+            elif self.impl == "dgrad":
+                h = DgradConvTranspose(f, name=f"deconv{i}", **dense)(h)
             else:
                 h = nn.ConvTranspose(
                     f, (4, 4), strides=(2, 2), padding="SAME", name=f"deconv{i}", **dense
