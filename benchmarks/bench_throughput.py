@@ -6,7 +6,7 @@
    call and `--repeats` timed calls are reported separately; rates use the median call.
 2. Learners (`--learners`, default `vae`): updates per second at `--vae-batch` frames (sequential
    learners: `vae_batch // L` windows of L steps; spair: its own 64-frame batch), fp32 and bf16
-   compute, each decoder form of `--deconv-impls` (transpose / subpixel: same parameters, same
+   compute, each decoder form of `--deconv-impls` (transpose / subpixel / dgrad: same parameters, same
    function) and each fp32 matmul/conv precision of `--precisions` (JAX's `default`, or
    `tensorfloat32`, what PyTorch's cuDNN convolutions use by default), one jitted update (donated
    state) called `--vae-steps` times after warm-up; and, in a subprocess on the same device, the
@@ -25,6 +25,7 @@ from __future__ import annotations
 import argparse
 import datetime as dt
 import gc
+import glob
 import importlib.metadata
 import importlib.util
 import json
@@ -74,7 +75,7 @@ class BenchSettings:
     latent_dim: int = 32
     dtypes: tuple[str, ...] = DTYPES
     learners: tuple[str, ...] = ("vae",)
-    deconv_impls: tuple[str, ...] = ("transpose", "subpixel")
+    deconv_impls: tuple[str, ...] = ("transpose", "subpixel", "dgrad")
     precisions: tuple[str, ...] = ("default",)
     rnn_unroll: int = 1  # sequential learners' LSTM steps per scan iteration (LearnerConfig.rnn_unroll)
     parts: tuple[str, ...] = PARTS
@@ -84,6 +85,7 @@ class BenchSettings:
     seed: int = 0
     out_dir: str = os.path.join(HERE, "results")
     verbose: bool = False
+    kernels_top: int = 0  # > 0: profile 5 more updates per case, keep the top kernels (JAX and torch)
 
     def __post_init__(self) -> None:
         if not self.envs or not self.batch_sizes:
@@ -308,13 +310,45 @@ def bench_vae(dtype: str, s: BenchSettings, name: str = "vae", impl: str = "tran
     jax.block_until_ready((state, metrics))
     elapsed = time.perf_counter() - t0
     check_finite(metrics, f"{name} {dtype} benchmark")
+    kernels = kernel_breakdown(compiled, state, frames, keys, s.kernels_top) if s.kernels_top else None
     batch = learner.batch_size if name == "spair" or is_sequential(learner) else s.vae_batch
     return {"learner": name, "dtype": dtype, "deconv_impl": impl, "precision": precision,
             "batch": batch, "frames_per_batch": batch * getattr(learner, "window_length", 1),
             "resolution": s.resolution, "rnn_unroll": s.rnn_unroll,
             "latent_dim": s.latent_dim, "steps": s.vae_steps, "warmup_steps": s.vae_warmup,
             "init_s": init_s, "compile_s": compile_s, "warmup_s": warmup_s, "elapsed_s": elapsed,
-            "updates_per_s": s.vae_steps / elapsed, "final_loss": float(metrics["loss"])}
+            "updates_per_s": s.vae_steps / elapsed, "final_loss": float(metrics["loss"]),
+            **({"kernels": kernels} if kernels else {})}
+
+
+PROFILED_UPDATES = 5
+
+
+def kernel_breakdown(compiled: Any, state: Any, frames: Any, keys: list[jax.Array], top: int) -> dict[str, Any]:
+    """Device time per update by kernel, from a JAX profiler trace of `PROFILED_UPDATES` more
+    updates (`trace_summary.summarise`): what the update waits on, to set beside torch's kernels
+    (`torch_vae_reference.py --kernels-top`). The trace itself is deleted; only the summary stays."""
+    from trace_summary import summarise  # benchmarks/ is the script's folder
+
+    with tempfile.TemporaryDirectory() as tmp:
+        with jax.profiler.trace(tmp):
+            for k in keys[:PROFILED_UPDATES]:
+                state, _ = compiled(state, frames, k)
+            jax.block_until_ready(state)
+        files = sorted(glob.glob(os.path.join(tmp, "**", "*.xplane.pb"), recursive=True))
+        if not files:
+            return {"error": "the profiler wrote no trace"}
+        summary = summarise(files[-1], top=top)
+    n = min(PROFILED_UPDATES, len(keys))
+    out: dict[str, Any] = {"updates": n}
+    for plane, dev in summary["devices"].items():
+        kern = dev["lines"].get("streams", {"total_ms": 0.0, "top": []})
+        out[plane] = {"busy_ms_per_update": dev["busy_ms"] / n, "span_ms_per_update": dev["span_ms"] / n,
+                      "kernel_ms_per_update": kern["total_ms"] / n,
+                      "launches_per_update": dev["kernel_launches"] / n,
+                      "top": [{"name": r["name"], "ms_per_update": r["ms"] / n, "count_per_update": r["count"] / n}
+                              for r in kern["top"]]}
+    return out
 
 
 def run_learner(s: BenchSettings, w: ResultWriter) -> None:
@@ -351,6 +385,7 @@ def run_torch_reference(s: BenchSettings) -> dict[str, Any]:
                "--dtypes", ",".join(s.dtypes), "--json-out", out]
         cmd += [] if s.torch_compile else ["--no-compile"]
         cmd += ["--channels-last"] if s.torch_channels_last else []
+        cmd += ["--kernels-top", str(s.kernels_top)] if s.kernels_top else []
         log("torch reference: " + shlex.join(cmd))
         try:
             proc = subprocess.run(cmd, timeout=s.torch_timeout_s)
@@ -403,7 +438,7 @@ def parse_args(argv: list[str] | None = None) -> BenchSettings:
     p.add_argument("--learners", default=",".join(d.learners), help="learners to time (vae, svae, pred, dsa, spair, ...)")
     p.add_argument("--rnn-unroll", type=int, default=d.rnn_unroll,
                    help="sequential learners: LSTM steps per scan iteration (same function; try the window length)")
-    p.add_argument("--deconv-impls", default=",".join(d.deconv_impls), help="decoder forms: transpose, subpixel")
+    p.add_argument("--deconv-impls", default=",".join(d.deconv_impls), help="decoder forms: transpose, subpixel, dgrad")
     p.add_argument("--precisions", default=",".join(d.precisions),
                    help="fp32 matmul/conv precisions: default, tensorfloat32, highest")
     p.add_argument("--parts", default=",".join(d.parts), help=f"subset of {','.join(PARTS)}")
@@ -413,6 +448,9 @@ def parse_args(argv: list[str] | None = None) -> BenchSettings:
     p.add_argument("--seed", type=int, default=d.seed)
     p.add_argument("--out-dir", default=d.out_dir)
     p.add_argument("--verbose", action="store_true", help="keep Warp's per-module load messages")
+    p.add_argument("--kernels-top", type=int, default=d.kernels_top,
+                   help="profile 5 more updates of every learner case (and of torch) and keep this many "
+                        "kernels with the most device time in the JSON (0: no profile)")
     a = p.parse_args(argv)
     split = lambda text: tuple(x.strip() for x in text.split(",") if x.strip())  # noqa: E731
     return BenchSettings(
@@ -423,7 +461,20 @@ def parse_args(argv: list[str] | None = None) -> BenchSettings:
         rnn_unroll=a.rnn_unroll,
         torch_compile=not a.no_torch_compile, torch_channels_last=a.torch_channels_last,
         torch_timeout_s=a.torch_timeout, seed=a.seed, out_dir=a.out_dir,
-        verbose=a.verbose)
+        verbose=a.verbose, kernels_top=a.kernels_top)
+
+
+def print_kernels(k: dict[str, Any] | None, rows: int = 6) -> None:
+    """The kernel breakdown of one case (`--kernels-top`): time per update, the top kernels."""
+    if not k:
+        return
+    devs = [v for v in k.values() if isinstance(v, dict) and "top" in v] or [k]
+    for d in devs:
+        busy = f", busy {d['busy_ms_per_update']:.2f}" if "busy_ms_per_update" in d else ""
+        print(f"      kernels {d['kernel_ms_per_update']:.2f} ms/update{busy}, "
+              f"{d['launches_per_update']:.0f} launches/update")
+        for r in d["top"][:rows]:
+            print(f"        {r['ms_per_update']:7.3f} ms x{r['count_per_update']:<4.0f} {r['name'][:90]}")
 
 
 def print_summary(results: dict[str, Any]) -> None:
@@ -444,6 +495,7 @@ def print_summary(results: dict[str, Any]) -> None:
             label = f"{r.get('learner', 'vae'):8} {r['dtype']:9} {r.get('deconv_impl', 'transpose'):9} {r.get('precision', 'default'):13}"
             print(f"  bulbjax {label} " + (f"{r['updates_per_s']:8.2f}  (compile {r['compile_s']:.1f} s)"
                                            if "updates_per_s" in r else f"ERROR {r['error'][:60]}"))
+            print_kernels(r.get("kernels"))
     t = results.get("torch_reference")
     if t is not None:
         if not t.get("available"):
@@ -453,6 +505,7 @@ def print_summary(results: dict[str, Any]) -> None:
                 label = f"torch {r['mode']:7} {r['dtype']:9}"
                 print(f"  {label} " + (f"{r['updates_per_s']:8.2f}  (warm-up {r['warmup_s']:.1f} s)"
                                        if "updates_per_s" in r else f"ERROR {r['error'][:60]}"))
+                print_kernels(r.get("kernels"))
         for dtype, d in (results.get("ratios") or {}).items():
             if isinstance(d, dict):
                 print(f"  ratio bulbjax/torch {dtype}: " + ", ".join(f"{k} {v:.2f}" for k, v in d.items()))

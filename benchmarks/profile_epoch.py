@@ -244,7 +244,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     p.add_argument("--seeds", type=int, default=0, help="override the preset's seeds")
     p.add_argument("--learners", default="", help="override the preset's learners (comma-separated)")
     p.add_argument("--bf16", action="store_true")
-    p.add_argument("--deconv-impl", default="", help="decoder form (transpose, subpixel)")
+    p.add_argument("--deconv-impl", default="", help="decoder form (transpose, subpixel, dgrad)")
     p.add_argument("--rnn-unroll", type=int, default=0, help="sequential learners' LSTM unroll (default: the preset's)")
     p.add_argument("--seed-loop", default="", choices=("", "auto", "vmap", "map"),
                    help="learner work over the seed axis (default: the preset's)")

@@ -95,6 +95,35 @@ class TorchBenchSettings:
     channels_last: bool = False
     dtypes: tuple[str, ...] = ("float32", "bfloat16")
     seed: int = 0
+    kernels_top: int = 0  # > 0: profile PROFILED_UPDATES more updates, keep this many kernels
+
+
+PROFILED_UPDATES = 5
+
+
+def kernel_breakdown(step: Any, device: torch.device, top: int) -> dict[str, Any]:
+    """Device time per update by kernel (torch.profiler over `PROFILED_UPDATES` more updates), to
+    set beside bulbjax's (`bench_throughput.py --kernels-top`)."""
+    from torch.profiler import ProfilerActivity, profile
+
+    acts = [ProfilerActivity.CUDA] if device.type == "cuda" else [ProfilerActivity.CPU]
+    with profile(activities=acts) as prof:
+        for _ in range(PROFILED_UPDATES):
+            step()
+        _sync(device)
+    rows = []
+    for ev in prof.key_averages():
+        us = getattr(ev, "self_device_time_total", None)
+        if us is None:  # torch < 2.4 names it after CUDA
+            us = getattr(ev, "self_cuda_time_total", 0) if device.type == "cuda" else ev.self_cpu_time_total
+        if us > 0:
+            rows.append((ev.key, us, ev.count))
+    rows.sort(key=lambda r: -r[1])
+    n = PROFILED_UPDATES
+    return {"updates": n, "kernel_ms_per_update": sum(r[1] for r in rows) / 1e3 / n,
+            "launches_per_update": sum(r[2] for r in rows) / n,
+            "top": [{"name": k[:160], "ms_per_update": us / 1e3 / n, "count_per_update": c / n}
+                    for k, us, c in rows[:top]]}
 
 
 def _sync(device: torch.device) -> None:
@@ -134,10 +163,12 @@ def time_updates(settings: TorchBenchSettings, device: torch.device, dtype: str,
     _sync(device)
     elapsed = time.perf_counter() - t0
     final = float(loss)
+    kernels = kernel_breakdown(step, device, settings.kernels_top) if settings.kernels_top else None
     return {"mode": "compile" if compiled else "eager", "dtype": dtype, "batch": settings.batch,
             "steps": settings.steps, "warmup_steps": settings.warmup, "warmup_s": warmup_s,
             "elapsed_s": elapsed, "updates_per_s": settings.steps / elapsed,
-            "final_loss": final, "finite": bool(torch.isfinite(torch.tensor(final)))}
+            "final_loss": final, "finite": bool(torch.isfinite(torch.tensor(final))),
+            **({"kernels": kernels} if kernels else {})}
 
 
 def run_reference(settings: TorchBenchSettings, device: torch.device) -> dict[str, Any]:
@@ -184,10 +215,13 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--dtypes", default="float32,bfloat16")
     p.add_argument("--device", default="auto", help="auto (cuda if available), cuda or cpu")
     p.add_argument("--json-out", default="-", help="file for the JSON result, '-' for stdout")
+    p.add_argument("--kernels-top", type=int, default=0,
+                   help="profile 5 more updates per case; keep this many kernels by device time")
     a = p.parse_args(argv)
     settings = TorchBenchSettings(batch=a.batch, resolution=a.resolution, latent_dim=a.latent_dim,
                                   steps=a.steps, warmup=a.warmup, compile=not a.no_compile,
-                                  channels_last=a.channels_last, dtypes=tuple(a.dtypes.split(",")))
+                                  channels_last=a.channels_last, dtypes=tuple(a.dtypes.split(",")),
+                                  kernels_top=a.kernels_top)
     name = ("cuda" if torch.cuda.is_available() else "cpu") if a.device == "auto" else a.device
     info = run_reference(settings, torch.device(name))
     text = json.dumps(info, indent=2)
