@@ -126,22 +126,32 @@ def _phase_selector() -> jax.Array:
     return jnp.asarray(sel, jnp.float32)
 
 
-class SubpixelConvTranspose(nn.Module):
-    """`nn.ConvTranspose(features, (4, 4), strides=(2, 2), padding="SAME")` computed as a 3x3
-    stride-1 convolution to 4 * features channels followed by depth-to-space. Same parameters
-    (`kernel [4, 4, in, features]`, `bias [features]`, same init) and the same function, so the two
-    are interchangeable; this one avoids convolutions over zero-dilated inputs."""
+class _Deconv4x4(nn.Module):
+    """The parameters of `nn.ConvTranspose(features, (4, 4), strides=(2, 2), padding="SAME")`
+    (`kernel [4, 4, in, features]`, `bias [features]`, same init), shared by the forms below so
+    that every form reads the same checkpoint."""
 
     features: int
     dtype: jnp.dtype = jnp.float32
     param_dtype: jnp.dtype = jnp.float32
     kernel_init: Any = lecun_normal_flat
 
+    def kernel_and_bias(self, cin: int) -> tuple[jax.Array, jax.Array]:
+        kernel = self.param("kernel", self.kernel_init, (4, 4, cin, self.features), self.param_dtype)
+        bias = self.param("bias", nn.initializers.zeros_init(), (self.features,), self.param_dtype)
+        return kernel, bias
+
+
+class SubpixelConvTranspose(_Deconv4x4):
+    """`nn.ConvTranspose(features, (4, 4), strides=(2, 2), padding="SAME")` computed as a 3x3
+    stride-1 convolution to 4 * features channels followed by depth-to-space. Same parameters and
+    the same function, so the forms are interchangeable; this one avoids convolutions over
+    zero-dilated inputs."""
+
     @nn.compact
     def __call__(self, x: jax.Array) -> jax.Array:
         cin = x.shape[-1]
-        kernel = self.param("kernel", self.kernel_init, (4, 4, cin, self.features), self.param_dtype)
-        bias = self.param("bias", nn.initializers.zeros_init(), (self.features,), self.param_dtype)
+        kernel, bias = self.kernel_and_bias(cin)
         sel = _phase_selector()
         # k3[dy, dx, c, py, px, f] = kernel[tap(py, dy), tap(px, dx), c, f] (0 where no tap)
         k3 = jnp.einsum("pat,qbs,tscf->abcpqf", sel, sel, kernel)
@@ -187,22 +197,14 @@ def _conv_up_bwd(res: tuple[jax.Array, jax.Array], g: jax.Array) -> tuple[jax.Ar
 conv_up.defvjp(_conv_up_fwd, _conv_up_bwd)
 
 
-class DgradConvTranspose(nn.Module):
+class DgradConvTranspose(_Deconv4x4):
     """`nn.ConvTranspose(features, (4, 4), strides=(2, 2), padding="SAME")` computed as `conv_up`,
     the input-gradient of a stride-2 convolution whose kernel is this one flipped in space with
-    its channel axes swapped. Same parameters (`kernel [4, 4, in, features]`, `bias [features]`,
-    same init) and the same function as the other forms."""
-
-    features: int
-    dtype: jnp.dtype = jnp.float32
-    param_dtype: jnp.dtype = jnp.float32
-    kernel_init: Any = lecun_normal_flat
+    its channel axes swapped. Same parameters and the same function as the other forms."""
 
     @nn.compact
     def __call__(self, x: jax.Array) -> jax.Array:
-        cin = x.shape[-1]
-        kernel = self.param("kernel", self.kernel_init, (4, 4, cin, self.features), self.param_dtype)
-        bias = self.param("bias", nn.initializers.zeros_init(), (self.features,), self.param_dtype)
+        kernel, bias = self.kernel_and_bias(x.shape[-1])
         # flax's output 2i+a reads input j with tap 2j-(2i+a)+2; the transpose of the stride-2
         # conv (padding 1) reads it with tap (2i+a)-2j+1 = 3 - that: the kernel flipped in space.
         w = jnp.flip(kernel, (0, 1)).swapaxes(2, 3).astype(self.dtype)
