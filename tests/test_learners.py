@@ -223,10 +223,13 @@ def test_decoder_forms_equal_transpose(impl: str) -> None:
     for x, y in zip(jax.tree.leaves(ga), jax.tree.leaves(gb)):
         scale = float(np.abs(np.asarray(x)).max())  # float32 sums in another order: relative to the leaf
         np.testing.assert_allclose(np.asarray(y), np.asarray(x), rtol=1e-4, atol=1e-5 * max(scale, 1.0))
-    # and under vmap (the seed axis): the custom gradient batches
-    za = jnp.stack([z, 2 * z])
-    ys = jax.vmap(lambda zz: b.apply(params, zz))(za)
-    np.testing.assert_allclose(np.asarray(ys[1]), np.asarray(a.apply(params, 2 * z)), rtol=1e-5, atol=1e-5)
+    # and under vmap over seeds (params and inputs batched, as in the experiment's seed axis)
+    ps = jax.tree.map(lambda p: jnp.stack([p, 1.1 * p]), params)
+    zs = jnp.stack([z, 2 * z])
+    vg = lambda m: jax.vmap(jax.grad(lambda p, zz: jnp.sum(jnp.sin(m.apply(p, zz)))))(ps, zs)  # noqa: E731
+    for x, y in zip(jax.tree.leaves(vg(a)), jax.tree.leaves(vg(b))):
+        scale = float(np.abs(np.asarray(x)).max())
+        np.testing.assert_allclose(np.asarray(y), np.asarray(x), rtol=1e-4, atol=1e-5 * max(scale, 1.0))
 
 
 def test_unknown_decoder_form_is_refused() -> None:
