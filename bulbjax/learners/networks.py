@@ -126,6 +126,9 @@ def _phase_selector() -> jax.Array:
     return jnp.asarray(sel, jnp.float32)
 
 
+_NHWC = ("NHWC", "HWIO", "NHWC")  # the decoder forms' convolution layouts
+
+
 class _Deconv4x4(nn.Module):
     """The parameters of `nn.ConvTranspose(features, (4, 4), strides=(2, 2), padding="SAME")`
     (`kernel [4, 4, in, features]`, `bias [features]`, same init), shared by the forms below so
@@ -157,18 +160,15 @@ class SubpixelConvTranspose(_Deconv4x4):
         k3 = jnp.einsum("pat,qbs,tscf->abcpqf", sel, sel, kernel)
         k3 = k3.reshape((3, 3, cin, 4 * self.features)).astype(self.dtype)
         y = jax.lax.conv_general_dilated(x.astype(self.dtype), k3, (1, 1), "SAME",
-                                         dimension_numbers=("NHWC", "HWIO", "NHWC"))
+                                         dimension_numbers=_NHWC)
         b, h, w, _ = y.shape
         y = y.reshape((b, h, w, 2, 2, self.features)).transpose((0, 1, 3, 2, 4, 5))
         return y.reshape((b, 2 * h, 2 * w, self.features)) + bias.astype(self.dtype)
 
 
-_DOWN_DIMS = ("NHWC", "HWIO", "NHWC")
-
-
 def _conv_down(u: jax.Array, w: jax.Array) -> jax.Array:
     """4x4 stride-2 'SAME' convolution [B, 2H, 2W, Cout] -> [B, H, W, Cin], w [4, 4, Cout, Cin]."""
-    return jax.lax.conv_general_dilated(u, w, (2, 2), ((1, 1), (1, 1)), dimension_numbers=_DOWN_DIMS)
+    return jax.lax.conv_general_dilated(u, w, (2, 2), ((1, 1), (1, 1)), dimension_numbers=_NHWC)
 
 
 @jax.custom_vjp
