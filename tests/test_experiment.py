@@ -195,6 +195,27 @@ def test_ci90_matches_student_t():
     assert half[0] == pytest.approx(2.920 * 1.0 / np.sqrt(3))
 
 
+
+def test_return_of_epochs_without_a_finished_episode():
+    """InvertedPendulum's 1,000-step episodes end every ~8 epochs: an epoch's return is NaN when
+    none ended. The table reports the latest finished episodes instead, without a warning."""
+    import warnings
+
+    recs = [{"epoch": e, "seed": s, "rl_return": r}
+            for e, rets in enumerate([(10.0, 20.0), (float("nan"), 40.0), (float("nan"), float("nan"))])
+            for s, r in enumerate(rets)]
+    ret, fell_back = report.last_returns(recs, [1])
+    assert ret.tolist() == [10.0, 40.0] and fell_back  # seed 0 falls back to epoch 0
+    ret, fell_back = report.last_returns(recs, [0, 1])
+    assert ret.tolist() == [10.0, 30.0] and not fell_back
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        ret, fell_back = report.last_returns(recs, [2])
+        assert ret.tolist() == [10.0, 40.0] and fell_back
+        assert np.isnan(report.ci90(np.full((3, 2), np.nan))[0]).all()
+    ret, fell_back = report.last_returns([{"epoch": 0, "seed": 0, "rl_return": float("nan")}], [0])
+    assert np.isnan(ret).all() and not fell_back  # no finished episode at all: NaN, not 0
+
 # ---------------------------------------------------------------- all six learners, presets
 ALL = ("vae", "vae_rpl", "beta_vae", "svae", "pred", "dsa")
 

@@ -6,6 +6,7 @@ import gzip
 import json
 import math
 import os
+import warnings
 from typing import Any, Sequence
 
 import numpy as np
@@ -91,14 +92,42 @@ def write_jsonl_atomic(path: str, records: Sequence[dict[str, Any]]) -> None:
     os.replace(tmp, path)
 
 
+def nanmean(values: Any, axis: int | None = None) -> Any:
+    """`np.nanmean` that gives NaN for an all-NaN slice without a warning: epochs in which no PPO
+    episode ended have no return (InvertedPendulum's 1,000-step episodes end every ~8 epochs)."""
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", "Mean of empty slice", RuntimeWarning)
+        return np.nanmean(values, axis=axis)
+
+
 def ci90(values: np.ndarray, axis: int = 0) -> tuple[np.ndarray, np.ndarray]:
     """Mean and half-width of a 90% Student-t confidence interval over `axis` (seeds)."""
     n = values.shape[axis]
-    mean = np.nanmean(values, axis=axis)
+    mean = nanmean(values, axis=axis)
     if n < 2:
         return mean, np.zeros_like(mean)
     t = _T95.get(n - 1, 1.645)
-    return mean, t * np.nanstd(values, axis=axis, ddof=1) / math.sqrt(n)
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", "Degrees of freedom <= 0", RuntimeWarning)
+        return mean, t * np.nanstd(values, axis=axis, ddof=1) / math.sqrt(n)
+
+
+def last_returns(records: Sequence[dict[str, Any]], epochs: Sequence[int],
+                 x_key: str = "epoch") -> tuple[np.ndarray, bool]:
+    """Each seed's PPO return: the mean over its records at `epochs` in which an episode ended,
+    else (no episode ended there) its latest finished episode's before them. Returns `[seeds]`
+    and whether any seed needed the fallback (NaN for a seed with no finished episode at all)."""
+    seeds = sorted({r["seed"] for r in records})
+    out, fell_back = np.full(len(seeds), np.nan), False
+    for i, s in enumerate(seeds):
+        mine = sorted((r for r in records if r["seed"] == s and np.isfinite(r.get("rl_return", np.nan))),
+                      key=lambda r: r[x_key])
+        now = [r["rl_return"] for r in mine if r[x_key] in epochs]
+        if now:
+            out[i] = float(np.mean(now))
+        elif mine:
+            out[i], fell_back = mine[-1]["rl_return"], True
+    return out, fell_back
 
 
 def _seed_epoch_matrix(records: Sequence[dict[str, Any]], value: Any,
@@ -316,10 +345,12 @@ def table(records: Sequence[dict[str, Any]], spec: Sequence[StateEntry], last: i
     lines.append("")
     lines.append(f"{x_key} {', '.join(str(e) for e in epochs)}; mean ± 90% CI over {len(seeds)} seeds.")
     if "rl_return" in recs[0]:
-        ret = np.array([np.nanmean([r["rl_return"] for r in recs if r["seed"] == s]) for s in seeds])
+        ret, fell_back = last_returns(records, epochs, x_key)
         mean, half = ci90(ret)
-        lines.append(f"PPO return over the last {len(epochs)} probed epoch(s): {mean:.1f} ± {half:.1f} "
-                 f"(90% CI over {len(seeds)} seeds)")
+        where = (f"the last {len(epochs)} probed epoch(s)" if not fell_back else
+                 f"the last {len(epochs)} probed epoch(s), or a seed's latest finished episode before "
+                 "them where none ended in them")
+        lines.append(f"PPO return over {where}: {mean:.1f} ± {half:.1f} (90% CI over {len(seeds)} seeds)")
     lines.append("")
     lines.append(f"Errors: {NORM_NOTE}; raw MAE in each entry's unit in metrics.jsonl.")
     return "\n".join(lines)

@@ -32,7 +32,6 @@ from dataclasses import dataclass
 from typing import Any, Callable, Sequence
 
 import jax
-import numpy as np
 
 from bulbjax.experiment import report
 from bulbjax.experiment.checkpoint import CHECKPOINT_DIR, Checkpointer
@@ -361,7 +360,7 @@ def run(cfg: ExperimentConfig, opts: RunOptions, run_dir: str, *, resume: bool =
                 epoch += 1
                 bar.update(1)
                 if recs[0]["probes"]:
-                    bar.set_postfix(_postfix(recs))
+                    bar.set_postfix(_postfix(recs, records))
                 if opts.checkpoint_every and epoch % opts.checkpoint_every == 0:
                     ckpt.save(epoch, {"run": rs, "key": key}, {"epoch": epoch})
                     saved = epoch
@@ -395,10 +394,13 @@ def run(cfg: ExperimentConfig, opts: RunOptions, run_dir: str, *, resume: bool =
     return RunResult(epochs_done=epoch, stopped=stopped, records=records, checkpoint=saved)
 
 
-def _postfix(recs: list[dict]) -> dict[str, str]:
-    out = {"return": f"{np.nanmean([r['rl_return'] for r in recs]):.1f}"}
+def _postfix(recs: list[dict], records: list[dict]) -> dict[str, str]:
+    """The progress bar's figures at a probed epoch (`recs`, one per seed): the PPO return of the
+    latest finished episodes (`records`: the run's so far) and each learner's overall errors."""
+    ret, _ = report.last_returns(records, [recs[0]["epoch"]])
+    out = {"return": f"{report.nanmean(ret):.1f}"}
     for name in recs[0]["probes"]:
         for stream in ("curr", "rand"):
-            v = np.nanmean([r["probes"][name][stream]["overall"]["mae_norm"] for r in recs])
+            v = report.nanmean([r["probes"][name][stream]["overall"]["mae_norm"] for r in recs])
             out[f"{name}/{stream}"] = f"{v:.2f}"
     return out
