@@ -213,6 +213,11 @@ def test_return_of_epochs_without_a_finished_episode():
         ret, fell_back = report.last_returns(recs, [2])
         assert ret.tolist() == [10.0, 40.0] and fell_back
         assert np.isnan(report.ci90(np.full((3, 2), np.nan))[0]).all()
+    later = recs + [{"epoch": 3, "seed": s, "rl_return": 99.0} for s in (0, 1)]
+    ret, fell_back = report.last_returns(later, [2])  # an episode after them is not 'latest'
+    assert ret.tolist() == [10.0, 40.0] and fell_back
+    ret, fell_back = report.last_returns(later, [0])
+    assert ret.tolist() == [10.0, 20.0] and not fell_back
     ret, fell_back = report.last_returns([{"epoch": 0, "seed": 0, "rl_return": float("nan")}], [0])
     assert np.isnan(ret).all() and not fell_back  # no finished episode at all: NaN, not 0
 
