@@ -123,7 +123,7 @@ def last_returns(records: Sequence[dict[str, Any]], epochs: Sequence[int],
         mine = sorted((r for r in records if r["seed"] == s and np.isfinite(r.get("rl_return", np.nan))),
                       key=lambda r: r[x_key])
         now = [r["rl_return"] for r in mine if r[x_key] in epochs]
-        before = [r for r in mine if r[x_key] < min(epochs)]
+        before = [r for r in mine if r[x_key] < min(epochs, default=np.inf)]  # no epochs: any
         if now:
             out[i] = float(np.mean(now))
         elif before:
