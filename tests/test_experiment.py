@@ -195,7 +195,6 @@ def test_ci90_matches_student_t():
     assert half[0] == pytest.approx(2.920 * 1.0 / np.sqrt(3))
 
 
-
 def test_return_of_epochs_without_a_finished_episode():
     """InvertedPendulum's 1,000-step episodes end every ~8 epochs: an epoch's return is NaN when
     none ended. The table reports the latest finished episodes instead, without a warning."""
@@ -222,6 +221,7 @@ def test_return_of_epochs_without_a_finished_episode():
     assert ret.tolist() == [99.0, 99.0] and fell_back
     ret, fell_back = report.last_returns([{"epoch": 0, "seed": 0, "rl_return": float("nan")}], [0])
     assert np.isnan(ret).all() and not fell_back  # no finished episode at all: NaN, not 0
+
 
 # ---------------------------------------------------------------- all six learners, presets
 ALL = ("vae", "vae_rpl", "beta_vae", "svae", "pred", "dsa")
