@@ -23,6 +23,7 @@ CPU smoke run: python benchmarks/bench_throughput.py --batch-sizes 8 --steps 10 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import datetime as dt
 import gc
 import glob
@@ -53,7 +54,8 @@ import numpy as np  # noqa: E402
 
 import bulbjax  # noqa: E402
 from bulbjax.data.sequence import Windows  # noqa: E402
-from bulbjax.learners import LearnerConfig, check_finite, is_sequential, make_learner  # noqa: E402
+from bulbjax.learners import (LearnerConfig, check_finite, is_sequential, make_learner,  # noqa: E402
+                              parse_learner_options)
 
 MODES: tuple[str, ...] = ("physics", "rendered")
 PARTS: tuple[str, ...] = ("env", "learner", "torch")
@@ -78,6 +80,8 @@ class BenchSettings:
     deconv_impls: tuple[str, ...] = ("transpose", "subpixel", "dgrad")
     precisions: tuple[str, ...] = ("default",)
     rnn_unroll: int = 1  # sequential learners' LSTM steps per scan iteration (LearnerConfig.rnn_unroll)
+    # named LearnerConfig overrides timed side by side (`--variants`), e.g. (("pad8", (("channel_pad", 8),)),)
+    variants: tuple[tuple[str, tuple[tuple[str, Any], ...]], ...] = (("default", ()),)
     parts: tuple[str, ...] = PARTS
     torch_compile: bool = True
     torch_channels_last: bool = False
@@ -280,13 +284,25 @@ def learner_batch(learner: Any, name: str, s: BenchSettings, rng: np.random.Gene
                    states=jnp.zeros((b, lw, 4), jnp.float32), valid=jnp.ones((b, lw), bool))
 
 
+def parse_variant(text: str) -> tuple[str, tuple[tuple[str, Any], ...]]:
+    """`NAME[=KEY:VALUE;...]` -> (NAME, ((KEY, VALUE), ...)), each KEY a `LearnerConfig` field and
+    VALUE converted to that field's type (e.g. `pad8=channel_pad:8;bias_grad:split`)."""
+    name, _, rest = text.partition("=")
+    if not name:
+        raise ValueError(f"variant {text!r} has no name")
+    items = [kv.replace(":", "=", 1) for kv in rest.split(";") if kv]
+    return name, tuple(parse_learner_options(items).items())
+
+
 def bench_vae(dtype: str, s: BenchSettings, name: str = "vae", impl: str = "transpose",
-              precision: str = "default") -> dict[str, Any]:
+              precision: str = "default", overrides: tuple[tuple[str, Any], ...] = ()) -> dict[str, Any]:
     """Updates per second of learner `name` at `s.vae_batch` frames, compute dtype `dtype`,
-    decoder form `impl`, matmul/conv precision `precision` (JAX's default_matmul_precision)."""
+    decoder form `impl`, matmul/conv precision `precision` (JAX's default_matmul_precision),
+    `LearnerConfig` fields `overrides` (a `--variants` entry)."""
     learner = make_learner(name, latent_dim=s.latent_dim, action_dim=1,
                            config=LearnerConfig(batch_size=s.vae_batch, compute_dtype=dtype,
-                                                deconv_impl=impl, rnn_unroll=s.rnn_unroll))
+                                                deconv_impl=impl, rnn_unroll=s.rnn_unroll,
+                                                **dict(overrides)))
     shape = (s.resolution, s.resolution, 3)
     key = jax.random.PRNGKey(s.seed)
     k_init, k_steps = jax.random.split(key)
@@ -358,16 +374,19 @@ def run_learner(s: BenchSettings, w: ResultWriter) -> None:
         for impl in impls:
             for dtype in s.dtypes:
                 for prec in (s.precisions if dtype == "float32" else ("default",)):
-                    log(f"learner {name} {dtype} {impl} precision={prec} batch={s.vae_batch} ...")
-                    try:
-                        r = bench_vae(dtype, s, name, impl, prec)
-                        log(f"  {r['updates_per_s']:.2f} updates/s; compile {r['compile_s']:.1f} s")
-                    except Exception as e:  # noqa: BLE001
-                        log(f"  FAILED: {type(e).__name__}: {e}")
-                        r = {"learner": name, "dtype": dtype, "deconv_impl": impl, "precision": prec,
-                             "error": f"{type(e).__name__}: {e}"[:2000]}
-                    rows.append(r)
-                    w.write()
+                    for variant, overrides in s.variants:
+                        log(f"learner {name} {dtype} {impl} precision={prec} variant={variant} "
+                            f"batch={s.vae_batch} ...")
+                        tag = {"variant": variant, "overrides": dict(overrides)}
+                        try:
+                            r = {**bench_vae(dtype, s, name, impl, prec, overrides), **tag}
+                            log(f"  {r['updates_per_s']:.2f} updates/s; compile {r['compile_s']:.1f} s")
+                        except Exception as e:  # noqa: BLE001
+                            log(f"  FAILED: {type(e).__name__}: {e}")
+                            r = {"learner": name, "dtype": dtype, "deconv_impl": impl, "precision": prec,
+                                 **tag, "error": f"{type(e).__name__}: {e}"[:2000]}
+                        rows.append(r)
+                        w.write()
 
 
 # ----------------------------------------------------------------------------- PyTorch reference
@@ -413,7 +432,8 @@ def ratios(learner_rows: list[dict[str, Any]], torch_info: dict[str, Any], platf
         d: dict[str, float] = {f"vs_torch_{m}": row["updates_per_s"] / v for m, v in ref.items()}
         if ref:
             d["vs_torch_best"] = row["updates_per_s"] / max(ref.values())
-        out[f"{row['dtype']} {row.get('deconv_impl', 'transpose')} {row.get('precision', 'default')}"] = d
+        variant = "" if row.get("variant", "default") == "default" else f" {row['variant']}"
+        out[f"{row['dtype']} {row.get('deconv_impl', 'transpose')} {row.get('precision', 'default')}{variant}"] = d
     return out
 
 
@@ -439,6 +459,9 @@ def parse_args(argv: list[str] | None = None) -> BenchSettings:
     p.add_argument("--rnn-unroll", type=int, default=d.rnn_unroll,
                    help="sequential learners: LSTM steps per scan iteration (same function; try the window length)")
     p.add_argument("--deconv-impls", default=",".join(d.deconv_impls), help="decoder forms: transpose, subpixel, dgrad")
+    p.add_argument("--variants", default=",".join(v for v, _ in d.variants),
+                   help="learner configs timed side by side, comma-separated NAME[=KEY:VALUE;...] with KEY a "
+                        "LearnerConfig field, e.g. default,pad8=channel_pad:8,split=bias_grad:split")
     p.add_argument("--precisions", default=",".join(d.precisions),
                    help="fp32 matmul/conv precisions: default, tensorfloat32, highest")
     p.add_argument("--parts", default=",".join(d.parts), help=f"subset of {','.join(PARTS)}")
@@ -458,7 +481,7 @@ def parse_args(argv: list[str] | None = None) -> BenchSettings:
         repeats=a.repeats, resolution=a.resolution, vae_batch=a.vae_batch, vae_steps=a.vae_steps,
         vae_warmup=a.vae_warmup, latent_dim=a.latent_dim, dtypes=split(a.dtypes), parts=split(a.parts),
         learners=split(a.learners), deconv_impls=split(a.deconv_impls), precisions=split(a.precisions),
-        rnn_unroll=a.rnn_unroll,
+        rnn_unroll=a.rnn_unroll, variants=tuple(parse_variant(v) for v in split(a.variants)),
         torch_compile=not a.no_torch_compile, torch_channels_last=a.torch_channels_last,
         torch_timeout_s=a.torch_timeout, seed=a.seed, out_dir=a.out_dir,
         verbose=a.verbose, kernels_top=a.kernels_top)
@@ -492,7 +515,8 @@ def print_summary(results: dict[str, Any]) -> None:
     if results.get("learner"):
         print(f"\nlearner updates/s at {results['settings']['vae_batch']} frames per batch (spair: 64):")
         for r in results["learner"]:
-            label = f"{r.get('learner', 'vae'):8} {r['dtype']:9} {r.get('deconv_impl', 'transpose'):9} {r.get('precision', 'default'):13}"
+            label = (f"{r.get('learner', 'vae'):8} {r['dtype']:9} {r.get('deconv_impl', 'transpose'):9} "
+                     f"{r.get('precision', 'default'):13} {r.get('variant', 'default'):10}")
             print(f"  bulbjax {label} " + (f"{r['updates_per_s']:8.2f}  (compile {r['compile_s']:.1f} s)"
                                            if "updates_per_s" in r else f"ERROR {r['error'][:60]}"))
             print_kernels(r.get("kernels"))

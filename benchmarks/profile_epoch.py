@@ -46,6 +46,7 @@ from bulbjax.envs import registry  # noqa: E402
 from bulbjax.experiment import report, small_config  # noqa: E402
 from bulbjax.experiment.config import ExperimentConfig, preset  # noqa: E402
 from bulbjax.experiment.loop import Experiment  # noqa: E402
+from bulbjax.learners import parse_learner_options  # noqa: E402
 
 
 def build_config(a: argparse.Namespace) -> ExperimentConfig:
@@ -66,6 +67,8 @@ def build_config(a: argparse.Namespace) -> ExperimentConfig:
         lc = dataclasses.replace(lc, deconv_impl=a.deconv_impl)
     if a.rnn_unroll:
         lc = dataclasses.replace(lc, rnn_unroll=a.rnn_unroll)
+    if a.learner_option:
+        lc = dataclasses.replace(lc, **parse_learner_options(a.learner_option))
     cfg = cfg.replace(learner=lc)
     if a.seed_loop:
         cfg = cfg.replace(learner_seed_loop=a.seed_loop)
@@ -246,6 +249,8 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     p.add_argument("--bf16", action="store_true")
     p.add_argument("--deconv-impl", default="", help="decoder form (transpose, subpixel, dgrad)")
     p.add_argument("--rnn-unroll", type=int, default=0, help="sequential learners' LSTM unroll (default: the preset's)")
+    p.add_argument("--learner-option", action="append", default=[], metavar="KEY=VALUE",
+                   help="a LearnerConfig field (repeatable), e.g. channel_pad=8 or bias_grad=split")
     p.add_argument("--seed-loop", default="", choices=("", "auto", "vmap", "map"),
                    help="learner work over the seed axis (default: the preset's)")
     p.add_argument("--repeats", type=int, default=5)

@@ -43,13 +43,40 @@ SCOPE_RE = re.compile(r"bj\.[\w.]+")
 def hlo_scopes(hlo_text: str) -> dict[str, str]:
     """Instruction name -> the innermost `bj.*` named scope in its op_name metadata (the epoch's
     phases: `bj.rl`, `bj.learn.vae`, ...), from an executable's optimised HLO (`compiled.as_text()`):
-    the names that a trace's kernels carry in their `hlo_op` stat."""
+    the names that a trace's kernels carry in their `hlo_op` stat. An instruction without such
+    metadata (XLA drops it on some fusions it makes, e.g. its GEMM fusions) takes the scope that
+    most instructions of the computation it calls (`calls=%...`) carry."""
     out: dict[str, str] = {}
-    for m in re.finditer(r'^\s*(?:ROOT )?%?([\w.\-]+) = [^\n]*?op_name="([^"]*)"', hlo_text, re.M):
-        found = SCOPE_RE.findall(m.group(2))
+    body: dict[str, collections.Counter] = collections.defaultdict(collections.Counter)
+    calls: dict[str, str] = {}
+    comp = ""
+    for line in hlo_text.splitlines():
+        head = re.match(r"^(?:ENTRY )?%?([\w.\-]+) .*\{\s*$", line)
+        if head and " = " not in line:
+            comp = head.group(1)
+            continue
+        m = re.match(r"^\s*(?:ROOT )?%?([\w.\-]+) = ", line)
+        if not m:
+            continue
+        meta = re.search(r'op_name="([^"]*)"', line)
+        found = SCOPE_RE.findall(meta.group(1)) if meta else []
         if found:
             out[m.group(1)] = found[-1]
+            body[comp][found[-1]] += 1
+        else:
+            called = re.search(r"calls=%?([\w.\-]+)", line)
+            if called:
+                calls[m.group(1)] = called.group(1)
+    for name, callee in calls.items():
+        if body.get(callee):
+            out[name] = body[callee].most_common(1)[0][0]
     return out
+
+
+# Kernels that no XLA instruction names: MuJoCo Warp's (launched inside its FFI calls, named
+# `<function>_<hash>_cuda_kernel_forward`) and the runtime's copies and fills.
+_CLASSES: tuple[tuple[str, str], ...] = (("_cuda_kernel_forward", "(warp)"), ("_cuda_kernel_backward", "(warp)"),
+                                         ("Memcpy", "(memcpy)"), ("Memset", "(memset)"))
 
 
 def _scope_of(ev: Any, scopes: dict[str, str]) -> str:
@@ -66,7 +93,10 @@ def _scope_of(ev: Any, scopes: dict[str, str]) -> str:
     op = op.lstrip("%")
     # kernels may carry the instruction name with its last "." written "_" (fusion.12 -> fusion_12)
     head, _, tail = op.rpartition("_")
-    return scopes.get(op) or scopes.get(f"{head}.{tail}" if head else op) or "(unscoped)"
+    found = scopes.get(op) or scopes.get(f"{head}.{tail}" if head else op)
+    if found:
+        return found
+    return next((cls for part, cls in _CLASSES if part in ev.name), "(unscoped)")
 
 
 def _op_events(plane: Any) -> Iterator[tuple[str, Any]]:

@@ -75,6 +75,10 @@ def build_config(args: argparse.Namespace, base=None, domain_ppo: bool = True):
         cfg = cfg.replace(learner=dataclasses.replace(cfg.learner, compute_dtype="bfloat16"))
     if getattr(args, "rnn_unroll", None) is not None:
         cfg = cfg.replace(learner=dataclasses.replace(cfg.learner, rnn_unroll=args.rnn_unroll))
+    if getattr(args, "learner_option", None):
+        from bulbjax.learners import parse_learner_options
+
+        cfg = cfg.replace(learner=dataclasses.replace(cfg.learner, **parse_learner_options(args.learner_option)))
     return cfg
 
 
@@ -300,6 +304,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     r.add_argument("--rnn-unroll", type=int, default=None, metavar="N",
                    help="LSTM steps per loop iteration in the sequential learners (same function; "
                         "default 1; on the GPU the sequence length, see benchmarks/README)")
+    r.add_argument("--learner-option", action="append", default=None, metavar="KEY=VALUE",
+                   help="set a LearnerConfig field (repeatable), e.g. channel_pad=8 or bias_grad=split "
+                        "(how the GPU computes the same network: see benchmarks/README)")
     r.add_argument("--rl-input", default=None,
                    help="what PPO observes: state (default), latent:<learner> (the learner's latent of "
                         "the current frame, its current parameters, no gradient into it; for svae, pred, "

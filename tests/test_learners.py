@@ -15,6 +15,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from bulbjax.data.sequence import Windows
 from bulbjax.learners import (
     FRAME_LEARNER_NAMES,
     FrameLearner,
@@ -202,15 +203,17 @@ def test_config_is_hashable_and_frozen() -> None:
         config.lr = 1.0  # type: ignore[misc]
 
 
-@pytest.mark.parametrize("impl", ["subpixel", "dgrad"])
-def test_decoder_forms_equal_transpose(impl: str) -> None:
+@pytest.mark.parametrize("impl,pad,bias_grad", [("subpixel", 1, "reduce"), ("dgrad", 1, "reduce"),
+                                                ("dgrad", 8, "split"), ("subpixel", 1, "split")])
+def test_decoder_forms_equal_transpose(impl: str, pad: int, bias_grad: str) -> None:
     """The decoder forms share parameters and compute the same function (and gradients), so
-    switching `deconv_impl` for speed cannot change what a learner learns."""
+    switching `deconv_impl` (or padding the 3 output channels, or summing the bias gradients
+    in two passes) for speed cannot change what a learner learns."""
     from bulbjax.learners.networks import DeconvDecoder
 
     z = jax.random.normal(jax.random.PRNGKey(3), (3, 6))
     a = DeconvDecoder(32, (8, 8, 16, 16), 32, impl="transpose")
-    b = DeconvDecoder(32, (8, 8, 16, 16), 32, impl=impl)
+    b = DeconvDecoder(32, (8, 8, 16, 16), 32, impl=impl, channel_pad=pad, bias_grad=bias_grad)
     params = a.init(jax.random.PRNGKey(4), z)
     assert jax.tree.map(jnp.shape, params) == jax.tree.map(jnp.shape, b.init(jax.random.PRNGKey(4), z))
     # non-zero biases, so a misplaced bias shows
@@ -230,6 +233,65 @@ def test_decoder_forms_equal_transpose(impl: str) -> None:
     for x, y in zip(jax.tree.leaves(vg(a)), jax.tree.leaves(vg(b))):
         scale = float(np.abs(np.asarray(x)).max())
         np.testing.assert_allclose(np.asarray(y), np.asarray(x), rtol=1e-4, atol=1e-5 * max(scale, 1.0))
+
+
+@pytest.mark.parametrize("pad,bias_grad", [(1, "reduce"), (8, "reduce"), (8, "split"), (4, "split")])
+def test_conv4x4_equals_flax_conv(pad: int, bias_grad: str) -> None:
+    """The encoder's layer has flax `nn.Conv`'s parameters (names, shapes, init values) and
+    function and gradients, whatever its channel padding and bias-gradient form."""
+    import flax.linen as nn
+
+    from bulbjax.learners.networks import Conv4x4, lecun_normal_flat
+
+    x = jax.random.uniform(jax.random.PRNGKey(5), (2, 16, 16, 3))
+    ref = nn.Conv(6, (4, 4), strides=(2, 2), padding="SAME", kernel_init=lecun_normal_flat)
+    ours = Conv4x4(6, channel_pad=pad, bias_grad=bias_grad)
+    params = ref.init(jax.random.PRNGKey(6), x)
+    mine = ours.init(jax.random.PRNGKey(6), x)
+    assert jax.tree.map(jnp.shape, mine) == jax.tree.map(jnp.shape, params)
+    for p, q in zip(jax.tree.leaves(params), jax.tree.leaves(mine)):
+        np.testing.assert_array_equal(np.asarray(q), np.asarray(p))
+    params = jax.tree.map(lambda p: p + 0.05, params)  # a non-zero bias
+    np.testing.assert_allclose(np.asarray(ours.apply(params, x)), np.asarray(ref.apply(params, x)),
+                               rtol=1e-5, atol=1e-5)
+    loss = lambda m, p: jnp.sum(jnp.sin(m.apply(p, x)) * jnp.arange(6.0))  # noqa: E731
+    for g, h in zip(jax.tree.leaves(jax.grad(lambda p: loss(ref, p))(params)),
+                    jax.tree.leaves(jax.grad(lambda p: loss(ours, p))(params))):
+        np.testing.assert_allclose(np.asarray(h), np.asarray(g), rtol=1e-4, atol=1e-5)
+
+
+@pytest.mark.parametrize("name", ["vae", "pred"])
+def test_conv_forms_do_not_change_the_learner(name: str) -> None:
+    """A learner with padded frame channels and two-pass bias gradients starts from the same
+    parameters and takes the same update as with the plain forms."""
+    cfg = LearnerConfig(conv_features=(8, 8, 16, 16), hidden=32, batch_size=4, sequence_length=3,
+                        pred_horizon=1)
+    plain = make_learner(name, LATENT, cfg, action_dim=1)
+    padded = make_learner(name, LATENT, dataclasses.replace(cfg, channel_pad=8, bias_grad="split"),
+                          action_dim=1)
+    s0, s1 = plain.init(jax.random.PRNGKey(0), (32, 32, 3)), padded.init(jax.random.PRNGKey(0), (32, 32, 3))
+    for p, q in zip(jax.tree.leaves(s0.params), jax.tree.leaves(s1.params)):
+        np.testing.assert_array_equal(np.asarray(q), np.asarray(p))
+    rng = np.random.default_rng(0)
+    if name == "vae":
+        batch = jnp.asarray(rng.integers(0, 256, (4, 32, 32, 3), dtype=np.uint8))
+    else:
+        lw = plain.window_length
+        batch = Windows(frames=jnp.asarray(rng.integers(0, 256, (2, lw, 32, 32, 3), dtype=np.uint8)),
+                        actions=jnp.asarray(rng.uniform(-1, 1, (2, lw, 1)), jnp.float32),
+                        states=jnp.zeros((2, lw, 4), jnp.float32), valid=jnp.ones((2, lw), bool))
+    a, ma = plain.update(s0, batch, jax.random.PRNGKey(1))
+    b, mb = padded.update(s1, batch, jax.random.PRNGKey(1))
+    np.testing.assert_allclose(float(mb["loss"]), float(ma["loss"]), rtol=1e-5)
+    for p, q in zip(jax.tree.leaves(a.params), jax.tree.leaves(b.params)):
+        np.testing.assert_allclose(np.asarray(q), np.asarray(p), rtol=1e-4, atol=1e-6)
+
+
+def test_conv_forms_are_checked() -> None:
+    with pytest.raises(ValueError, match="channel_pad"):
+        LearnerConfig(channel_pad=0)
+    with pytest.raises(ValueError, match="bias_grad"):
+        LearnerConfig(bias_grad="dot")
 
 
 def test_unknown_decoder_form_is_refused() -> None:

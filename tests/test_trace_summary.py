@@ -53,6 +53,34 @@ def test_trace_split_by_phase_scope(tmp_path) -> None:
     assert dev["busy_ms"] <= dev["span_ms"] + 1e-6
 
 
+def test_scope_of_fusions_without_metadata_and_named_kernels() -> None:
+    """A fusion XLA left without op_name metadata takes the scope of the computation it calls;
+    Warp's kernels and the runtime's copies are named as such, not left unscoped."""
+    ts = _trace_summary()
+    hlo = """HloModule m
+
+%fused_dot.7 (p0: f32[4,4], p1: f32[4,4]) -> f32[4,4] {
+  %p0 = f32[4,4]{1,0} parameter(0)
+  %p1 = f32[4,4]{1,0} parameter(1)
+  ROOT %dot.1 = f32[4,4]{1,0} dot(%p0, %p1), lhs_contracting_dims={1}, rhs_contracting_dims={0}, metadata={op_name="jit(f)/bj.learn.vae/transpose(jvp(dot_general))"}
+}
+
+ENTRY %main (a: f32[4,4]) -> f32[4,4] {
+  %a = f32[4,4]{1,0} parameter(0)
+  %gemm_fusion_dot.611 = f32[4,4]{1,0} fusion(%a, %a), kind=kCustom, calls=%fused_dot.7
+  ROOT %add.3 = f32[4,4]{1,0} add(%gemm_fusion_dot.611, %a), metadata={op_name="jit(f)/bj.rl/add"}
+}
+"""
+    scopes = ts.hlo_scopes(hlo)
+    assert scopes["gemm_fusion_dot.611"] == "bj.learn.vae"
+    assert scopes["add.3"] == "bj.rl"
+    ev = lambda name, **stats: SimpleNamespace(name=name, stats=list(stats.items()))  # noqa: E731
+    assert ts._scope_of(ev("gemm_fusion_dot_611"), scopes) == "bj.learn.vae"
+    assert ts._scope_of(ev("_linesearch_iterative_kernel_691522b3_cuda_kernel_forward"), scopes) == "(warp)"
+    assert ts._scope_of(ev("MemcpyD2D"), scopes) == "(memcpy)"
+    assert ts._scope_of(ev("loop_add_fusion_9"), scopes) == "(unscoped)"
+
+
 def test_warp_devices_follow_jax() -> None:
     """Render contexts go on the CUDA ordinal of the JAX device they serve (Warp's own default is
     whichever CUDA context was current); off the GPU none is named (Warp's single CPU device)."""

@@ -26,6 +26,7 @@ from bulbjax.learners.base import (
     LearnerState,
     SequenceLearner,
     check_finite,
+    parse_learner_options,
 )
 from bulbjax.learners.networks import ConvEncoder, DeconvDecoder, check_frame_shape
 from bulbjax.learners.sequential import DSA, PRED, SEQUENTIAL_LEARNERS, SVAE, SequentialVAE
@@ -115,6 +116,7 @@ __all__ = [
     "SequenceLearner",
     "SequentialVAE",
     "is_sequential",
+    "parse_learner_options",
     "ConvEncoder",
     "DeconvDecoder",
     "FrameLearner",

@@ -9,14 +9,14 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from typing import Any, Mapping, Protocol, runtime_checkable
+from typing import Any, Mapping, Protocol, Sequence, runtime_checkable
 
 import flax.struct
 import jax
 import jax.numpy as jnp
 import numpy as np
 
-from bulbjax.learners.networks import DECONV_IMPLS
+from bulbjax.learners.networks import BIAS_GRADS, DECONV_IMPLS
 
 COMPUTE_DTYPES: tuple[str, ...] = ("float32", "bfloat16")
 # DSA's encoder variants (the paper tried all of them); see networks.SequenceModel.
@@ -48,6 +48,12 @@ class LearnerConfig:
     # "dgrad" (a stride-2 conv's input gradient, as PyTorch runs ConvTranspose2d; fastest on the
     # H100 and on the CPU, and the quickest to compile: benchmarks/README.md).
     deconv_impl: str = "dgrad"
+    # How, not what, the conv stacks compute on the GPU (same parameters, same function;
+    # networks.Conv4x4, networks.add_bias): the frames' 3 colour channels padded with zero channels
+    # to a multiple of `channel_pad` in the first conv and the decoder's last (1: none), and the
+    # convs' bias gradients summed in one reduction ("reduce") or two passes ("split").
+    channel_pad: int = 1
+    bias_grad: str = "reduce"
     # Sequential learners only (svae, pred, dsa); the frame learners ignore these.
     sequence_length: int = 24  # steps per window (paper: 24 pendulums, 16 locomotion)
     pred_horizon: int = 4  # PRED reconstructs sequence_length + pred_horizon frames
@@ -87,6 +93,10 @@ class LearnerConfig:
             )
         if self.deconv_impl not in DECONV_IMPLS:
             raise ValueError(f"deconv_impl must be one of {DECONV_IMPLS}, got {self.deconv_impl!r}")
+        if self.channel_pad < 1:
+            raise ValueError(f"channel_pad must be >= 1 (1: no padding), got {self.channel_pad!r}")
+        if self.bias_grad not in BIAS_GRADS:
+            raise ValueError(f"bias_grad must be one of {BIAS_GRADS}, got {self.bias_grad!r}")
         if self.sequence_length < 2:
             raise ValueError(f"sequence_length must be >= 2, got {self.sequence_length!r}")
         if self.pred_horizon < 0:
@@ -115,6 +125,38 @@ class LearnerConfig:
     def dtype(self) -> jnp.dtype:
         """The compute dtype as a JAX dtype."""
         return jnp.dtype(self.compute_dtype)
+
+    @property
+    def conv_forms(self) -> dict[str, Any]:
+        """Keyword arguments of the conv modules that pick their GPU forms (`channel_pad`, `bias_grad`)."""
+        return {"channel_pad": self.channel_pad, "bias_grad": self.bias_grad}
+
+
+def parse_learner_options(items: Sequence[str]) -> dict[str, Any]:
+    """`KEY=VALUE` strings (a command line's `--learner-option`s) -> `LearnerConfig` field values,
+    each converted to the field's type (int, float, str, bool; tuples as comma-separated ints).
+    An unknown key is a clear error naming the fields."""
+    defaults = LearnerConfig()
+    fields = {f.name for f in dataclasses.fields(LearnerConfig)}
+    out: dict[str, Any] = {}
+    for item in items:
+        key, sep, value = item.partition("=")
+        key = key.strip()
+        if not sep or key not in fields:
+            raise ValueError(f"learner option {item!r} must be KEY=VALUE with KEY one of: {', '.join(sorted(fields))}")
+        default = getattr(defaults, key)
+        try:
+            if isinstance(default, bool):
+                if value.lower() not in ("true", "false", "1", "0"):
+                    raise ValueError("not a boolean")
+                out[key] = value.lower() in ("true", "1")
+            elif isinstance(default, tuple):
+                out[key] = tuple(int(v) for v in value.split(",") if v.strip())
+            else:
+                out[key] = type(default)(value)
+        except ValueError as err:
+            raise ValueError(f"learner option {item!r}: {value!r} is not a {type(default).__name__} ({err})") from None
+    return out
 
 
 @flax.struct.dataclass

@@ -13,6 +13,12 @@ the gradients of a convolution as its own gradients: the form PyTorch's `ConvTra
 cuDNN's data-gradient kernels). They compute the same function; which is faster depends on the
 device (XLA's dilated-input convolutions are slow on GPU in fp32): see `benchmarks/`.
 
+Two more switches change how, not what, the GPU computes (same parameters, same function;
+`LearnerConfig.channel_pad`, `.bias_grad`): the frames' 3 colour channels padded with zero
+channels to a multiple of `channel_pad` in the first convolution and in the decoder's last
+(cuDNN's tensor-core kernels take channels in multiples of 8 and otherwise pad the tensors on
+every call), and a bias gradient summed in two passes (`add_bias`).
+
 The two are separate modules so the sequential learners can reuse them. Params are
 always float32; `dtype` sets the compute dtype of the conv/FC stacks. The posterior
 heads run in float32 (they are tiny and their output is what the probes see), and all
@@ -73,7 +79,83 @@ def check_frame_shape(
     return shape[0]
 
 
-def conv_layers(x: jax.Array, features: tuple[int, ...], dtype: jnp.dtype) -> jax.Array:
+_NHWC = ("NHWC", "HWIO", "NHWC")  # the convolution layouts of the encoder and decoder forms
+BIAS_GRADS: tuple[str, ...] = ("reduce", "split")  # add_bias
+
+
+def pad_axis(x: jax.Array, axis: int, multiple: int) -> jax.Array:
+    """`x` with zeros appended along `axis` up to a multiple of `multiple` (unchanged if it is one)."""
+    extra = -x.shape[axis] % multiple
+    if extra == 0:
+        return x
+    widths = [(0, 0)] * x.ndim
+    widths[axis] = (0, extra)
+    return jnp.pad(x, widths)
+
+
+def _bias_sum(g: jax.Array) -> jax.Array:
+    """sum of `g [B, ..., C]` over all but its last axis, in two passes: over the batch axis
+    first (a reduction that keeps the H*W*C other entries, wide enough for the GPU's
+    column-reduction kernels), then over the rest. In one pass, XLA keeps only C columns and
+    runs slowly where C is small (3 for the decoder's output). The barrier stops XLA merging
+    the two back into one."""
+    first = jax.lax.optimization_barrier(g.reshape(g.shape[0], -1).sum(0, dtype=jnp.float32))
+    return first.reshape(-1, g.shape[-1]).sum(0)
+
+
+@jax.custom_vjp
+def _add_bias_split(h: jax.Array, b: jax.Array) -> jax.Array:
+    return h + b
+
+
+def _add_bias_split_fwd(h: jax.Array, b: jax.Array) -> tuple[jax.Array, None]:
+    return h + b, None
+
+
+def _add_bias_split_bwd(_: None, g: jax.Array) -> tuple[jax.Array, jax.Array]:
+    return g, _bias_sum(g).astype(g.dtype)
+
+
+_add_bias_split.defvjp(_add_bias_split_fwd, _add_bias_split_bwd)
+
+
+def add_bias(h: jax.Array, b: jax.Array, grad: str = "reduce") -> jax.Array:
+    """`h + b` (b over the last axis); `grad` picks how the bias gradient is summed: "reduce"
+    (autodiff's one reduction) or "split" (`_bias_sum`, two passes). Same values."""
+    if grad not in BIAS_GRADS:
+        raise ValueError(f"unknown bias_grad {grad!r}; accepted: {', '.join(BIAS_GRADS)}")
+    b = b.astype(h.dtype)
+    return h + b if grad == "reduce" else _add_bias_split(h, b)
+
+
+def _conv_down(u: jax.Array, w: jax.Array) -> jax.Array:
+    """4x4 stride-2 'SAME' convolution [B, 2H, 2W, Cout] -> [B, H, W, Cin], w [4, 4, Cout, Cin]."""
+    return jax.lax.conv_general_dilated(u, w, (2, 2), ((1, 1), (1, 1)), dimension_numbers=_NHWC)
+
+
+class Conv4x4(nn.Module):
+    """`nn.Conv(features, (4, 4), strides=(2, 2), padding="SAME")` on inputs of even size, with
+    the same parameters (`kernel [4, 4, in, features]`, `bias [features]`, same init and names):
+    the encoder's layer. Input channels are zero-padded (with zero kernel rows) to a multiple of
+    `channel_pad`, and the bias gradient is summed as `bias_grad` says; neither changes the
+    function."""
+
+    features: int
+    dtype: jnp.dtype = jnp.float32
+    channel_pad: int = 1
+    bias_grad: str = "reduce"
+
+    @nn.compact
+    def __call__(self, x: jax.Array) -> jax.Array:
+        kernel = self.param("kernel", lecun_normal_flat, (4, 4, x.shape[-1], self.features), jnp.float32)
+        bias = self.param("bias", nn.initializers.zeros_init(), (self.features,), jnp.float32)
+        x = pad_axis(x.astype(self.dtype), -1, self.channel_pad)
+        w = pad_axis(kernel, 2, self.channel_pad).astype(self.dtype)
+        return add_bias(_conv_down(x, w), bias, self.bias_grad)
+
+
+def conv_layers(x: jax.Array, features: tuple[int, ...], dtype: jnp.dtype, channel_pad: int = 1,
+                bias_grad: str = "reduce") -> jax.Array:
     """The shared conv stack, flattened: frames [B, R, R, 3] -> [B, (R/2^n)^2 * features[-1]].
 
     Call it inside a module's `nn.compact` method: the layers become that module's
@@ -82,11 +164,7 @@ def conv_layers(x: jax.Array, features: tuple[int, ...], dtype: jnp.dtype) -> ja
     check_frame_shape(x.shape[1:], len(features))
     h = x.astype(dtype)
     for i, f in enumerate(features):
-        h = nn.Conv(
-            f, (4, 4), strides=(2, 2), padding="SAME",
-            dtype=dtype, param_dtype=jnp.float32, kernel_init=lecun_normal_flat,
-            name=f"conv{i}",
-        )(h)
+        h = Conv4x4(f, dtype, channel_pad, bias_grad, name=f"conv{i}")(h)
         h = nn.relu(h)
     return h.reshape((h.shape[0], -1))
 
@@ -98,10 +176,12 @@ class ConvEncoder(nn.Module):
     features: tuple[int, ...] = DEFAULT_FEATURES
     hidden: int = 512
     dtype: jnp.dtype = jnp.float32
+    channel_pad: int = 1  # see Conv4x4
+    bias_grad: str = "reduce"
 
     @nn.compact
     def __call__(self, x: jax.Array) -> tuple[jax.Array, jax.Array]:
-        h = conv_layers(x, self.features, self.dtype)
+        h = conv_layers(x, self.features, self.dtype, self.channel_pad, self.bias_grad)
         dense = dict(param_dtype=jnp.float32, kernel_init=lecun_normal_flat)
         h = nn.relu(nn.Dense(self.hidden, dtype=self.dtype, name="fc", **dense)(h))
         h = h.astype(jnp.float32)
@@ -126,9 +206,6 @@ def _phase_selector() -> jax.Array:
     return jnp.asarray(sel, jnp.float32)
 
 
-_NHWC = ("NHWC", "HWIO", "NHWC")  # the decoder forms' convolution layouts
-
-
 class _Deconv4x4(nn.Module):
     """The parameters of `nn.ConvTranspose(features, (4, 4), strides=(2, 2), padding="SAME")`
     (`kernel [4, 4, in, features]`, `bias [features]`, same init), shared by the forms below so
@@ -138,6 +215,8 @@ class _Deconv4x4(nn.Module):
     dtype: jnp.dtype = jnp.float32
     param_dtype: jnp.dtype = jnp.float32
     kernel_init: Any = lecun_normal_flat
+    channel_pad: int = 1  # output channels padded to a multiple of this (dgrad form only; see Conv4x4)
+    bias_grad: str = "reduce"  # see add_bias
 
     def kernel_and_bias(self, cin: int) -> tuple[jax.Array, jax.Array]:
         kernel = self.param("kernel", self.kernel_init, (4, 4, cin, self.features), self.param_dtype)
@@ -163,12 +242,7 @@ class SubpixelConvTranspose(_Deconv4x4):
                                          dimension_numbers=_NHWC)
         b, h, w, _ = y.shape
         y = y.reshape((b, h, w, 2, 2, self.features)).transpose((0, 1, 3, 2, 4, 5))
-        return y.reshape((b, 2 * h, 2 * w, self.features)) + bias.astype(self.dtype)
-
-
-def _conv_down(u: jax.Array, w: jax.Array) -> jax.Array:
-    """4x4 stride-2 'SAME' convolution [B, 2H, 2W, Cout] -> [B, H, W, Cin], w [4, 4, Cout, Cin]."""
-    return jax.lax.conv_general_dilated(u, w, (2, 2), ((1, 1), (1, 1)), dimension_numbers=_NHWC)
+        return add_bias(y.reshape((b, 2 * h, 2 * w, self.features)), bias, self.bias_grad)
 
 
 @jax.custom_vjp
@@ -207,8 +281,10 @@ class DgradConvTranspose(_Deconv4x4):
         kernel, bias = self.kernel_and_bias(x.shape[-1])
         # flax's output 2i+a reads input j with tap 2j-(2i+a)+2; the transpose of the stride-2
         # conv (padding 1) reads it with tap (2i+a)-2j+1 = 3 - that: the kernel flipped in space.
-        w = jnp.flip(kernel, (0, 1)).swapaxes(2, 3).astype(self.dtype)
-        return conv_up(x.astype(self.dtype), w) + bias.astype(self.dtype)
+        w = jnp.flip(kernel, (0, 1)).swapaxes(2, 3)
+        w = pad_axis(w, 2, self.channel_pad).astype(self.dtype)  # zero output channels, cut below
+        y = conv_up(x.astype(self.dtype), w)[..., : self.features]
+        return add_bias(y, bias, self.bias_grad)
 
 
 class DeconvDecoder(nn.Module):
@@ -223,6 +299,8 @@ class DeconvDecoder(nn.Module):
     channels: int = 3
     dtype: jnp.dtype = jnp.float32
     impl: str = "transpose"  # one of DECONV_IMPLS (same parameters, same function)
+    channel_pad: int = 1  # output channels padded to a multiple of this ("dgrad" form; see Conv4x4)
+    bias_grad: str = "reduce"  # see add_bias ("subpixel" and "dgrad" forms)
 
     @nn.compact
     def __call__(self, z: jax.Array) -> jax.Array:
@@ -239,9 +317,10 @@ class DeconvDecoder(nn.Module):
         out_features = (*reversed(self.features[:-1]), self.channels)
         for i, f in enumerate(out_features):
             if self.impl == "subpixel":
-                h = SubpixelConvTranspose(f, name=f"deconv{i}", **dense)(h)
+                h = SubpixelConvTranspose(f, name=f"deconv{i}", bias_grad=self.bias_grad, **dense)(h)
             elif self.impl == "dgrad":
-                h = DgradConvTranspose(f, name=f"deconv{i}", **dense)(h)
+                h = DgradConvTranspose(f, name=f"deconv{i}", channel_pad=self.channel_pad,
+                                       bias_grad=self.bias_grad, **dense)(h)
             else:
                 h = nn.ConvTranspose(
                     f, (4, 4), strides=(2, 2), padding="SAME", name=f"deconv{i}", **dense
@@ -262,10 +341,12 @@ class FrameFeatures(nn.Module):
     features: tuple[int, ...] = DEFAULT_FEATURES
     hidden: int = 512
     dtype: jnp.dtype = jnp.float32
+    channel_pad: int = 1  # see Conv4x4
+    bias_grad: str = "reduce"
 
     @nn.compact
     def __call__(self, x: jax.Array) -> jax.Array:
-        h = conv_layers(x, self.features, self.dtype)
+        h = conv_layers(x, self.features, self.dtype, self.channel_pad, self.bias_grad)
         if self.hidden:
             dense = dict(dtype=self.dtype, param_dtype=jnp.float32, kernel_init=lecun_normal_flat)
             h = nn.relu(nn.Dense(self.hidden, name="fc", **dense)(h))

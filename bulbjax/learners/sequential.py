@@ -122,7 +122,7 @@ class SequentialVAE:
 
     def decoder(self, resolution: int) -> DeconvDecoder:
         c = self.config
-        return DeconvDecoder(resolution, c.conv_features, c.hidden, 3, c.dtype, c.deconv_impl)
+        return DeconvDecoder(resolution, c.conv_features, c.hidden, 3, c.dtype, c.deconv_impl, **c.conv_forms)
 
     def resolution(self, params: Any) -> int:
         """Frame resolution R the params were initialised for (read off a weight shape)."""
@@ -285,7 +285,7 @@ class SVAE(SequentialVAE):
     @property
     def _conv(self) -> FrameFeatures:
         c = self.config
-        return FrameFeatures(c.conv_features, 0, c.dtype)  # conv output straight into the LSTM
+        return FrameFeatures(c.conv_features, 0, c.dtype, **c.conv_forms)  # conv output straight into the LSTM
 
     @property
     def _rnn(self) -> SequenceModel:
@@ -335,7 +335,7 @@ class PRED(SequentialVAE):
     @property
     def _conv(self) -> FrameFeatures:
         c = self.config
-        return FrameFeatures(c.conv_features, c.hidden, c.dtype)
+        return FrameFeatures(c.conv_features, c.hidden, c.dtype, **c.conv_forms)
 
     @property
     def _head(self) -> _PredictiveHead:
@@ -386,7 +386,7 @@ class DSA(SequentialVAE):
     @property
     def _conv(self) -> FrameFeatures:
         c = self.config
-        return FrameFeatures(c.conv_features, c.hidden, c.dtype)
+        return FrameFeatures(c.conv_features, c.hidden, c.dtype, **c.conv_forms)
 
     def _seq(self, kind: str | None = None) -> SequenceModel:
         return SequenceModel(kind or self.config.dsa_encoder, self.config.hidden, unroll=self.config.rnn_unroll)

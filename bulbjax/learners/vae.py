@@ -63,11 +63,11 @@ class VAE:
     @property
     def encoder(self) -> ConvEncoder:
         c = self.config
-        return ConvEncoder(self.latent_dim, c.conv_features, c.hidden, c.dtype)
+        return ConvEncoder(self.latent_dim, c.conv_features, c.hidden, c.dtype, **c.conv_forms)
 
     def decoder(self, resolution: int) -> DeconvDecoder:
         c = self.config
-        return DeconvDecoder(resolution, c.conv_features, c.hidden, 3, c.dtype, c.deconv_impl)
+        return DeconvDecoder(resolution, c.conv_features, c.hidden, 3, c.dtype, c.deconv_impl, **c.conv_forms)
 
     @property
     def optimizer(self) -> optax.GradientTransformation:
