@@ -42,6 +42,10 @@ def cmd_run(a: argparse.Namespace) -> None:
     cfg = cfg.replace(ppo=registry.ppo_config_for(cfg.env, cfg.ppo))
     cfg = small_config(cfg).replace(seeds=a.seeds, epochs=a.epochs)
     cfg = cfg.replace(learner=dataclasses.replace(cfg.learner, deconv_impl=a.deconv_impl))
+    if a.learner_option:  # LearnerConfig fields, e.g. channel_pad=8 (a tree that has them)
+        from bulbjax.learners import parse_learner_options
+
+        cfg = cfg.replace(learner=dataclasses.replace(cfg.learner, **parse_learner_options(a.learner_option)))
     run(cfg, RunOptions(seed=0), a.out, argv=sys.argv, progress=False)
 
 
@@ -128,6 +132,8 @@ def main(argv: list[str] | None = None) -> None:
     r.add_argument("--seeds", type=int, default=3)
     r.add_argument("--epochs", type=int, default=8)
     r.add_argument("--deconv-impl", default="subpixel")
+    r.add_argument("--learner-option", action="append", default=[], metavar="KEY=VALUE",
+                   help="a LearnerConfig field (repeatable), e.g. channel_pad=8")
     r.add_argument("--out", required=True)
     c = sub.add_parser("compare")
     c.add_argument("before")

@@ -266,7 +266,7 @@ def test_conv_forms_do_not_change_the_learner(name: str) -> None:
     parameters and takes the same update as with the plain forms."""
     cfg = LearnerConfig(conv_features=(8, 8, 16, 16), hidden=32, batch_size=4, sequence_length=3,
                         pred_horizon=1)
-    plain = make_learner(name, LATENT, cfg, action_dim=1)
+    plain = make_learner(name, LATENT, dataclasses.replace(cfg, channel_pad=1, bias_grad="reduce"), action_dim=1)
     padded = make_learner(name, LATENT, dataclasses.replace(cfg, channel_pad=8, bias_grad="split"),
                           action_dim=1)
     s0, s1 = plain.init(jax.random.PRNGKey(0), (32, 32, 3)), padded.init(jax.random.PRNGKey(0), (32, 32, 3))
@@ -288,8 +288,12 @@ def test_conv_forms_do_not_change_the_learner(name: str) -> None:
 
 
 def test_conv_forms_are_checked() -> None:
+    # 0 picks the padding by compute dtype: 8 channels for bf16's tensor-core kernels, none in float32
+    assert LearnerConfig().conv_forms == {"channel_pad": 1, "bias_grad": "split"}
+    assert LearnerConfig(compute_dtype="bfloat16").conv_forms == {"channel_pad": 8, "bias_grad": "split"}
+    assert LearnerConfig(compute_dtype="bfloat16", channel_pad=1).conv_forms["channel_pad"] == 1
     with pytest.raises(ValueError, match="channel_pad"):
-        LearnerConfig(channel_pad=0)
+        LearnerConfig(channel_pad=-1)
     with pytest.raises(ValueError, match="bias_grad"):
         LearnerConfig(bias_grad="dot")
 

@@ -48,12 +48,14 @@ class LearnerConfig:
     # "dgrad" (a stride-2 conv's input gradient, as PyTorch runs ConvTranspose2d; fastest on the
     # H100 and on the CPU, and the quickest to compile: benchmarks/README.md).
     deconv_impl: str = "dgrad"
-    # How, not what, the conv stacks compute on the GPU (same parameters, same function;
-    # networks.Conv4x4, networks.add_bias): the frames' 3 colour channels padded with zero channels
-    # to a multiple of `channel_pad` in the first conv and the decoder's last (1: none), and the
-    # convs' bias gradients summed in one reduction ("reduce") or two passes ("split").
-    channel_pad: int = 1
-    bias_grad: str = "reduce"
+    # How, not what, the conv stacks compute (same parameters, same function; networks.Conv4x4,
+    # networks.add_bias): the frames' 3 colour channels padded with zero channels to a multiple of
+    # `channel_pad` in the first conv and the decoder's last (1: none; 0: 8 in bf16, where cuDNN's
+    # tensor-core kernels want multiples of 8, else 1), and the convs' bias gradients summed in one
+    # reduction ("reduce") or in two passes ("split": faster on the H100 and on the CPU).
+    # benchmarks/README.md, "Padded channels, two-pass bias gradients", has the figures.
+    channel_pad: int = 0
+    bias_grad: str = "split"
     # Sequential learners only (svae, pred, dsa); the frame learners ignore these.
     sequence_length: int = 24  # steps per window (paper: 24 pendulums, 16 locomotion)
     pred_horizon: int = 4  # PRED reconstructs sequence_length + pred_horizon frames
@@ -93,8 +95,8 @@ class LearnerConfig:
             )
         if self.deconv_impl not in DECONV_IMPLS:
             raise ValueError(f"deconv_impl must be one of {DECONV_IMPLS}, got {self.deconv_impl!r}")
-        if self.channel_pad < 1:
-            raise ValueError(f"channel_pad must be >= 1 (1: no padding), got {self.channel_pad!r}")
+        if self.channel_pad < 0:
+            raise ValueError(f"channel_pad must be >= 0 (1: no padding, 0: 8 in bf16 else 1), got {self.channel_pad!r}")
         if self.bias_grad not in BIAS_GRADS:
             raise ValueError(f"bias_grad must be one of {BIAS_GRADS}, got {self.bias_grad!r}")
         if self.sequence_length < 2:
@@ -128,8 +130,10 @@ class LearnerConfig:
 
     @property
     def conv_forms(self) -> dict[str, Any]:
-        """Keyword arguments of the conv modules that pick their GPU forms (`channel_pad`, `bias_grad`)."""
-        return {"channel_pad": self.channel_pad, "bias_grad": self.bias_grad}
+        """Keyword arguments of the conv modules that pick their forms (`channel_pad` with its
+        0 resolved: 8 in bf16, 1 in float32; `bias_grad`)."""
+        pad = self.channel_pad or (8 if self.compute_dtype == "bfloat16" else 1)
+        return {"channel_pad": pad, "bias_grad": self.bias_grad}
 
 
 def parse_learner_options(items: Sequence[str]) -> dict[str, Any]:
