@@ -219,6 +219,10 @@ def test_return_of_epochs_without_a_finished_episode():
     assert ret.tolist() == [10.0, 20.0] and not fell_back
     ret, fell_back = report.last_returns(later, [])
     assert ret.tolist() == [99.0, 99.0] and fell_back
+    # an episode that ended between two asked epochs counts (HalfCheetah: epochs 0 and 10 probed,
+    # episodes ending at epoch 7)
+    ret, fell_back = report.last_returns(later, [2, 5])
+    assert ret.tolist() == [99.0, 99.0] and fell_back
     ret, fell_back = report.last_returns([{"epoch": 0, "seed": 0, "rl_return": float("nan")}], [0])
     assert np.isnan(ret).all() and not fell_back  # no finished episode at all: NaN, not 0
 

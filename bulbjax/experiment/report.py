@@ -115,15 +115,16 @@ def ci90(values: np.ndarray, axis: int = 0) -> tuple[np.ndarray, np.ndarray]:
 def last_returns(records: Sequence[dict[str, Any]], epochs: Sequence[int],
                  x_key: str = "epoch") -> tuple[np.ndarray, bool]:
     """Each seed's PPO return: the mean over its records at `epochs` in which an episode ended,
-    else (no episode ended there) its latest finished episode's before them. Returns `[seeds]`
-    and whether any seed needed the fallback (NaN for a seed with no finished episode at all)."""
+    else (no episode ended there) its latest finished episode's up to the last of them (one that
+    ended between two asked epochs counts; a later one does not). Returns `[seeds]` and whether
+    any seed needed the fallback (NaN for a seed with no finished episode at all)."""
     seeds = sorted({r["seed"] for r in records})
     out, fell_back = np.full(len(seeds), np.nan), False
     for i, s in enumerate(seeds):
         mine = sorted((r for r in records if r["seed"] == s and np.isfinite(r.get("rl_return", np.nan))),
                       key=lambda r: r[x_key])
         now = [r["rl_return"] for r in mine if r[x_key] in epochs]
-        before = [r for r in mine if r[x_key] < min(epochs, default=np.inf)]  # no epochs: any
+        before = [r for r in mine if r[x_key] <= max(epochs, default=np.inf)]  # no epochs: any
         if now:
             out[i] = float(np.mean(now))
         elif before:
@@ -349,8 +350,8 @@ def table(records: Sequence[dict[str, Any]], spec: Sequence[StateEntry], last: i
         ret, fell_back = last_returns(records, epochs, x_key)
         mean, half = ci90(ret)
         where = (f"the last {len(epochs)} probed epoch(s)" if not fell_back else
-                 f"the last {len(epochs)} probed epoch(s), or a seed's latest finished episode before "
-                 "them where none ended in them")
+                 f"the last {len(epochs)} probed epoch(s), or a seed's latest finished episode up to "
+                 "the last of them where none ended in them")
         lines.append(f"PPO return over {where}: {mean:.1f} ± {half:.1f} (90% CI over {len(seeds)} seeds)")
     lines.append("")
     lines.append(f"Errors: {NORM_NOTE}; raw MAE in each entry's unit in metrics.jsonl.")
