@@ -293,6 +293,10 @@ def test_presets_and_cli_overrides():
     assert build_config(argparse.Namespace(**{**ns, "version": "3"})).version == 3
     with pytest.raises(ValueError, match="--version"):
         build_config(argparse.Namespace(**{**ns, "version": "-1"}))
+    opt = build_config(argparse.Namespace(**{**ns, "learner_option": ["channel_pad=1", "bias_grad=reduce"]}))
+    assert (opt.learner.channel_pad, opt.learner.bias_grad, opt.learner.compute_dtype) == (1, "reduce", "bfloat16")
+    with pytest.raises(ValueError, match="KEY one of"):
+        build_config(argparse.Namespace(**{**ns, "learner_option": ["channelpad=1"]}))
     with pytest.raises(ValueError, match="version"):
         dataclasses.replace(cart, version="all")
     assert main(["run", "--preset", "nope", "--out", "/tmp/bulbjax_nope"]) == 2

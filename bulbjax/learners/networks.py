@@ -13,13 +13,13 @@ the gradients of a convolution as its own gradients: the form PyTorch's `ConvTra
 cuDNN's data-gradient kernels). They compute the same function; which is faster depends on the
 device (XLA's dilated-input convolutions are slow on GPU in fp32): see `benchmarks/`.
 
-Two more switches change how, not what, the GPU computes (same parameters, same function;
+Two more switches change how, not what, is computed (same parameters, same function;
 `LearnerConfig.channel_pad`, `.bias_grad`): the frames' 3 colour channels padded with zero
 channels to a multiple of `channel_pad` in the first convolution and in the decoder's last
 (cuDNN's tensor-core kernels take channels in multiples of 8 and otherwise pad the tensors on
 every call), and a bias gradient summed in two passes (`add_bias`).
 
-The two are separate modules so the sequential learners can reuse them. Params are
+Encoder and decoder are separate modules so the sequential learners can reuse them. Params are
 always float32; `dtype` sets the compute dtype of the conv/FC stacks. The posterior
 heads run in float32 (they are tiny and their output is what the probes see), and all
 outputs are float32.
