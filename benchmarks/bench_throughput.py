@@ -23,7 +23,6 @@ CPU smoke run: python benchmarks/bench_throughput.py --batch-sizes 8 --steps 10 
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import datetime as dt
 import gc
 import glob
