@@ -209,13 +209,13 @@ def _tuplify(v: object) -> object:
 # Fields added with a default that is not what runs written before them computed with: a
 # config.json without them reads back with these values, so that its run resumes (and reports)
 # with the forms it started with (same function, other float rounding).
-WRITTEN_BEFORE: dict[str, dict[str, object]] = {
-    "LearnerConfig": {"channel_pad": 1, "bias_grad": "reduce"},  # until 2026-11-25
+WRITTEN_BEFORE: dict[type, dict[str, object]] = {
+    LearnerConfig: {"channel_pad": 1, "bias_grad": "reduce"},  # until 2026-11-25
 }
 
 
 def _from_dict(cls: type, d: dict) -> object:
-    proto = dataclasses.replace(cls(), **{k: v for k, v in WRITTEN_BEFORE.get(cls.__name__, {}).items()
+    proto = dataclasses.replace(cls(), **{k: v for k, v in WRITTEN_BEFORE.get(cls, {}).items()
                                           if k not in d})
     names = {f.name for f in dataclasses.fields(cls)}
     unknown = sorted(set(d) - names)
