@@ -103,22 +103,49 @@ def profile(cfg: ExperimentConfig, repeats: int, warm_epochs: int, trace_dir: st
             log: Callable[[str], None] = print, phases: bool = True,
             save: Callable[[dict[str, Any]], None] = lambda out: None,
             variants: dict[str, dict[str, Any]] | None = None,
-            tags: tuple[str, ...] = ("probe", "no_probe"), warp_stats: bool = False) -> dict[str, Any]:
+            tags: tuple[str, ...] = ("probe", "no_probe"), warp_stats: bool = False,
+            program: str = "flag", hlo_dir: str | None = None) -> dict[str, Any]:
     """Every phase's time and the fused epoch's, as a JSON-able dict. `save(out)` is called
     after every stage, so that a run cut short (a GPU call's time limit) keeps what it measured.
     `variants`: named XLA compile options, each compiling and timing the fused epoch (`tags`:
     the probing and/or non-probing executable) in this process on the same run state.
     `warp_stats`: record MuJoCo Warp's FFI handler calls, graph captures and host seconds per
-    timed epoch (`warp_ffi_stats.install()` must have run before the build)."""
-    out: dict[str, Any] = {"phases": {}, "fused": {}, "done": False}
+    timed epoch (`warp_ffi_stats.install()` must have run before the build).
+    `hlo_dir`: write each timed executable's optimised HLO there (a trace from the start).
+    `program`: "flag" (what a run probing every k epochs uses: one program, `Experiment.epoch_flag`,
+    whose start-up is timed as `bulbjax run` does it, init and epoch compiled side by side) or
+    "static" (one specialised program per tag, compiled one after the other, as before 2026-11-25)."""
+    out: dict[str, Any] = {"phases": {}, "fused": {}, "done": False, "program": program}
     t0 = time.perf_counter()
     exp = Experiment(cfg)
     out["build_s"] = time.perf_counter() - t0
     key = jax.random.PRNGKey(0)
-    t0 = time.perf_counter()
-    rs = jax.block_until_ready(exp.init(key))
-    out["init_s"] = time.perf_counter() - t0  # compile + run of init
-    log(f"build {out['build_s']:.1f} s, init (compile + run) {out['init_s']:.1f} s")
+    flag_compiled = None
+    if program == "flag":
+        # start-up as `bulbjax run` does it (fresh run, probing every k): init and the one epoch
+        # program traced in order, lowered, compiled side by side in threads, init run
+        t0 = time.perf_counter()
+        progs = exp.programs((True, False))
+        out["trace_s"] = time.perf_counter() - t0
+        t0 = time.perf_counter()
+        progs.prepare("init")
+        t_lower_init = time.perf_counter() - t0
+        progs.prepare("epoch")
+        out["lower_s"] = time.perf_counter() - t0
+        out["lower_init_s"] = t_lower_init
+        rs = jax.block_until_ready(progs.init(key))
+        out["init_s"] = time.perf_counter() - t0  # lowering + init's compile (or load) + run
+        flag_compiled = progs.compiled("epoch")
+        out["epoch_ready_s"] = time.perf_counter() - t0  # lowering + the epoch's compile (or load)
+        out["to_first_epoch_s"] = out["build_s"] + out["trace_s"] + out["epoch_ready_s"]
+        log(f"build {out['build_s']:.1f} s, trace {out['trace_s']:.1f} s, lower {out['lower_s']:.1f} s, "
+            f"init ready+run {out['init_s']:.1f} s, epoch ready {out['epoch_ready_s']:.1f} s: "
+            f"first epoch starts {out['to_first_epoch_s']:.1f} s after the build began")
+    else:
+        t0 = time.perf_counter()
+        rs = jax.block_until_ready(exp.init(key))
+        out["init_s"] = time.perf_counter() - t0  # compile + run of init
+        log(f"build {out['build_s']:.1f} s, init (compile + run) {out['init_s']:.1f} s")
     if warp_stats:
         out["warp_ffi_after_init"] = warp_ffi_stats.snapshot()
     save(out)
@@ -130,26 +157,47 @@ def profile(cfg: ExperimentConfig, repeats: int, warm_epochs: int, trace_dir: st
     out["variants"] = {}
     for vi, (vname, vopts) in enumerate(variants.items()):
         res_v = out["variants"][vname] = {"compiler_options": vopts}
+        flag_variant = None
         for probe in (True, False):
             tag = "probe" if probe else "no_probe"
             if tag not in tags:
                 continue
             k = jax.random.fold_in(key, 100 + probe)
-            t0 = time.perf_counter()
-            lowered = exp.epoch.lower(rs, k, probe=probe)
-            lower_s = time.perf_counter() - t0  # tracing + lowering to StableHLO
-            t0 = time.perf_counter()
-            compiled = lowered.compile(compiler_options=vopts or None)
-            compile_s = time.perf_counter() - t0  # XLA compile (or a persistent-cache hit)
+            if program == "flag":  # one program for both tags: compiled once per variant
+                if vi == 0 and not vopts:
+                    flag_variant = (flag_compiled, out["lower_s"], out["epoch_ready_s"])
+                elif flag_variant is None:
+                    t0 = time.perf_counter()
+                    lowered = exp.epoch_flag.lower(rs, k, exp.abstract_flag())
+                    lower_s = time.perf_counter() - t0
+                    t0 = time.perf_counter()
+                    flag_variant = (lowered.compile(compiler_options=vopts or None), lower_s,
+                                    time.perf_counter() - t0)
+                fc, lower_s, compile_s = flag_variant
+                compiled = _with_flag(fc, exp.put_flag(probe), probe)
+            else:
+                t0 = time.perf_counter()
+                lowered = exp.epoch.lower(rs, k, probe=probe)
+                lower_s = time.perf_counter() - t0  # tracing + lowering to StableHLO
+                t0 = time.perf_counter()
+                compiled = lowered.compile(compiler_options=vopts or None)
+                compile_s = time.perf_counter() - t0  # XLA compile (or a persistent-cache hit)
             if vi == 0:
                 compiled_by_tag[tag] = compiled
+                if hlo_dir:  # the executable's optimised HLO, for trace_summary's scopes
+                    exe = flag_compiled if program == "flag" else compiled
+                    with open(os.path.join(hlo_dir, f"epoch_{program}_{tag}.hlo.txt"), "w") as f:
+                        f.write(exe.as_text())
             log(f"[{vname}] fused epoch ({tag}): lower {lower_s:.1f} s, compile {compile_s:.1f} s")
             times, get_s, rec_s, ffi = [], [], [], []
             for i in range(warm_epochs + repeats):
                 snap = warp_ffi_stats.snapshot() if warp_stats else None
                 t0 = time.perf_counter()
-                rs, m = compiled(rs, jax.random.fold_in(k, i))
-                jax.block_until_ready(rs)
+                # a host span per timed epoch: `trace_summary.py --window bj_timed_<tag>` keeps
+                # the device events inside them (a trace begun at the start, `--trace-from-start`)
+                with jax.profiler.TraceAnnotation(f"bj_timed_{tag}" if i >= warm_epochs else f"bj_warm_{tag}"):
+                    rs, m = compiled(rs, jax.random.fold_in(k, i))
+                    jax.block_until_ready(rs)
                 t1 = time.perf_counter()
                 m = jax.device_get(m)
                 t2 = time.perf_counter()
@@ -171,6 +219,7 @@ def profile(cfg: ExperimentConfig, repeats: int, warm_epochs: int, trace_dir: st
             log(f"[{vname}] fused epoch ({tag}): median {res_v[tag]['median_s']:.3f} s")
             del compiled
             save(out)
+        flag_variant = None
         if "probe" in res_v and "no_probe" in res_v:
             f_p, f_n = res_v["probe"]["median_s"], res_v["no_probe"]["median_s"]
             res_v["epoch_s_probe_every_10"] = (f_p + 9 * f_n) / 10  # issue 13's target: <= 1.5 s
@@ -186,8 +235,8 @@ def profile(cfg: ExperimentConfig, repeats: int, warm_epochs: int, trace_dir: st
         for tag, comp in compiled_by_tag.items():
             d = os.path.join(trace_dir, tag)
             os.makedirs(d, exist_ok=True)
-            with open(os.path.join(d, "epoch.hlo.txt"), "w") as f:
-                f.write(comp.as_text())  # instruction -> phase scope (trace_summary.hlo_scopes)
+            with open(os.path.join(d, "epoch.hlo.txt"), "w") as f:  # instruction -> phase scope
+                f.write((flag_compiled if program == "flag" else comp).as_text())  # (trace_summary.hlo_scopes)
             with jax.profiler.trace(d):
                 for i in range(2):
                     rs, m = comp(rs, jax.random.fold_in(key, 200 + i))
@@ -231,6 +280,15 @@ def profile(cfg: ExperimentConfig, repeats: int, warm_epochs: int, trace_dir: st
     return out
 
 
+def _with_flag(compiled: Callable, flag: jax.Array, probe: bool) -> Callable:
+    """`Experiment.epoch_flag`'s executable called as a tag's epoch: `(rs, key) -> (rs, metrics)`,
+    without `probes` when not probing (as `Programs.epoch` returns them)."""
+    def call(rs: Any, key: jax.Array) -> tuple[Any, Any]:
+        rs, m = compiled(rs, key, flag)
+        return rs, m if probe else {k: v for k, v in m.items() if k != "probes"}
+    return call
+
+
 def parse_variant(text: str) -> tuple[str, dict[str, Any]]:
     """`NAME=KEY:VALUE;KEY:VALUE` (or a bare `NAME`, no options) -> (name, compile options)."""
     from bulbjax.experiment.loop import parse_compiler_options
@@ -256,6 +314,10 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     p.add_argument("--repeats", type=int, default=5)
     p.add_argument("--warm-epochs", type=int, default=2, help="untimed epochs after compile")
     p.add_argument("--trace", default="", help="write a JAX profiler trace of two epochs here")
+    p.add_argument("--trace-from-start", default="",
+                   help="trace everything from before the build into this folder (with the epochs' "
+                        "optimised HLO): MuJoCo Warp's CUDA graphs are then all captured while the "
+                        "profiler runs; summarise with trace_summary.py DIR --window bj_timed_no_probe")
     p.add_argument("--out-dir", default=os.path.join(HERE, "results"))
     p.add_argument("--tag", default="", help="label for the file name (e.g. before/after)")
     p.add_argument("--no-phases", action="store_true", help="time the fused epoch only (skip the phases one by one)")
@@ -263,6 +325,9 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
                    help="time the fused epoch compiled with these XLA options (repeatable; the first "
                         "is the profile's `fused`), e.g. while=xla_gpu_enable_command_buffer:FUSION,WHILE")
     p.add_argument("--tags", default="probe,no_probe", help="fused executables to time (probe, no_probe)")
+    p.add_argument("--program", default="flag", choices=("flag", "static"),
+                   help="flag: one epoch program with a probe flag, start-up timed as a run does it "
+                        "(default); static: one program per tag, compiled one after the other")
     p.add_argument("--compile-cache", default="",
                    help="JAX persistent compilation cache folder (default: none, so compile times are cold)")
     p.add_argument("--warp-stats", action="store_true",
@@ -298,11 +363,20 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
 
     variants = dict(parse_variant(v) for v in a.variant) or None
     tags = tuple(t for t in a.tags.split(",") if t)
-    profile(cfg, a.repeats, a.warm_epochs, a.trace or None, phases=not a.no_phases, save=save,
-            variants=variants, tags=tags, warp_stats=a.warp_stats)
+    if a.trace_from_start:
+        os.makedirs(a.trace_from_start, exist_ok=True)
+        jax.profiler.start_trace(a.trace_from_start)
+    try:
+        profile(cfg, a.repeats, a.warm_epochs, a.trace or None, phases=not a.no_phases, save=save,
+                variants=variants, tags=tags, warp_stats=a.warp_stats, program=a.program,
+                hlo_dir=a.trace_from_start or None)
+    finally:
+        if a.trace_from_start:
+            jax.profiler.stop_trace()
     print(f"\n== epoch profile: {a.preset} on {res['device_kind']} ({cfg.seeds} seeds, "
           f"{len(cfg.learners)} learners, {cfg.learner.compute_dtype}) ==")
-    print(f"build {res['build_s']:.1f} s, init {res['init_s']:.1f} s")
+    print(f"build {res['build_s']:.1f} s, init {res['init_s']:.1f} s"
+          + (f", first epoch starts at {res['to_first_epoch_s']:.1f} s" if "to_first_epoch_s" in res else ""))
     for vname, rv in res["variants"].items():
         for tag in ("probe", "no_probe"):
             if tag in rv:

@@ -109,12 +109,33 @@ def _op_events(plane: Any) -> Iterator[tuple[str, Any]]:
                 yield line.name, ev
 
 
-def summarise(path: str, top: int = 40, scopes: dict[str, str] | None = None) -> dict[str, Any]:
+def host_windows(data: Any, name: str) -> list[tuple[int, int]]:
+    """[start, end) of every host event called `name` (e.g. profile_epoch.py's `bj_timed_no_probe`
+    annotations around its timed epochs)."""
+    out = []
+    for plane in data.planes:
+        if plane.name.startswith("/host:CPU"):
+            for line in plane.lines:
+                out += [(int(ev.start_ns), int(ev.start_ns + ev.duration_ns)) for ev in line.events if ev.name == name]
+    return sorted(out)
+
+
+def _inside(iv: tuple[int, int], windows: list[tuple[int, int]]) -> bool:
+    return any(s <= iv[0] and iv[1] <= e for s, e in windows)
+
+
+def summarise(path: str, top: int = 40, scopes: dict[str, str] | None = None,
+              window: str | None = None) -> dict[str, Any]:
     """Per device plane (every GPU, or the host CPU where there is none): busy time of all op
     streams merged, span, the top XLA ops / kernels, and device time by the epoch's phase scope
-    (`scopes`: `hlo_scopes` of the traced executables)."""
+    (`scopes`: `hlo_scopes` of the traced executables). `window`: only the device events that
+    lie inside host events of that name (their count and total length under `windows`), so that
+    a trace of a whole run can be summarised over its timed epochs."""
     data = ProfileData.from_file(path)
     scopes = scopes or {}
+    wins = host_windows(data, window) if window else []
+    if window and not wins:
+        raise SystemExit(f"no host event named {window!r} in {path}")
     planes = [p for p in data.planes if p.name.startswith("/device:GPU")]
     if not planes:
         planes = [p for p in data.planes if p.name.startswith("/host:CPU")]
@@ -128,10 +149,14 @@ def summarise(path: str, top: int = 40, scopes: dict[str, str] | None = None) ->
         for line in plane.lines:  # non-kernel lines (XLA Ops, XLA Modules) summed by name
             if not line.name.startswith("Stream") and plane.name.startswith("/device:GPU"):
                 for ev in line.events:
+                    if wins and not _inside((int(ev.start_ns), int(ev.start_ns + ev.duration_ns)), wins):
+                        continue
                     time_ns[line.name][ev.name] += ev.duration_ns
                     count[line.name][ev.name] += 1
         for _, ev in _op_events(plane):
             iv = (int(ev.start_ns), int(ev.start_ns + ev.duration_ns))
+            if wins and not _inside(iv, wins):
+                continue
             kernels.append(iv)
             time_ns["streams"][ev.name] += ev.duration_ns
             count["streams"][ev.name] += 1
@@ -151,6 +176,8 @@ def summarise(path: str, top: int = 40, scopes: dict[str, str] | None = None) ->
                                     "busy_ms": _merge(ivs) / 1e6, "launches": len(ivs)}
         dev["unscoped_top"] = [{"name": k[:160], "ms": v / 1e6} for k, v in unscoped.most_common(top)]
         out["devices"][plane.name] = dev
+    if wins:
+        out["windows"] = {"name": window, "count": len(wins), "total_ms": sum(e - s for s, e in wins) / 1e6}
     return out
 
 
@@ -159,6 +186,8 @@ def main() -> None:
     p.add_argument("trace_dir")
     p.add_argument("--out", required=True)
     p.add_argument("--top", type=int, default=40)
+    p.add_argument("--window", default="", help="only device events inside host events of this name "
+                                                 "(profile_epoch.py: bj_timed_no_probe, bj_timed_probe)")
     a = p.parse_args()
     files = sorted(glob.glob(os.path.join(a.trace_dir, "**", "*.xplane.pb"), recursive=True))
     if not files:
@@ -167,7 +196,7 @@ def main() -> None:
     for h in sorted(glob.glob(os.path.join(a.trace_dir, "**", "*.hlo.txt"), recursive=True)):
         with open(h) as f:
             scopes.update(hlo_scopes(f.read()))
-    res = summarise(files[-1], a.top, scopes)
+    res = summarise(files[-1], a.top, scopes, a.window or None)
     with open(a.out, "w") as f:
         json.dump(res, f, indent=1)
     for dev, d in res["devices"].items():

@@ -74,6 +74,33 @@ def test_resume_is_bit_identical(exp, straight, tmp_path):
     assert os.path.getsize(os.path.join(d, "fig2.png")) > 10_000
 
 
+def test_probe_every_k_runs_one_program_with_a_flag(exp, straight, tmp_path):
+    """`--probe-every 2`: one epoch program (`Experiment.epoch_flag`) runs probing and
+    non-probing epochs. Epochs 0, 2 and the last (3) probe, epoch 1 has no probes; training is
+    the straight run's (every epoch probing, the specialised program) to rounding, and so is
+    epoch 0's probe (same state, same keys); later probes differ, as the held-out worlds of a
+    non-probing epoch do not move."""
+    d0, _ = straight
+    d = str(tmp_path / "every2")
+    res = run(exp.config, RunOptions(probe_every=2), d, experiment=exp, progress=False, log=lambda s: None)
+    assert res.epochs_done == 4
+    assert exp.programs((True, False)).flag and not exp.programs((True,)).flag
+    a, b = [json.loads(x) for x in _lines(d0)], [json.loads(x) for x in _lines(d)]
+    assert [bool(r["probes"]) for r in b] == [True, True, False, False, True, True, True, True]
+    for ra, rb in zip(a, b):
+        assert (ra["epoch"], ra["seed"]) == (rb["epoch"], rb["seed"])
+        np.testing.assert_allclose(rb["learners"]["vae_rpl"]["loss"], ra["learners"]["vae_rpl"]["loss"], rtol=1e-5)
+        np.testing.assert_allclose(rb["learners"]["svae"]["loss"], ra["learners"]["svae"]["loss"], rtol=1e-5)
+        assert rb["rl_return"] == ra["rl_return"] or np.isnan(rb["rl_return"]) and np.isnan(ra["rl_return"])
+    for ra, rb in zip(a[:2], b[:2]):  # epoch 0
+        for name in ("vae_rpl", "svae"):
+            x, y = ra["probes"][name]["rand"]["overall"]["mae_norm"], rb["probes"][name]["rand"]["overall"]["mae_norm"]
+            assert np.isfinite(y) and abs(x - y) <= 1e-4 * abs(x) + 1e-6
+    later = [(ra["probes"]["svae"]["rand"]["overall"]["mae_norm"], rb["probes"]["svae"]["rand"]["overall"]["mae_norm"])
+             for ra, rb in zip(a[4:], b[4:])]
+    assert all(np.isfinite(y) for _, y in later) and any(x != y for x, y in later)
+
+
 def test_keep_k_and_checkpoint_contents(exp, straight):
     d, _ = straight
     ck = Checkpointer(d, keep=2)
@@ -270,12 +297,12 @@ from bulbjax.experiment import Experiment
 from test_run import tiny
 exp = Experiment(tiny())
 mode = sys.argv[1]
-if mode == "no_probe_first":  # the non-probing epoch traced first: other FFI target names
+if mode == "epoch_first":  # an epoch traced before init: other FFI target names
     exp.epoch.trace(exp.abstract_state(), exp.abstract_key(), probe=False)
 if mode == "init_traced_twice":  # what a retrace of init does (a fresh GPU run's init call did)
     exp.init.trace(jax.ShapeDtypeStruct((2,), jax.numpy.uint32))
 progs = exp.programs()
-text = progs._traced[False].lower().as_text()
+text = progs.lowered("epoch").as_text()
 calls = lambda: {{c.name: c.call_id for c in _FFI_CALLABLE_REGISTRY.values()}}
 before, traced_after = calls(), None
 if mode == "fresh":  # a new run: init and one epoch run, and nothing is traced again
@@ -290,10 +317,9 @@ print(json.dumps({{"hash": hashlib.sha256(text.encode()).hexdigest(), "traced_af
 def test_resumed_process_compiles_the_same_epoch_program():
     """MuJoCo Warp numbers its FFI targets and call sites by per-process trace order, and the
     numbers are in the program (so in the compilation cache key). `Experiment.programs` traces
-    init and the epochs in one order and then only calls what it compiled: the non-probing
-    epoch of a fresh run (which runs init and an epoch, tracing nothing more) and of a resume
-    (no init) lower to the same text; the non-probing epoch traced first, or init traced one
-    more time (what a fresh GPU run's init call did), give another text: what made resumed GPU
+    init and the epoch in one order and then only calls what it compiled: the epoch of a
+    fresh run (which runs init and an epoch, tracing nothing more) and of a resume (no init)
+    lower to the same text; an epoch traced first, or init traced one more time (what a fresh GPU run's init call did), give another text: what made resumed GPU
     stretches recompile for minutes."""
     import json
     import subprocess
@@ -301,7 +327,7 @@ def test_resumed_process_compiles_the_same_epoch_program():
 
     here = os.path.dirname(os.path.abspath(__file__))
     script = _PROGRAM_SCRIPT.format(tests=here)
-    modes = ("fresh", "resume", "no_probe_first", "init_traced_twice")
+    modes = ("fresh", "resume", "epoch_first", "init_traced_twice")
     procs = {o: subprocess.Popen([sys.executable, "-c", script, o], stdout=subprocess.PIPE, text=True,
                                  cwd=os.path.dirname(here))
              for o in modes}
@@ -310,5 +336,5 @@ def test_resumed_process_compiles_the_same_epoch_program():
     out = {o: json.loads(v) for o, v in out.items()}
     assert out["fresh"]["traced_after"] is False
     assert out["fresh"]["hash"] == out["resume"]["hash"]
-    assert out["no_probe_first"]["hash"] != out["fresh"]["hash"]
+    assert out["epoch_first"]["hash"] != out["fresh"]["hash"]
     assert out["init_traced_twice"]["hash"] != out["fresh"]["hash"]

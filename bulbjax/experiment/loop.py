@@ -19,6 +19,8 @@ L steps ending at it (`PolicyHistory`, kept per world in the run state).
 from __future__ import annotations
 
 import math
+import threading
+from concurrent.futures import Future
 from typing import Any, Callable, Mapping, Sequence
 
 import jax
@@ -394,6 +396,11 @@ class Experiment:
         # make the second call compile the epoch again.
         self.epoch = jax.jit(self._epoch, donate_argnums=0, static_argnames="probe",
                              out_shardings=(self._state_sh, self._rep), compiler_options=opts)
+        # `epoch_flag(rs, key, flag)`: one program for probing and non-probing epochs, `flag` a
+        # boolean array (`abstract_flag`) that switches the held-out rollouts and probes on
+        # (`lax.cond`), so a run probing every k epochs compiles and loads one epoch, not two.
+        self.epoch_flag = jax.jit(self._epoch, donate_argnums=0,
+                                  out_shardings=(self._state_sh, self._rep), compiler_options=opts)
 
     # ------------------------------------------------------------------ devices
     def _per_device_renderer(self) -> None:
@@ -464,6 +471,13 @@ class Experiment:
 
     def abstract_key(self) -> jax.ShapeDtypeStruct:
         return jax.ShapeDtypeStruct((2,), jnp.uint32, sharding=self._rep)
+
+    def abstract_flag(self) -> jax.ShapeDtypeStruct:
+        """The `flag` argument of `epoch_flag` (a boolean scalar, replicated)."""
+        return jax.ShapeDtypeStruct((), jnp.bool_, sharding=self._rep)
+
+    def put_flag(self, probe: bool) -> jax.Array:
+        return jax.device_put(np.bool_(probe), self._rep)
 
     def put_key(self, key: jax.Array) -> jax.Array:
         """A host-side PRNG key placed on the mesh (replicated)."""
@@ -949,8 +963,12 @@ class Experiment:
                                              k_s, learners[name], buf, held_out)
         return out
 
-    def _epoch(self, rs: RunState, key: jax.Array, probe: bool = True) -> tuple[RunState, dict[str, Any]]:
-        """One epoch; with `probe=False` no held-out rollout or probe (metrics without `probes`)."""
+    def _epoch(self, rs: RunState, key: jax.Array, probe: bool | jax.Array = True
+               ) -> tuple[RunState, dict[str, Any]]:
+        """One epoch; with `probe=False` no held-out rollout or probe (metrics without `probes`).
+        A traced boolean `probe` (`epoch_flag`) puts both in one program: the held-out rollouts
+        and probes run under `lax.cond`, and the metrics always have `probes` (NaN or 0 where the
+        epoch did not probe; `Programs.epoch` drops them)."""
         k_rl, k_rep, k_learn, k_eval, k_probe = jax.random.split(key, 5)
         hist = dict(rs.policy_history)
         # named scopes label each phase's ops in a profiler trace (benchmarks/trace_summary.py)
@@ -974,19 +992,40 @@ class Experiment:
                                **{f"windows_{k}": b.num_dropped for k, b in windows.items()}},
         }
         curr_env, rand_env = rs.curr_env, rs.rand_env
-        if probe:
+
+        def evaluate(ops: tuple) -> tuple:
+            curr_env, rand_env, curr_hist, ppo_state, learners, buffers, windows = ops
             with jax.named_scope("bj.eval"):
                 curr_env, rand_env, held_out, curr_hist = self.eval_phase(ppo_state, curr_env, rand_env, k_eval,
-                                                                          learners, hist.get("curr"))
+                                                                          learners, curr_hist)
+            return curr_env, rand_env, curr_hist, self.probe_phase(learners, buffers, held_out, k_probe, windows)
+
+        ops = (curr_env, rand_env, hist.get("curr"), ppo_state, learners, buffers, windows)
+        if isinstance(probe, (bool, np.bool_)):
+            if probe:
+                curr_env, rand_env, curr_hist, metrics["probes"] = evaluate(ops)
+                if curr_hist is not None:
+                    hist["curr"] = curr_hist
+        else:
+            probes_shape = jax.eval_shape(evaluate, ops)[3]
+
+            def skip(ops: tuple) -> tuple:
+                return ops[0], ops[1], ops[2], jax.tree.map(_blank, probes_shape)
+
+            curr_env, rand_env, curr_hist, metrics["probes"] = jax.lax.cond(probe, evaluate, skip, ops)
             if curr_hist is not None:
                 hist["curr"] = curr_hist
-            metrics["probes"] = self.probe_phase(learners, buffers, held_out, k_probe, windows)
         new = RunState(ppo=ppo_state, learners=learners, buffers=buffers, windows=windows,
                        train_env=train_env, curr_env=curr_env, rand_env=rand_env, policy_history=hist,
                        ref_spread=rs.ref_spread, epoch=rs.epoch + 1)
         if self.sharded:  # the next epoch gets the layout this one got
             new = jax.lax.with_sharding_constraint(new, self._state_sh)
         return new, metrics
+
+
+def _blank(s: jax.ShapeDtypeStruct) -> jax.Array:
+    """NaN (floats) or 0 of a shape: the probes of an epoch that did not probe."""
+    return jnp.full(s.shape, jnp.nan if jnp.issubdtype(s.dtype, jnp.inexact) else 0, s.dtype)
 
 
 class Programs:
@@ -1000,31 +1039,78 @@ class Programs:
     differ in placement from an earlier trace retraces it: on the GPU a fresh run's `init` call
     did, a resumed run never calls `init`), numbers the calls differently and misses the
     cache: minutes of compile for every resumed stretch on the GPU. Here every process, fresh
-    or resumed, traces `init` and then the epochs (probing first) on abstract arguments before
-    anything runs, and later calls go to executables compiled from exactly those traces
-    (compiled on first use), so nothing is traced again."""
+    or resumed, traces `init` and then the epoch on abstract arguments before anything runs,
+    and later calls go to executables compiled from exactly those traces, so nothing is traced
+    again.
+
+    One epoch program: a run that probes every epoch (`probes=(True,)`) gets the probing epoch,
+    one that probes some epochs (`(True, False)`) gets `Experiment.epoch_flag`, whose flag
+    switches the probes on. `prepare(names)` compiles (or loads from the compile cache) in
+    background threads, so that init's and the epoch's compiles overlap each other and a
+    resume's checkpoint restore; a program not prepared compiles on first use."""
 
     def __init__(self, exp: Experiment, probes: Sequence[bool]) -> None:
         key, rs = exp.abstract_key(), exp.abstract_state()
         self._exp = exp
-        self._traced: dict[Any, Any] = {"init": exp.init.trace(key)}
-        for p in probes:
-            self._traced[bool(p)] = exp.epoch.trace(rs, key, probe=bool(p))
-        self._compiled: dict[Any, Any] = {}
+        self.probes = frozenset(bool(p) for p in probes)
+        if not self.probes:
+            raise ValueError("Programs needs at least one probe value (True, False or both)")
+        self.flag = len(self.probes) == 2
+        self._traced: dict[str, Any] = {"init": exp.init.trace(key)}
+        if self.flag:
+            self._traced["epoch"] = exp.epoch_flag.trace(rs, key, exp.abstract_flag())
+        else:
+            self._traced["epoch"] = exp.epoch.trace(rs, key, probe=next(iter(self.probes)))
+        self._lowered: dict[str, Any] = {}
+        self._compiled: dict[str, Future] = {}
 
-    def _get(self, which: Any) -> Any:
-        if which not in self._compiled:
-            if which not in self._traced:
-                traced = sorted(k for k in self._traced if k != "init")
-                raise KeyError(f"this run's epochs were traced for probe in {traced}, not {which!r}: "
-                               "pass every probe value the run uses to Experiment.programs")
-            self._compiled[which] = self._traced[which].lower().compile()
-        return self._compiled[which]
+    def lowered(self, which: str) -> Any:
+        """The lowered program (`"init"` or `"epoch"`): what is compiled, e.g. for its text."""
+        if which not in self._lowered:
+            self._lowered[which] = self._traced[which].lower()
+        return self._lowered[which]
+
+    def prepare(self, *which: str) -> "Programs":
+        """Start compiling the named programs (`"init"`, `"epoch"`): each is lowered here, then
+        compiled in a background thread."""
+        for w in which:
+            if w not in self._compiled:
+                self._compiled[w] = _in_thread(self.lowered(w).compile)
+        return self
+
+    def compiled(self, which: str) -> Any:
+        """The compiled program, waiting for (or starting) its compile."""
+        return self.prepare(which)._compiled[which].result()
 
     def init(self, key: jax.Array) -> RunState:
         """`Experiment.init` of a host PRNG key (placed on the mesh here)."""
-        return self._get("init")(self._exp.put_key(key))
+        return self.compiled("init")(self._exp.put_key(key))
 
     def epoch(self, rs: RunState, key: jax.Array, probe: bool = True) -> tuple[RunState, Any]:
-        """`Experiment.epoch` (`rs` donated); the key is placed on the mesh here."""
-        return self._get(bool(probe))(rs, self._exp.put_key(key))
+        """`Experiment.epoch` (`rs` donated); the key is placed on the mesh here. The metrics of
+        an epoch that does not probe have no `probes`, whichever program ran it."""
+        probe = bool(probe)
+        if probe not in self.probes:
+            raise KeyError(f"this run's epoch was traced for probe in {sorted(self.probes)}, not {probe!r}: "
+                           "pass every probe value the run uses to Experiment.programs")
+        if not self.flag:
+            return self.compiled("epoch")(rs, self._exp.put_key(key))
+        rs, m = self.compiled("epoch")(rs, self._exp.put_key(key), self._exp.put_flag(probe))
+        if not probe:
+            m = {k: v for k, v in m.items() if k != "probes"}
+        return rs, m
+
+
+def _in_thread(fn: Callable[[], Any]) -> Future:
+    """`fn()` in a daemon thread (an XLA compile releases the GIL), its result as a Future. Daemon:
+    a process that fails meanwhile exits without waiting for a compile it no longer needs."""
+    fut: Future = Future()
+
+    def run() -> None:
+        try:
+            fut.set_result(fn())
+        except BaseException as e:  # re-raised by fut.result() in the caller's thread
+            fut.set_exception(e)
+
+    threading.Thread(target=run, daemon=True, name="bulbjax-compile").start()
+    return fut

@@ -311,6 +311,9 @@ def run(cfg: ExperimentConfig, opts: RunOptions, run_dir: str, *, resume: bool =
     # resumed stretch compiles the same programs as the fresh one (and hits the compile cache);
     # probe_every is part of a run's identity, so fresh and resumed stretches trace the same ones
     programs = exp.programs((True,) if opts.probe_every == 1 else (True, False))
+    # compiles (or compile-cache loads) in background threads: init's and the epoch's overlap,
+    # and a resume's restore overlaps the epoch's
+    programs.prepare(*(("epoch",) if resume else ("init", "epoch")))
     if resume:
         like = {"run": exp.abstract_state(), "key": exp.abstract_key()}
         state, host, start = ckpt.restore(like)
