@@ -142,7 +142,7 @@ def retain_initial(buf: WindowBuffer, key: jax.Array, fraction: float | jax.Arra
 
 def sample(buf: WindowBuffer, key: jax.Array, batch: int) -> Windows:
     """`batch` windows drawn uniformly with replacement among the filled slots."""
-    idx = jax.random.randint(key, (batch,), 0, jnp.maximum(buf.size, 1))
+    idx = replay.materialised(jax.random.randint(key, (batch,), 0, jnp.maximum(buf.size, 1)))
     return jax.tree.map(lambda x: x[idx], buf.windows)
 
 
