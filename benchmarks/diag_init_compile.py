@@ -1,0 +1,76 @@
+"""What init's compile time is made of (issue 13, cold start): each learner's parameter init
+over the seeds (`vmap`, as `Experiment._init` does it, and `lax.map`) compiled alone, then the
+env's rollouts that fill the buffers. Prints seconds per part; `--out FILE` writes them as JSON.
+
+    python benchmarks/diag_init_compile.py --preset fig2-invpend --bf16
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import os
+import sys
+import time
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+sys.path.insert(0, os.path.dirname(HERE))
+
+import jax  # noqa: E402
+
+from bulbjax.envs import registry  # noqa: E402
+from bulbjax.experiment import small_config  # noqa: E402
+from bulbjax.experiment.config import preset  # noqa: E402
+from bulbjax.experiment.loop import Experiment  # noqa: E402
+
+
+def timed_compile(f, *args) -> float:
+    t0 = time.perf_counter()
+    jax.jit(f).lower(*args).compile()
+    return time.perf_counter() - t0
+
+
+def main() -> None:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--preset", default="fig2-invpend")
+    p.add_argument("--bf16", action="store_true")
+    p.add_argument("--small", action="store_true", help="CPU sizes (small_config)")
+    p.add_argument("--seeds", type=int, default=0)
+    p.add_argument("--out", default="")
+    a = p.parse_args()
+    cfg = preset(a.preset)
+    cfg = cfg.replace(ppo=registry.ppo_config_for(cfg.env, cfg.ppo))
+    if a.small:
+        cfg = small_config(cfg)
+    if a.seeds:
+        cfg = cfg.replace(seeds=a.seeds)
+    if a.bf16:
+        cfg = cfg.replace(learner=dataclasses.replace(cfg.learner, compute_dtype="bfloat16"))
+    exp = Experiment(cfg)
+    keys = jax.random.split(jax.random.PRNGKey(0), cfg.seeds)
+    out: dict = {"device_kind": jax.devices()[0].device_kind, "preset": a.preset, "parts": {}}
+    for name, learner in exp.learners.items():
+        one = lambda k, l=learner: l.init(k, exp.env.frame_shape)  # noqa: E731
+        out["parts"][f"{name} init (vmap)"] = timed_compile(jax.vmap(one), keys)
+        out["parts"][f"{name} init (lax.map)"] = timed_compile(lambda ks, one=one: jax.lax.map(one, ks), keys)
+        print({k: round(v, 1) for k, v in out["parts"].items() if k.startswith(name)}, flush=True)
+    ppo = jax.vmap(exp.ppo.init)(keys)
+    k = jax.random.PRNGKey(1)
+    steps = -(-cfg.replay_capacity // exp.N)
+    out["parts"]["env reset"] = timed_compile(exp._env_reset, k)
+    out["parts"]["replay fill rollout (render every step)"] = timed_compile(
+        lambda pp, kk: exp._collect(pp, exp._env_reset(kk), kk, steps, random=True), ppo, k)
+    out["parts"]["reference rollout"] = timed_compile(
+        lambda pp, kk: exp._rollout(pp, exp._env_reset(kk), kk, cfg.reference_steps, random=True), ppo, k)
+    if exp.window_length:
+        out["parts"]["window buffers fill"] = timed_compile(exp._init_windows, ppo, k)
+    for n, v in out["parts"].items():
+        print(f"{n:45} {v:7.1f} s")
+    if a.out:
+        with open(a.out, "w") as f:
+            json.dump(out, f, indent=1)
+
+
+if __name__ == "__main__":
+    main()
