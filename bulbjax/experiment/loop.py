@@ -735,7 +735,9 @@ class Experiment:
         learners = {}
         for i, (name, learner) in enumerate(self.learners.items()):
             keys = jax.random.split(jax.random.fold_in(k_learn, i), self.S)
-            learners[name] = jax.vmap(lambda k, l=learner: l.init(k, self.env.frame_shape))(keys)
+            # one seed at a time: the same parameters as a vmap, and on the GPU a much cheaper
+            # compile for DSA (its init over 6 seeds: 23 s under lax.map, 40 s vmapped; H100)
+            learners[name] = jax.lax.map(lambda k, l=learner: l.init(k, self.env.frame_shape), keys)
         ke = jax.random.split(k_env, 4)
         train_env, curr_env, rand_env = (self._env_reset(k) for k in ke[:3])
         # The reference spread of every state entry, once per run: the random policy's held-out
