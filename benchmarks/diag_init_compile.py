@@ -8,7 +8,6 @@ env's rollouts that fill the buffers. Prints seconds per part; `--out FILE` writ
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import json
 import os
 import sys
@@ -16,12 +15,12 @@ import time
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, os.path.dirname(HERE))
+sys.path.insert(0, HERE)
 
 import jax  # noqa: E402
 
-from bulbjax.envs import registry  # noqa: E402
-from bulbjax.experiment import small_config  # noqa: E402
-from bulbjax.experiment.config import preset  # noqa: E402
+from profile_epoch import add_config_args, build_config  # noqa: E402
+
 from bulbjax.experiment.loop import Experiment  # noqa: E402
 
 
@@ -33,20 +32,10 @@ def timed_compile(f, *args) -> float:
 
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    p.add_argument("--preset", default="fig2-invpend")
-    p.add_argument("--bf16", action="store_true")
-    p.add_argument("--small", action="store_true", help="CPU sizes (small_config)")
-    p.add_argument("--seeds", type=int, default=0)
+    add_config_args(p)
     p.add_argument("--out", default="")
     a = p.parse_args()
-    cfg = preset(a.preset)
-    cfg = cfg.replace(ppo=registry.ppo_config_for(cfg.env, cfg.ppo))
-    if a.small:
-        cfg = small_config(cfg)
-    if a.seeds:
-        cfg = cfg.replace(seeds=a.seeds)
-    if a.bf16:
-        cfg = cfg.replace(learner=dataclasses.replace(cfg.learner, compute_dtype="bfloat16"))
+    cfg = build_config(a)
     exp = Experiment(cfg)
     keys = jax.random.split(jax.random.PRNGKey(0), cfg.seeds)
     out: dict = {"device_kind": jax.devices()[0].device_kind, "preset": a.preset, "parts": {}}

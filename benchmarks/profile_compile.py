@@ -23,22 +23,14 @@ sys.path.insert(0, HERE)
 
 import jax  # noqa: E402
 
-from profile_epoch import build_config, parse_variant  # noqa: E402
+from profile_epoch import add_config_args, build_config, parse_variant  # noqa: E402
 
 from bulbjax.experiment.loop import Experiment  # noqa: E402
 
 
 def main(argv: list[str] | None = None) -> dict:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    p.add_argument("--preset", default="fig2-invpend")
-    p.add_argument("--small", action="store_true")
-    p.add_argument("--seeds", type=int, default=0)
-    p.add_argument("--learners", default="")
-    p.add_argument("--bf16", action="store_true")
-    p.add_argument("--deconv-impl", default="")
-    p.add_argument("--rnn-unroll", type=int, default=0)
-    p.add_argument("--learner-option", action="append", default=[])
-    p.add_argument("--seed-loop", default="")
+    add_config_args(p)
     p.add_argument("--programs", default="init", help="comma-separated: init, epoch (the flag program)")
     p.add_argument("--set", action="append", default=[], metavar="NAME[=KEY:VALUE;...]",
                    help="a named set of XLA compile options (repeatable; default: one set, no options)")

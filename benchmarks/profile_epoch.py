@@ -45,8 +45,24 @@ import warp_ffi_stats  # noqa: E402
 from bulbjax.envs import registry  # noqa: E402
 from bulbjax.experiment import report, small_config  # noqa: E402
 from bulbjax.experiment.config import ExperimentConfig, preset  # noqa: E402
-from bulbjax.experiment.loop import Experiment  # noqa: E402
+from bulbjax.experiment.loop import Experiment, without_probes  # noqa: E402
 from bulbjax.learners import parse_learner_options  # noqa: E402
+
+
+def add_config_args(p: argparse.ArgumentParser) -> None:
+    """The options `build_config` reads (preset and its overrides), for every script that builds
+    an experiment from a preset (profile_epoch, profile_compile, diag_init_compile)."""
+    p.add_argument("--preset", default="fig2-invpend")
+    p.add_argument("--small", action="store_true", help="CPU sizes (small_config)")
+    p.add_argument("--seeds", type=int, default=0, help="override the preset's seeds")
+    p.add_argument("--learners", default="", help="override the preset's learners (comma-separated)")
+    p.add_argument("--bf16", action="store_true")
+    p.add_argument("--deconv-impl", default="", help="decoder form (transpose, subpixel, dgrad)")
+    p.add_argument("--rnn-unroll", type=int, default=0, help="sequential learners' LSTM unroll (default: the preset's)")
+    p.add_argument("--learner-option", action="append", default=[], metavar="KEY=VALUE",
+                   help="a LearnerConfig field (repeatable), e.g. channel_pad=8 or bias_grad=split")
+    p.add_argument("--seed-loop", default="", choices=("", "auto", "vmap", "map"),
+                   help="learner work over the seed axis (default: the preset's)")
 
 
 def build_config(a: argparse.Namespace) -> ExperimentConfig:
@@ -285,7 +301,7 @@ def _with_flag(compiled: Callable, flag: jax.Array, probe: bool) -> Callable:
     without `probes` when not probing (as `Programs.epoch` returns them)."""
     def call(rs: Any, key: jax.Array) -> tuple[Any, Any]:
         rs, m = compiled(rs, key, flag)
-        return rs, m if probe else {k: v for k, v in m.items() if k != "probes"}
+        return rs, m if probe else without_probes(m)
     return call
 
 
@@ -300,17 +316,7 @@ def parse_variant(text: str) -> tuple[str, dict[str, Any]]:
 
 def main(argv: list[str] | None = None) -> dict[str, Any]:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    p.add_argument("--preset", default="fig2-invpend")
-    p.add_argument("--small", action="store_true", help="CPU sizes (small_config)")
-    p.add_argument("--seeds", type=int, default=0, help="override the preset's seeds")
-    p.add_argument("--learners", default="", help="override the preset's learners (comma-separated)")
-    p.add_argument("--bf16", action="store_true")
-    p.add_argument("--deconv-impl", default="", help="decoder form (transpose, subpixel, dgrad)")
-    p.add_argument("--rnn-unroll", type=int, default=0, help="sequential learners' LSTM unroll (default: the preset's)")
-    p.add_argument("--learner-option", action="append", default=[], metavar="KEY=VALUE",
-                   help="a LearnerConfig field (repeatable), e.g. channel_pad=8 or bias_grad=split")
-    p.add_argument("--seed-loop", default="", choices=("", "auto", "vmap", "map"),
-                   help="learner work over the seed axis (default: the preset's)")
+    add_config_args(p)
     p.add_argument("--repeats", type=int, default=5)
     p.add_argument("--warm-epochs", type=int, default=2, help="untimed epochs after compile")
     p.add_argument("--trace", default="", help="write a JAX profiler trace of two epochs here")
