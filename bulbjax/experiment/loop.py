@@ -1098,9 +1098,13 @@ class Programs:
         if not self.flag:
             return self.compiled("epoch")(rs, self._exp.put_key(key))
         rs, m = self.compiled("epoch")(rs, self._exp.put_key(key), self._exp.put_flag(probe))
-        if not probe:
-            m = {k: v for k, v in m.items() if k != "probes"}
-        return rs, m
+        return rs, m if probe else without_probes(m)
+
+
+def without_probes(metrics: dict[str, Any]) -> dict[str, Any]:
+    """An `epoch_flag` epoch's metrics as a non-probing epoch has them: no `probes` (its NaN/0
+    placeholders dropped)."""
+    return {k: v for k, v in metrics.items() if k != "probes"}
 
 
 def _in_thread(fn: Callable[[], Any]) -> Future:
