@@ -210,7 +210,8 @@ def _tuplify(v: object) -> object:
 # config.json without them reads back with these values, so that its run resumes (and reports)
 # with the forms it started with (same function, other float rounding).
 WRITTEN_BEFORE: dict[type, dict[str, object]] = {
-    LearnerConfig: {"channel_pad": 1, "bias_grad": "reduce"},  # until 2026-11-25
+    # channel_pad, bias_grad until 2026-11-25 (tenth session), edge_layers until the eleventh
+    LearnerConfig: {"channel_pad": 1, "bias_grad": "reduce", "edge_layers": "strided"},
 }
 
 

@@ -16,7 +16,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from bulbjax.learners.networks import BIAS_GRADS, DECONV_IMPLS
+from bulbjax.learners.networks import BIAS_GRADS, DECONV_IMPLS, EDGE_LAYERS
 
 COMPUTE_DTYPES: tuple[str, ...] = ("float32", "bfloat16")
 # DSA's encoder variants (the paper tried all of them); see networks.SequenceModel.
@@ -56,6 +56,12 @@ class LearnerConfig:
     # benchmarks/README.md, "Padded channels, two-pass bias gradients", has the figures.
     channel_pad: int = 0
     bias_grad: str = "split"
+    # The first conv and the decoder's last layer (full resolution, 3 colour channels) computed
+    # over 2x2 pixel blocks as 3x3 stride-1 convolutions ("blocked") or as 4x4 stride-2 ones
+    # ("strided"); same parameters, same function (networks.blocked_conv_down). "auto": blocked
+    # in bf16 (10% faster VAE updates on the H100), strided in float32 (equal on the H100,
+    # slower on the CPU); benchmarks/README.md, "Edge layers over pixel blocks".
+    edge_layers: str = "auto"
     # Sequential learners only (svae, pred, dsa); the frame learners ignore these.
     sequence_length: int = 24  # steps per window (paper: 24 pendulums, 16 locomotion)
     pred_horizon: int = 4  # PRED reconstructs sequence_length + pred_horizon frames
@@ -99,6 +105,8 @@ class LearnerConfig:
             raise ValueError(f"channel_pad must be >= 0 (1: no padding, 0: 8 in bf16 else 1), got {self.channel_pad!r}")
         if self.bias_grad not in BIAS_GRADS:
             raise ValueError(f"bias_grad must be one of {BIAS_GRADS}, got {self.bias_grad!r}")
+        if self.edge_layers not in ("auto", *EDGE_LAYERS):
+            raise ValueError(f"edge_layers must be one of {('auto', *EDGE_LAYERS)}, got {self.edge_layers!r}")
         if self.sequence_length < 2:
             raise ValueError(f"sequence_length must be >= 2, got {self.sequence_length!r}")
         if self.pred_horizon < 0:
@@ -131,9 +139,12 @@ class LearnerConfig:
     @property
     def conv_forms(self) -> dict[str, Any]:
         """Keyword arguments of the conv modules that pick their forms (`channel_pad` with its
-        0 resolved: 8 in bf16, 1 in float32; `bias_grad`)."""
-        pad = self.channel_pad or (8 if self.compute_dtype == "bfloat16" else 1)
-        return {"channel_pad": pad, "bias_grad": self.bias_grad}
+        0 resolved: 8 in bf16, 1 in float32; `bias_grad`; `edge_layers` with "auto" resolved:
+        blocked in bf16, strided in float32)."""
+        bf16 = self.compute_dtype == "bfloat16"
+        pad = self.channel_pad or (8 if bf16 else 1)
+        edge = self.edge_layers if self.edge_layers != "auto" else ("blocked" if bf16 else "strided")
+        return {"channel_pad": pad, "bias_grad": self.bias_grad, "edge_layers": edge}
 
 
 def parse_learner_options(items: Sequence[str]) -> dict[str, Any]:

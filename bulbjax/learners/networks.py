@@ -81,6 +81,10 @@ def check_frame_shape(
 
 _NHWC = ("NHWC", "HWIO", "NHWC")  # the convolution layouts of the encoder and decoder forms
 BIAS_GRADS: tuple[str, ...] = ("reduce", "split")  # add_bias
+# How the first conv and the decoder's last layer (the two at full resolution with 3 channels)
+# are computed: "strided" (4x4 stride-2 convolutions over pixels) or "blocked" (the same kernels
+# rearranged into 3x3 stride-1 convolutions over 2x2 pixel blocks; `BlockedConv4x4`).
+EDGE_LAYERS: tuple[str, ...] = ("strided", "blocked")
 
 
 def pad_axis(x: jax.Array, axis: int, multiple: int) -> jax.Array:
@@ -144,27 +148,79 @@ class Conv4x4(nn.Module):
     dtype: jnp.dtype = jnp.float32
     channel_pad: int = 1
     bias_grad: str = "reduce"
+    blocked: bool = False  # compute it as a 3x3 convolution over 2x2 pixel blocks (see below)
 
     @nn.compact
     def __call__(self, x: jax.Array) -> jax.Array:
         kernel = self.param("kernel", lecun_normal_flat, (4, 4, x.shape[-1], self.features), jnp.float32)
         bias = self.param("bias", nn.initializers.zeros_init(), (self.features,), jnp.float32)
-        x = pad_axis(x.astype(self.dtype), -1, self.channel_pad)
-        w = pad_axis(kernel, 2, self.channel_pad).astype(self.dtype)
-        return add_bias(_conv_down(x, w), bias, self.bias_grad)
+        if self.blocked:
+            y = blocked_conv_down(x.astype(self.dtype), kernel, self.channel_pad)
+        else:
+            x = pad_axis(x.astype(self.dtype), -1, self.channel_pad)
+            y = _conv_down(x, pad_axis(kernel, 2, self.channel_pad).astype(self.dtype))
+        return add_bias(y, bias, self.bias_grad)
+
+
+def space_to_depth(x: jax.Array) -> jax.Array:
+    """[B, 2H, 2W, C] -> [B, H, W, 4C]: each 2x2 pixel block as one position, channels ordered
+    (row phase, column phase, channel)."""
+    b, h, w, c = x.shape
+    x = x.reshape(b, h // 2, 2, w // 2, 2, c).transpose(0, 1, 3, 2, 4, 5)
+    return x.reshape(b, h // 2, w // 2, 4 * c)
+
+
+def depth_to_space(y: jax.Array) -> jax.Array:
+    """The inverse of `space_to_depth`: [B, H, W, 4C] -> [B, 2H, 2W, C]."""
+    b, h, w, c4 = y.shape
+    y = y.reshape(b, h, w, 2, 2, c4 // 4).transpose(0, 1, 3, 2, 4, 5)
+    return y.reshape(b, 2 * h, 2 * w, c4 // 4)
+
+
+# A 4x4 stride-2 convolution with padding 1 reads, for output i, input rows 2i-1 .. 2i+2, i.e.
+# row phase p of pixel block i+d-1 for d = 0, 1, 2 with tap 2(d-1)+p+1. _BLOCK_TAPS[p][d] is that
+# tap, -1 where it falls outside the 4-wide kernel.
+_BLOCK_TAPS: tuple[tuple[int, ...], ...] = ((-1, 1, 3), (0, 2, -1))
+
+
+def blocked_kernel(kernel: jax.Array) -> jax.Array:
+    """A 4x4 stride-2 kernel [4, 4, C, F] as the 3x3 stride-1 kernel [3, 3, 4C, F] over 2x2
+    pixel blocks (`space_to_depth` channel order) that computes the same convolution."""
+    sel = jnp.asarray([[[1.0 if t == tap else 0.0 for t in range(4)] for tap in row]
+                       for row in _BLOCK_TAPS], kernel.dtype)
+    k3 = jnp.einsum("pat,qbs,tscf->abpqcf", sel, sel, kernel)
+    return k3.reshape(3, 3, 4 * kernel.shape[2], kernel.shape[3])
+
+
+def blocked_conv_down(x: jax.Array, kernel: jax.Array, channel_pad: int = 1) -> jax.Array:
+    """`_conv_down(x, kernel)` ([B, 2H, 2W, C] -> [B, H, W, F], 4x4 stride 2, padding 1) computed
+    as a 3x3 stride-1 convolution over 2x2 pixel blocks, the block channels zero-padded to a
+    multiple of `channel_pad`. Where C is small (3 colours) this runs as an ordinary
+    tensor-core convolution instead of a strided one over a few channels; same function."""
+    xb = pad_axis(space_to_depth(x), -1, channel_pad)
+    w = pad_axis(blocked_kernel(kernel), 2, channel_pad).astype(x.dtype)
+    return jax.lax.conv_general_dilated(xb, w, (1, 1), ((1, 1), (1, 1)), dimension_numbers=_NHWC)
+
+
+def check_edge_layers(edge_layers: str) -> None:
+    if edge_layers not in EDGE_LAYERS:
+        raise ValueError(f"unknown edge_layers {edge_layers!r}; accepted: {', '.join(EDGE_LAYERS)}")
 
 
 def conv_layers(x: jax.Array, features: tuple[int, ...], dtype: jnp.dtype, channel_pad: int = 1,
-                bias_grad: str = "reduce") -> jax.Array:
+                bias_grad: str = "reduce", edge_layers: str = "strided") -> jax.Array:
     """The shared conv stack, flattened: frames [B, R, R, 3] -> [B, (R/2^n)^2 * features[-1]].
 
     Call it inside a module's `nn.compact` method: the layers become that module's
     submodules `conv0..conv{n-1}` (so every learner's conv params are laid out alike).
+    `edge_layers="blocked"` computes the first layer over 2x2 pixel blocks (same function).
     """
     check_frame_shape(x.shape[1:], len(features))
+    check_edge_layers(edge_layers)
     h = x.astype(dtype)
     for i, f in enumerate(features):
-        h = Conv4x4(f, dtype, channel_pad, bias_grad, name=f"conv{i}")(h)
+        blocked = i == 0 and edge_layers == "blocked"
+        h = Conv4x4(f, dtype, channel_pad, bias_grad, blocked, name=f"conv{i}")(h)
         h = nn.relu(h)
     return h.reshape((h.shape[0], -1))
 
@@ -178,10 +234,11 @@ class ConvEncoder(nn.Module):
     dtype: jnp.dtype = jnp.float32
     channel_pad: int = 1  # see Conv4x4
     bias_grad: str = "reduce"
+    edge_layers: str = "strided"  # see conv_layers
 
     @nn.compact
     def __call__(self, x: jax.Array) -> tuple[jax.Array, jax.Array]:
-        h = conv_layers(x, self.features, self.dtype, self.channel_pad, self.bias_grad)
+        h = conv_layers(x, self.features, self.dtype, self.channel_pad, self.bias_grad, self.edge_layers)
         dense = dict(param_dtype=jnp.float32, kernel_init=lecun_normal_flat)
         h = nn.relu(nn.Dense(self.hidden, dtype=self.dtype, name="fc", **dense)(h))
         h = h.astype(jnp.float32)
@@ -215,7 +272,7 @@ class _Deconv4x4(nn.Module):
     dtype: jnp.dtype = jnp.float32
     param_dtype: jnp.dtype = jnp.float32
     kernel_init: Any = lecun_normal_flat
-    channel_pad: int = 1  # output channels padded to a multiple of this (dgrad form only; see Conv4x4)
+    channel_pad: int = 1  # output channels padded to a multiple of this (see Conv4x4)
     bias_grad: str = "reduce"  # see add_bias
 
     def kernel_and_bias(self, cin: int) -> tuple[jax.Array, jax.Array]:
@@ -237,12 +294,12 @@ class SubpixelConvTranspose(_Deconv4x4):
         sel = _phase_selector()
         # k3[dy, dx, c, py, px, f] = kernel[tap(py, dy), tap(px, dx), c, f] (0 where no tap)
         k3 = jnp.einsum("pat,qbs,tscf->abcpqf", sel, sel, kernel)
-        k3 = k3.reshape((3, 3, cin, 4 * self.features)).astype(self.dtype)
+        k3 = k3.reshape((3, 3, cin, 4 * self.features))
+        k3 = pad_axis(k3, 3, self.channel_pad).astype(self.dtype)  # zero channels, cut below
         y = jax.lax.conv_general_dilated(x.astype(self.dtype), k3, (1, 1), "SAME",
                                          dimension_numbers=_NHWC)
-        b, h, w, _ = y.shape
-        y = y.reshape((b, h, w, 2, 2, self.features)).transpose((0, 1, 3, 2, 4, 5))
-        return add_bias(y.reshape((b, 2 * h, 2 * w, self.features)), bias, self.bias_grad)
+        y = depth_to_space(y[..., : 4 * self.features])
+        return add_bias(y, bias, self.bias_grad)
 
 
 @jax.custom_vjp
@@ -301,11 +358,15 @@ class DeconvDecoder(nn.Module):
     impl: str = "transpose"  # one of DECONV_IMPLS (same parameters, same function)
     channel_pad: int = 1  # output channels padded to a multiple of this ("dgrad" form; see Conv4x4)
     bias_grad: str = "reduce"  # see add_bias ("subpixel" and "dgrad" forms)
+    # "blocked": the last layer as a 3x3 convolution to 2x2 pixel blocks (the sub-pixel form,
+    # the transpose of `blocked_conv_down`) whatever `impl`; "strided": as `impl` says.
+    edge_layers: str = "strided"
 
     @nn.compact
     def __call__(self, z: jax.Array) -> jax.Array:
         if self.impl not in DECONV_IMPLS:
             raise ValueError(f"unknown deconv impl {self.impl!r}; accepted: {', '.join(DECONV_IMPLS)}")
+        check_edge_layers(self.edge_layers)
         check_frame_shape(
             (self.resolution, self.resolution, self.channels), len(self.features), self.channels
         )
@@ -316,8 +377,11 @@ class DeconvDecoder(nn.Module):
         h = h.reshape((h.shape[0], start, start, self.features[-1]))
         out_features = (*reversed(self.features[:-1]), self.channels)
         for i, f in enumerate(out_features):
-            if self.impl == "subpixel":
-                h = SubpixelConvTranspose(f, name=f"deconv{i}", bias_grad=self.bias_grad, **dense)(h)
+            last = i == len(out_features) - 1
+            if self.impl == "subpixel" or (last and self.edge_layers == "blocked"):
+                pad = self.channel_pad if last else 1
+                h = SubpixelConvTranspose(f, name=f"deconv{i}", channel_pad=pad,
+                                          bias_grad=self.bias_grad, **dense)(h)
             elif self.impl == "dgrad":
                 h = DgradConvTranspose(f, name=f"deconv{i}", channel_pad=self.channel_pad,
                                        bias_grad=self.bias_grad, **dense)(h)
@@ -343,10 +407,11 @@ class FrameFeatures(nn.Module):
     dtype: jnp.dtype = jnp.float32
     channel_pad: int = 1  # see Conv4x4
     bias_grad: str = "reduce"
+    edge_layers: str = "strided"  # see conv_layers
 
     @nn.compact
     def __call__(self, x: jax.Array) -> jax.Array:
-        h = conv_layers(x, self.features, self.dtype, self.channel_pad, self.bias_grad)
+        h = conv_layers(x, self.features, self.dtype, self.channel_pad, self.bias_grad, self.edge_layers)
         if self.hidden:
             dense = dict(dtype=self.dtype, param_dtype=jnp.float32, kernel_init=lecun_normal_flat)
             h = nn.relu(nn.Dense(self.hidden, name="fc", **dense)(h))
