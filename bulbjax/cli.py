@@ -306,7 +306,8 @@ def main(argv: Sequence[str] | None = None) -> int:
                         "default 1; on the GPU the sequence length, see benchmarks/README)")
     r.add_argument("--learner-option", action="append", default=None, metavar="KEY=VALUE",
                    help="set a LearnerConfig field (repeatable), e.g. lr=3e-4, or the conv forms "
-                        "channel_pad=1 / bias_grad=reduce (same network, other kernels: benchmarks/README)")
+                        "channel_pad=1 / bias_grad=reduce / edge_layers=strided (same network, other kernels: "
+                        "benchmarks/README)")
     r.add_argument("--rl-input", default=None,
                    help="what PPO observes: state (default), latent:<learner> (the learner's latent of "
                         "the current frame, its current parameters, no gradient into it; for svae, pred, "

@@ -17,7 +17,9 @@ Two more switches change how, not what, is computed (same parameters, same funct
 `LearnerConfig.channel_pad`, `.bias_grad`): the frames' 3 colour channels padded with zero
 channels to a multiple of `channel_pad` in the first convolution and in the decoder's last
 (cuDNN's tensor-core kernels take channels in multiples of 8 and otherwise pad the tensors on
-every call), and a bias gradient summed in two passes (`add_bias`).
+every call), and a bias gradient summed in two passes (`add_bias`). A third
+(`LearnerConfig.edge_layers`) computes the first convolution and the decoder's last layer, the two
+at full resolution, over 2x2 pixel blocks as 3x3 stride-1 convolutions (`blocked_conv_down`).
 
 Encoder and decoder are separate modules so the sequential learners can reuse them. Params are
 always float32; `dtype` sets the compute dtype of the conv/FC stacks. The posterior
@@ -83,7 +85,7 @@ _NHWC = ("NHWC", "HWIO", "NHWC")  # the convolution layouts of the encoder and d
 BIAS_GRADS: tuple[str, ...] = ("reduce", "split")  # add_bias
 # How the first conv and the decoder's last layer (the two at full resolution with 3 channels)
 # are computed: "strided" (4x4 stride-2 convolutions over pixels) or "blocked" (the same kernels
-# rearranged into 3x3 stride-1 convolutions over 2x2 pixel blocks; `BlockedConv4x4`).
+# rearranged into 3x3 stride-1 convolutions over 2x2 pixel blocks; `blocked_conv_down`).
 EDGE_LAYERS: tuple[str, ...] = ("strided", "blocked")
 
 
@@ -203,6 +205,7 @@ def blocked_conv_down(x: jax.Array, kernel: jax.Array, channel_pad: int = 1) -> 
 
 
 def check_edge_layers(edge_layers: str) -> None:
+    """Refuse an `edge_layers` value that is not one of `EDGE_LAYERS`, naming the accepted ones."""
     if edge_layers not in EDGE_LAYERS:
         raise ValueError(f"unknown edge_layers {edge_layers!r}; accepted: {', '.join(EDGE_LAYERS)}")
 
