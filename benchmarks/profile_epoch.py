@@ -63,11 +63,14 @@ def add_config_args(p: argparse.ArgumentParser) -> None:
                    help="a LearnerConfig field (repeatable), e.g. channel_pad=8 or bias_grad=split")
     p.add_argument("--seed-loop", default="", choices=("", "auto", "vmap", "map"),
                    help="learner work over the seed axis (default: the preset's)")
+    p.add_argument("--no-shared-updates", action="store_true",
+                   help="one update and probe program per frame VAE, not one for vae/vae_rpl/beta_vae "
+                        "(ExperimentConfig.shared_updates)")
 
 
 def build_config(a: argparse.Namespace) -> ExperimentConfig:
     """The preset with the domain's PPO settings, then --small, --seeds, --learners, --bf16,
-    --deconv-impl, --rnn-unroll."""
+    --deconv-impl, --rnn-unroll, --learner-option, --seed-loop, --no-shared-updates."""
     cfg = preset(a.preset)
     cfg = cfg.replace(ppo=registry.ppo_config_for(cfg.env, cfg.ppo))
     if a.small:
@@ -88,6 +91,8 @@ def build_config(a: argparse.Namespace) -> ExperimentConfig:
     cfg = cfg.replace(learner=lc)
     if a.seed_loop:
         cfg = cfg.replace(learner_seed_loop=a.seed_loop)
+    if a.no_shared_updates:
+        cfg = cfg.replace(shared_updates=False)
     return cfg
 
 

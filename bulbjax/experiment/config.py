@@ -70,6 +70,11 @@ class ExperimentConfig:
     # seed at a time; ~1.9x faster VAE updates on the H100) or "auto" (map on one GPU, else vmap).
     # The same numbers either way, up to floating-point reassociation.
     learner_seed_loop: str = "auto"
+    # Frame learners that differ only in beta and replay retention (vae, vae_rpl, beta_vae) run
+    # their updates and probe encodings as one program over the group (`loop.update_groups`):
+    # traced and compiled once instead of once per learner, the probe MLPs of all of them fitted
+    # side by side. The same numbers either way, up to floating-point reassociation.
+    shared_updates: bool = True
 
     @property
     def rl_learner(self) -> str | None:

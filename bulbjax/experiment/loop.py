@@ -217,17 +217,49 @@ def over_seeds(loop: str, fn: Callable[..., Any], *args: Any) -> Any:
 
 
 def train_learner(learner: Any, state: Any, sample: Any, key: jax.Array, updates: int,
-                  unroll: bool | int | None = None) -> tuple[Any, dict]:
+                  unroll: bool | int | None = None, **update_args: Any) -> tuple[Any, dict]:
     """`updates` updates of one learner (one seed) on batches `sample(key)` gives (uint8 frames
-    for frame learners, `Windows` for sequential ones), as one `lax.scan`; per-update metrics."""
+    for frame learners, `Windows` for sequential ones), as one `lax.scan`; per-update metrics.
+    `update_args` go to every `learner.update` (e.g. a VAE's traced `beta`, `update_groups`)."""
     def one(state, k):
         k_s, k_u = jax.random.split(k)
-        return learner.update(state, sample(k_s), k_u)
+        return learner.update(state, sample(k_s), k_u, **update_args)
     keys = jax.random.split(key, updates)
     if updates == 1:  # no loop: XLA:CPU runs even a one-step scan ~4x slower than the bare update
         state, m = one(state, keys[0])
         return state, jax.tree.map(lambda x: x[None], m)
     return jax.lax.scan(one, state, keys, unroll=learner_unroll() if unroll is None else unroll)
+
+
+def update_groups(learners: Mapping[str, Any], share: bool = True) -> list[tuple[str, ...]]:
+    """The learners' names in groups that one program serves (`ExperimentConfig.shared_updates`):
+    VAEs equal up to beta and replay retention (`VAE.update_key`: vae, vae_rpl, beta_vae) form one
+    group, every other learner is alone (and all are alone with `share=False`). Groups come in
+    the order of their first member in `learners`, members in `learners`' order."""
+    groups: dict[Any, list[str]] = {}
+    for name, learner in learners.items():
+        k = getattr(learner, "update_key", None) if share else None
+        groups.setdefault(("alone", name) if k is None else k, []).append(name)
+    return [tuple(g) for g in groups.values()]
+
+
+def stack_members(trees: Sequence[Any]) -> Any:
+    """Per-member pytrees `[S, ...]` stacked into one `[S, G, ...]` (members after seeds)."""
+    return jax.tree.map(lambda *xs: jnp.stack(xs, axis=1), *trees)
+
+
+def unstack_members(tree: Any, names: Sequence[str]) -> dict[str, Any]:
+    """`stack_members` undone: `{name: tree[:, j]}` for the j-th member."""
+    return {n: jax.tree.map(lambda x, j=j: x[:, j], tree) for j, n in enumerate(names)}
+
+
+def switch_buffer(which: jax.Array, buffers: Sequence[Any], fn: Callable[[Any, jax.Array], Any],
+                  key: jax.Array) -> Any:
+    """`fn(buffers[which], key)` for a traced index `which` (a group member's replay buffer):
+    one `lax.switch` branch per buffer, so no buffer is copied into a stacked one."""
+    if len(buffers) == 1:
+        return fn(buffers[0], key)
+    return jax.lax.switch(which, [lambda k, b=b: fn(b, k) for b in buffers], key)
 
 
 def probe_latents(learner: Any, params: Any, train: Any, held: dict[str, Windows], key: jax.Array,
@@ -880,8 +912,17 @@ class Experiment:
         batch divided by the sequence length, the paper's equalised compute)."""
         c = self.config
         out, metrics = {}, {}
+        for group in update_groups(self.learners, c.shared_updates):
+            if len(group) == 1:
+                continue
+            with jax.named_scope(f"bj.learn.{'+'.join(group)}"):
+                states, m = self._learn_group(group, learners, buffers, key)
+            out.update(states)
+            metrics.update({n: jax.tree.map(lambda x: x.mean(-1), mm) for n, mm in m.items()})
         for i, (name, learner) in enumerate(self.learners.items()):
             seq = self.sequential[name]
+            if name in out:
+                continue
 
             def train_seed(state, b, k, learner=learner, seq=seq):
                 if seq:
@@ -895,7 +936,39 @@ class Experiment:
             with jax.named_scope(f"bj.learn.{name}"):
                 out[name], m = self.over_seeds(train_seed, learners[name], buf, keys)
             metrics[name] = jax.tree.map(lambda x: x.mean(-1), m)
-        return out, metrics
+        return {n: out[n] for n in self.learners}, {n: metrics[n] for n in self.learners}
+
+    def _group_inputs(self, group: Sequence[str], buffers: dict, key: jax.Array
+                      ) -> tuple[Any, tuple, jax.Array, jax.Array]:
+        """What a group's program takes besides the states: its template learner (the first
+        member's `update_key`), the distinct replay buffers of its members, each member's index
+        into them `[G]` and each member's keys `[S, G, 2]` (the keys the member would get alone:
+        `key` folded with its position among all learners, split over seeds)."""
+        index = {n: i for i, n in enumerate(self.learners)}
+        bkeys = list(dict.fromkeys(buffer_key(self.retention[n]) for n in group))
+        which = jnp.array([bkeys.index(buffer_key(self.retention[n])) for n in group], jnp.int32)
+        keys = jnp.stack([jax.random.split(jax.random.fold_in(key, index[n]), self.S) for n in group], 1)
+        return self.learners[group[0]].update_key, tuple(buffers[k] for k in bkeys), which, keys
+
+    def _learn_group(self, group: Sequence[str], learners: dict, buffers: dict, key: jax.Array
+                     ) -> tuple[dict, dict]:
+        """`learn_phase` for a group of VAEs (`update_groups`): one update program, run over
+        seeds and, within a seed, over members (each with its beta and its replay buffer), with
+        the run's seed loop. Same keys and batches as each member's own `learn_phase` step."""
+        c = self.config
+        template, bufs, which, keys = self._group_inputs(group, buffers, key)
+        betas = jnp.array([self.learners[n].config.beta for n in group], jnp.float32)
+        draw = lambda b, k: replay.sample(b, k, template.batch_size)[0]  # noqa: E731
+
+        def train_seed(states, bs, ks):
+            def member(state, k, beta, w):
+                sample = lambda kk: switch_buffer(w, bs, draw, kk)  # noqa: E731
+                return train_learner(template, state, sample, k, c.learner_batches, beta=beta)
+            return self.over_seeds(member, states, ks, betas, which)
+
+        states = stack_members([learners[n] for n in group])
+        states, m = self.over_seeds(train_seed, states, bufs, keys)
+        return unstack_members(states, group), unstack_members(m, group)
 
     def eval_phase(self, ppo_state: PPOState, curr_env: EnvState, rand_env: EnvState, key: jax.Array,
                    learners: dict | None = None, history: PolicyHistory | None = None):
@@ -943,8 +1016,14 @@ class Experiment:
         on the same held-out steps, per stream under `"objects"` (`_object_scorer`)."""
         c = self.config
         out = {}
+        for group in update_groups(self.learners, c.shared_updates):
+            if len(group) > 1:
+                with jax.named_scope(f"bj.probe.{'+'.join(group)}"):
+                    out.update(self._probe_group(group, learners, buffers, held_out, key))
         for i, (name, learner) in enumerate(self.learners.items()):
             seq = self.sequential[name]
+            if name in out:
+                continue
 
             def latents_seed(k_c, k_s, lstate, b, held, learner=learner, seq=seq):
                 if seq:
@@ -963,7 +1042,36 @@ class Experiment:
             with jax.named_scope(f"bj.probe.{name}"):
                 out[name] = probe_over_seeds(self.seed_loop, latents_seed, fit_seed, k_p,
                                              k_s, learners[name], buf, held_out)
-        return out
+        return {n: out[n] for n in self.learners}
+
+    def _probe_group(self, group: Sequence[str], learners: dict, buffers: dict, held_out: dict,
+                     key: jax.Array) -> dict:
+        """`probe_phase` for a group of VAEs (`update_groups`): the encodings with the run's seed
+        loop over seeds and members, the probe MLPs of all seeds and members vmapped side by
+        side. Same keys as each member's own probe (`probe_over_seeds`), so the same numbers."""
+        c = self.config
+        template, bufs, which, keys = self._group_inputs(group, buffers, key)
+        split = jax.vmap(jax.vmap(jax.random.split))
+        k_s, k_p = jnp.moveaxis(split(keys), 2, 0)  # each [S, G, 2]
+        k_c, k_f = jnp.moveaxis(split(k_p), 2, 0)
+        score = self._object_scorer(template)
+
+        def draw(b, k):
+            frames, states, extras = replay.sample_with_extras(b, k, c.probe_train_frames)
+            return frames, states, extras["world"]
+
+        def latents_seed(kc, ks, states, bs, held):
+            def member(kcm, ksm, state, w):
+                train = switch_buffer(w, bs, draw, ksm)
+                return probe_latents(template, state.params, train, held, kcm, c.probe, c.probe_train_frames)
+            return self.over_seeds(member, kc, ks, states, which)
+
+        def fit_seed(lat, kf, held):
+            return jax.vmap(lambda l, k: fit_and_score(l, held, k, c.probe, score))(lat, kf)
+
+        states = stack_members([learners[n] for n in group])
+        lat = self.over_seeds(latents_seed, k_c, k_s, states, bufs, held_out)
+        return unstack_members(jax.vmap(fit_seed)(lat, k_f, held_out), group)
 
     def _epoch(self, rs: RunState, key: jax.Array, probe: bool | jax.Array = True
                ) -> tuple[RunState, dict[str, Any]]:

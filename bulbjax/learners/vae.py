@@ -106,8 +106,18 @@ class VAE:
         }
         return LearnerState(params, self.optimizer.init(params), jnp.zeros((), jnp.int32))
 
-    def loss(self, params: Any, frames: jax.Array, key: jax.Array) -> tuple[jax.Array, Metrics]:
-        """Negative ELBO (beta-weighted KL) on uint8 frames, with its parts as metrics."""
+    @property
+    def update_key(self) -> "VAE":
+        """This VAE up to what its update takes as an argument (`beta`) or does not use
+        (`retain_fraction`, the caller's replay): VAEs with equal keys (vae, vae_rpl, beta_vae)
+        can share one compiled update (`update(..., beta=)`; experiment.loop.update_groups)."""
+        return dataclasses.replace(
+            self, config=dataclasses.replace(self.config, beta=1.0, retain_fraction=0.0))
+
+    def loss(self, params: Any, frames: jax.Array, key: jax.Array,
+             beta: float | jax.Array | None = None) -> tuple[jax.Array, Metrics]:
+        """Negative ELBO (beta-weighted KL) on uint8 frames, with its parts as metrics. `beta`
+        (a traced scalar allowed) replaces `config.beta`."""
         self._check_matches(params, frames)
         x = _to_unit(frames)
         mean, logvar = self.encoder.apply({"params": params["encoder"]}, x)
@@ -118,18 +128,19 @@ class VAE:
         logits = self.decoder(x.shape[1]).apply({"params": params["decoder"]}, z)
         recon = optax.sigmoid_binary_cross_entropy(logits, x).sum(axis=(1, 2, 3)).mean()
         kl = (0.5 * (jnp.exp(logvar) + jnp.square(mean) - 1.0 - logvar)).sum(axis=-1).mean()
-        loss = recon + self.config.beta * kl
+        loss = recon + (self.config.beta if beta is None else beta) * kl
         return loss, {"loss": loss, "recon": recon, "kl": kl}
 
     def update(
-        self, state: LearnerState, frames: jax.Array, key: jax.Array
+        self, state: LearnerState, frames: jax.Array, key: jax.Array,
+        beta: float | jax.Array | None = None,
     ) -> tuple[LearnerState, Metrics]:
-        """One Adam step on a batch of uint8 frames [B, R, R, 3].
+        """One Adam step on a batch of uint8 frames [B, R, R, 3]; `beta` as in `loss`.
 
         Metrics (float32 scalars: loss, recon, kl) are those of the batch before the step;
         check them host-side with `check_finite`.
         """
-        grads, metrics = jax.grad(self.loss, has_aux=True)(state.params, frames, key)
+        grads, metrics = jax.grad(self.loss, has_aux=True)(state.params, frames, key, beta)
         updates, opt_state = self.optimizer.update(grads, state.opt_state, state.params)
         params = optax.apply_updates(state.params, updates)
         return LearnerState(params, opt_state, state.step + 1), metrics
