@@ -1117,12 +1117,23 @@ class Experiment:
                 if curr_hist is not None:
                     hist["curr"] = curr_hist
         else:
-            probes_shape = jax.eval_shape(evaluate, ops)[3]
+            # `skip` returns placeholders shaped like `evaluate`'s probes. `lax.switch` traces its
+            # branches in order, so `evaluate`'s own trace gives those shapes: the eval and probe
+            # phases are traced once, not twice (an `eval_shape` first; ~1/4 of the epoch's
+            # tracing). Were the order ever different, `skip` falls back to `eval_shape`.
+            shapes: list[Any] = []
+
+            def evaluate_once(ops: tuple) -> tuple:
+                out = evaluate(ops)
+                shapes.append(jax.tree.map(lambda x: jax.ShapeDtypeStruct(x.shape, x.dtype), out[3]))
+                return out
 
             def skip(ops: tuple) -> tuple:
+                probes_shape = shapes[0] if shapes else jax.eval_shape(evaluate, ops)[3]
                 return ops[0], ops[1], ops[2], jax.tree.map(_blank, probes_shape)
 
-            curr_env, rand_env, curr_hist, metrics["probes"] = jax.lax.cond(probe, evaluate, skip, ops)
+            curr_env, rand_env, curr_hist, metrics["probes"] = jax.lax.switch(
+                jnp.where(probe, 0, 1), [evaluate_once, skip], ops)
             if curr_hist is not None:
                 hist["curr"] = curr_hist
         new = RunState(ppo=ppo_state, learners=learners, buffers=buffers, windows=windows,
