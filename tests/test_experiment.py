@@ -115,14 +115,20 @@ def test_seed_loop_map_equals_vmap(run):
         np.testing.assert_allclose(out["vmap"][1][name]["loss"], out["map"][1][name]["loss"], rtol=1e-4)
 
 
-def test_probe_phase_same_under_either_seed_loop(run):
+@pytest.fixture(scope="module")
+def held(run):
+    """Held-out windows of one `eval_phase` (compiled once for the probe-phase tests)."""
+    exp, *_, rs1 = run
+    return jax.jit(exp.eval_phase)(rs1.ppo, rs1.curr_env, rs1.rand_env, jax.random.PRNGKey(3))[2]
+
+
+def test_probe_phase_same_under_either_seed_loop(run, held):
     """Probes: the learners' encodings follow the seed loop, the probe MLPs are vmapped over
     seeds either way (`probe_over_seeds`); the scores agree, and differ between seeds."""
     exp, *_, rs1 = run
     saved, saved_loop = exp.learners, exp.seed_loop
     exp.learners = {n: saved[n] for n in ("vae_rpl", "svae")}
     try:
-        _, _, held, _ = jax.jit(exp.eval_phase)(rs1.ppo, rs1.curr_env, rs1.rand_env, jax.random.PRNGKey(3))
         out = {}
         for loop in ("vmap", "map"):
             exp.seed_loop = loop
@@ -138,7 +144,7 @@ def test_probe_phase_same_under_either_seed_loop(run):
             assert not np.allclose(a[0], a[1])
 
 
-def test_shared_updates_equal_separate_ones(run):
+def test_shared_updates_equal_separate_ones(run, held):
     """vae, vae_rpl and beta_vae share one update and one probe-encoding program
     (`update_groups`, each member with its beta and its replay buffer): the same weights,
     losses and probe scores as three separate programs, under either seed loop."""
@@ -150,7 +156,6 @@ def test_shared_updates_equal_separate_ones(run):
     assert update_groups(exp.learners, share=False) == [(n,) for n in names]
     learners = {n: rs1.learners[n] for n in names}
     try:
-        _, _, held, _ = jax.jit(exp.eval_phase)(rs1.ppo, rs1.curr_env, rs1.rand_env, jax.random.PRNGKey(3))
         out = {}
         for share, loop in ((False, "vmap"), (True, "vmap"), (True, "map")):
             exp.config = dataclasses.replace(saved_cfg, shared_updates=share)

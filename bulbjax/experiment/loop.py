@@ -1119,8 +1119,8 @@ class Experiment:
         else:
             # `skip` returns placeholders shaped like `evaluate`'s probes. `lax.switch` traces its
             # branches in order, so `evaluate`'s own trace gives those shapes: the eval and probe
-            # phases are traced once, not twice (an `eval_shape` first; ~1/4 of the epoch's
-            # tracing). Were the order ever different, `skip` falls back to `eval_shape`.
+            # phases are traced once, not twice (an `eval_shape` first; ~1/7 of the epoch's
+            # tracing on the CPU). Were the order ever different, `skip` falls back to `eval_shape`.
             shapes: list[Any] = []
 
             def evaluate_once(ops: tuple) -> tuple:
