@@ -234,3 +234,42 @@ def test_sequence_model_lstm_is_flax_lstm(kind: str) -> None:
     g_ref = jax.grad(lambda q: (ref.apply({"params": q}, x) ** 2).sum())(p)
     for a, b in zip(jax.tree.leaves(g), jax.tree.leaves(g_ref)):
         np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=1e-4, atol=1e-5)
+
+
+@pytest.mark.parametrize("directions", [1, 2])
+def test_written_lstm_gradient_is_autodiffs(directions: int) -> None:
+    """`lstm_scan`'s written-out backward pass (W_h's gradient as one matmul after the loop)
+    gives autodiff's gradients for the projected inputs and the recurrent kernel, under vmap over
+    seeds and with the scan unrolled, for a cotangent on every step's output."""
+    from bulbjax.learners.networks import lstm_scan, lstm_scan_autodiff
+
+    seeds, b, t, h = 2, 3, 7, 5
+    k = jax.random.split(jax.random.key(4), 3)
+    xi = jax.random.normal(k[0], (seeds, directions, b, t, 4 * h))
+    wh = jax.random.normal(k[1], (seeds, directions, h, 4 * h)) / np.sqrt(h)
+    r = jax.random.normal(k[2], (seeds, directions, b, t, h))
+    for unroll in (1, 3):
+        def grads(scan):
+            f = lambda x, w, rr: (scan(x, w, unroll) * rr).sum()  # noqa: E731
+            return jax.jit(jax.vmap(jax.value_and_grad(f, argnums=(0, 1))))(xi, wh, r)
+        (v, (gx, gw)), (v_ref, (gx_ref, gw_ref)) = grads(lstm_scan), grads(lstm_scan_autodiff)
+        np.testing.assert_allclose(np.asarray(v), np.asarray(v_ref), rtol=1e-6)
+        np.testing.assert_allclose(np.asarray(gx), np.asarray(gx_ref), rtol=1e-5, atol=1e-6)
+        np.testing.assert_allclose(np.asarray(gw), np.asarray(gw_ref), rtol=1e-5, atol=1e-6)
+        assert float(jnp.abs(gw).max()) > 1e-3  # a gradient that reaches W_h
+
+
+def test_lstm_grad_option() -> None:
+    """DSA's loss and gradients are the same whichever LSTM backward pass it runs; an unknown
+    `lstm_grad` is refused, naming the accepted ones."""
+    written = make_learner("dsa", LATENT, SMALL, action_dim=ACT)
+    auto = make_learner("dsa", LATENT, {**SMALL, "lstm_grad": "autodiff"}, action_dim=ACT)
+    params = written.init(jax.random.key(1), (RES, RES, 3)).params
+    k = jax.random.key(2)
+    (l0, _), g0 = jax.jit(jax.value_and_grad(auto.loss, has_aux=True))(params, WINDOWS, k)
+    (l1, _), g1 = jax.jit(jax.value_and_grad(written.loss, has_aux=True))(params, WINDOWS, k)
+    np.testing.assert_allclose(float(l1), float(l0), rtol=1e-6)
+    for a, b in zip(jax.tree.leaves(g0), jax.tree.leaves(g1)):
+        np.testing.assert_allclose(np.asarray(b), np.asarray(a), rtol=1e-3, atol=1e-6)
+    with pytest.raises(ValueError, match="lstm_grad"):
+        make_learner("dsa", LATENT, {**SMALL, "lstm_grad": "cudnn"}, action_dim=ACT)

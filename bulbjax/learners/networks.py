@@ -30,6 +30,7 @@ outputs are float32.
 from __future__ import annotations
 
 import math
+from functools import partial
 from typing import Any, Sequence
 
 import flax.linen as nn
@@ -87,6 +88,7 @@ BIAS_GRADS: tuple[str, ...] = ("reduce", "split")  # add_bias
 # are computed: "strided" (4x4 stride-2 convolutions over pixels) or "blocked" (the same kernels
 # rearranged into 3x3 stride-1 convolutions over 2x2 pixel blocks; `blocked_conv_down`).
 EDGE_LAYERS: tuple[str, ...] = ("strided", "blocked")
+LSTM_GRADS: tuple[str, ...] = ("written", "autodiff")  # SequenceModel.lstm_grad
 
 
 def pad_axis(x: jax.Array, axis: int, multiple: int) -> jax.Array:
@@ -473,28 +475,81 @@ class LSTMWeights(nn.Module):
         return jnp.concatenate(wi, -1), jnp.concatenate(wh, -1), jnp.concatenate(b, -1)
 
 
+def _lstm_forward(xi: jax.Array, wh: jax.Array, unroll: int
+                  ) -> tuple[jax.Array, jax.Array, jax.Array]:
+    """The recurrence of `lstm_scan`, time-major: `xi [T, D, B, 4H]` -> hidden states, cell
+    states `[T, D, B, H]` and gate activations `[T, D, B, 4H]` (sigmoid i, f, o; tanh g)."""
+    _, d, b, four_h = xi.shape
+    zeros = jnp.zeros((d, b, four_h // 4), xi.dtype)
+
+    def step(carry: tuple[jax.Array, jax.Array], x_t: jax.Array):
+        c, h = carry
+        i, f, g, o = jnp.split(x_t + jnp.einsum("dbh,dhk->dbk", h, wh), 4, axis=-1)
+        i, f, g, o = jax.nn.sigmoid(i), jax.nn.sigmoid(f), jnp.tanh(g), jax.nn.sigmoid(o)
+        c = f * c + i * g
+        h = o * jnp.tanh(c)
+        return (c, h), (h, c, jnp.concatenate([i, f, g, o], -1))
+
+    _, (hs, cs, acts) = jax.lax.scan(step, (zeros, zeros), xi, unroll=unroll)
+    return hs, cs, acts
+
+
+@partial(jax.custom_vjp, nondiff_argnums=(2,))
+def _lstm_time_major(xi: jax.Array, wh: jax.Array, unroll: int) -> jax.Array:
+    return _lstm_forward(xi, wh, unroll)[0]
+
+
+def _lstm_time_major_fwd(xi: jax.Array, wh: jax.Array, unroll: int):
+    hs, cs, acts = _lstm_forward(xi, wh, unroll)
+    return hs, (hs, cs, acts, wh)
+
+
+def _lstm_time_major_bwd(unroll: int, res: tuple[jax.Array, ...], g_hs: jax.Array):
+    # Backward through time with only the recurrent matmul `dy_t @ W_h^T` left in the loop (one
+    # elementwise fusion and one matmul per step); W_h's gradient, a sum over steps of
+    # h_{t-1}^T dy_t, is one matmul over all steps after the loop instead of one per step.
+    hs, cs, acts, wh = res
+    zeros = jnp.zeros_like(hs[:1])
+    c_prev = jnp.concatenate([zeros, cs[:-1]])
+    h_prev = jnp.concatenate([zeros, hs[:-1]])
+
+    def step(carry: tuple[jax.Array, jax.Array], xs: tuple[jax.Array, ...]):
+        dh_next, dc_next = carry
+        g_h, c, cp, a = xs
+        i, f, g, o = jnp.split(a, 4, axis=-1)
+        dh = g_h + dh_next
+        tc = jnp.tanh(c)
+        dc = dc_next + dh * o * (1.0 - tc * tc)
+        dy = jnp.concatenate([dc * g * i * (1.0 - i), dc * cp * f * (1.0 - f),
+                              dc * i * (1.0 - g * g), dh * tc * o * (1.0 - o)], -1)
+        return (jnp.einsum("dbk,dhk->dbh", dy, wh), dc * f), dy
+
+    carry0 = (jnp.zeros_like(hs[0]), jnp.zeros_like(cs[0]))
+    _, dys = jax.lax.scan(step, carry0, (g_hs, cs, c_prev, acts), reverse=True, unroll=unroll)
+    return dys, jnp.einsum("tdbh,tdbk->dhk", h_prev, dys)
+
+
+_lstm_time_major.defvjp(_lstm_time_major_fwd, _lstm_time_major_bwd)
+
+
 def lstm_scan(xi: jax.Array, wh: jax.Array, unroll: int = 1) -> jax.Array:
     """LSTM recurrence over input projections already computed for every step.
 
     `xi [D, B, T, 4H]` (x_t @ W_i + b for D independent LSTMs, e.g. the two directions of a
     bidirectional one, each already in its own time order), `wh [D, H, 4H]` -> hidden states
     `[D, B, T, H]` from a zero carry. Only `h @ W_h` stays inside the loop: the input projection,
-    the large matmul, runs once over all steps outside it, and the D LSTMs share one loop.
+    the large matmul, runs once over all steps outside it, and the D LSTMs share one loop. The
+    gradient is written out (`_lstm_time_major_bwd`): autodiff's would also accumulate W_h's
+    gradient step by step inside the backward loop. Same function and gradients.
     """
-    d, b, _, four_h = xi.shape
-    h_dim = four_h // 4
-
-    def step(carry: tuple[jax.Array, jax.Array], x_t: jax.Array):
-        c, h = carry
-        y = x_t + jnp.einsum("dbh,dhk->dbk", h, wh)
-        i, f, g, o = jnp.split(y, 4, axis=-1)
-        c = jax.nn.sigmoid(f) * c + jax.nn.sigmoid(i) * jnp.tanh(g)
-        h = jax.nn.sigmoid(o) * jnp.tanh(c)
-        return (c, h), h
-
-    zeros = jnp.zeros((d, b, h_dim), xi.dtype)
-    _, hs = jax.lax.scan(step, (zeros, zeros), jnp.moveaxis(xi, 2, 0), unroll=unroll)
+    hs = _lstm_time_major(jnp.moveaxis(xi, 2, 0), wh, unroll)
     return jnp.moveaxis(hs, 0, 2)
+
+
+def lstm_scan_autodiff(xi: jax.Array, wh: jax.Array, unroll: int = 1) -> jax.Array:
+    """`lstm_scan` with autodiff's gradient (the reference the written-out one is tested
+    against, and the form `bench_lstm.py` compares it with)."""
+    return jnp.moveaxis(_lstm_forward(jnp.moveaxis(xi, 2, 0), wh, unroll)[0], 0, 2)
 
 
 class SequenceModel(nn.Module):
@@ -519,6 +574,9 @@ class SequenceModel(nn.Module):
     # predicate copy), which is what a 24-step LSTM over ~42 windows is bound by. Ignored by
     # `conv` and `fc`.
     unroll: int = 1
+    # The LSTMs' backward pass (`LSTM_GRADS`): "written" (`lstm_scan`) or "autodiff"
+    # (`lstm_scan_autodiff`). Same function and gradients; the GRU and RNN use flax's cells.
+    lstm_grad: str = "written"
 
     def _cell(self, kind: str) -> nn.RNNCellBase:
         inits = dict(kernel_init=lecun_normal_flat, recurrent_kernel_init=lecun_normal_flat)
@@ -533,7 +591,10 @@ class SequenceModel(nn.Module):
               for d in range(directions)]
         xs = [x if d == 0 else jnp.flip(x, axis=1) for d in range(directions)]
         xi = jnp.stack([xx @ wi + b for xx, (wi, _, b) in zip(xs, ws)])
-        hs = lstm_scan(xi, jnp.stack([wh for _, wh, _ in ws]), self.unroll)
+        if self.lstm_grad not in LSTM_GRADS:
+            raise ValueError(f"unknown lstm_grad {self.lstm_grad!r}; accepted: {', '.join(LSTM_GRADS)}")
+        scan = lstm_scan if self.lstm_grad == "written" else lstm_scan_autodiff
+        hs = scan(xi, jnp.stack([wh for _, wh, _ in ws]), self.unroll)
         outs = [hs[0]] + ([jnp.flip(hs[1], axis=1)] if directions == 2 else [])
         return jnp.concatenate(outs, axis=-1)
 

@@ -289,7 +289,8 @@ class SVAE(SequentialVAE):
 
     @property
     def _rnn(self) -> SequenceModel:
-        return SequenceModel("lstm", self.config.hidden, unroll=self.config.rnn_unroll)
+        return SequenceModel("lstm", self.config.hidden, unroll=self.config.rnn_unroll,
+                             lstm_grad=self.config.lstm_grad)
 
     def _init_parts(self, key: jax.Array, resolution: int) -> dict[str, Any]:
         k1, k2, k3 = jax.random.split(key, 3)
@@ -389,7 +390,8 @@ class DSA(SequentialVAE):
         return FrameFeatures(c.conv_features, c.hidden, c.dtype, **c.conv_forms)
 
     def _seq(self, kind: str | None = None) -> SequenceModel:
-        return SequenceModel(kind or self.config.dsa_encoder, self.config.hidden, unroll=self.config.rnn_unroll)
+        return SequenceModel(kind or self.config.dsa_encoder, self.config.hidden, unroll=self.config.rnn_unroll,
+                             lstm_grad=self.config.lstm_grad)
 
     def _init_parts(self, key: jax.Array, resolution: int) -> dict[str, Any]:
         ks = jax.random.split(key, 7)
