@@ -359,7 +359,11 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
                            "config": dataclasses.asdict(cfg), "device_kind": jax.devices()[0].device_kind,
                            "platform": jax.default_backend(), "jax": jax.__version__,
                            "compile_cache": a.compile_cache or None,
-                           "warp_graph_cache": a.warp_graph_cache or "default"}
+                           "warp_graph_cache": a.warp_graph_cache or "default",
+                           # settings given by the environment (XLA_FLAGS, JAX_* such as
+                           # JAX_THREEFRY_GPU_KERNEL_LOWERING), so that a result says what it ran
+                           "env": {k: v for k, v in os.environ.items()
+                                   if k == "XLA_FLAGS" or (k.startswith("JAX_") and "CACHE" not in k)}}
     slug = res["device_kind"].lower().replace(" ", "_")
     stamp = dt.datetime.now().strftime("%Y%m%d_%H%M%S")
     os.makedirs(a.out_dir, exist_ok=True)
