@@ -250,12 +250,12 @@ def test_config_json_round_trip():
         config_from_dict({"envv": "CartPole"})
     # a config.json from before the conv forms existed reads back with the forms it ran with
     old = dataclasses.asdict(PRESETS["fig2-invpend"])
-    for k in ("channel_pad", "bias_grad", "edge_layers"):
+    for k in ("channel_pad", "bias_grad", "edge_layers", "lstm_grad"):
         del old["learner"][k]
     got = config_from_dict(json.loads(json.dumps(old))).learner
-    assert (got.channel_pad, got.bias_grad, got.edge_layers) == (1, "reduce", "strided")
+    assert (got.channel_pad, got.bias_grad, got.edge_layers, got.lstm_grad) == (1, "reduce", "strided", "autodiff")
     new = PRESETS["fig2-invpend"].learner
-    assert (new.channel_pad, new.bias_grad, new.edge_layers) == (0, "split", "auto")
+    assert (new.channel_pad, new.bias_grad, new.edge_layers, new.lstm_grad) == (0, "split", "auto", "written")
 
 
 def test_source_hash_names_the_code(tmp_path):

@@ -215,8 +215,10 @@ def _tuplify(v: object) -> object:
 # config.json without them reads back with these values, so that its run resumes (and reports)
 # with the forms it started with (same function, other float rounding).
 WRITTEN_BEFORE: dict[type, dict[str, object]] = {
-    # channel_pad, bias_grad until 2026-11-25 (tenth session), edge_layers until the eleventh
-    LearnerConfig: {"channel_pad": 1, "bias_grad": "reduce", "edge_layers": "strided"},
+    # channel_pad, bias_grad until 2026-11-25 (tenth session), edge_layers until the eleventh,
+    # lstm_grad until the thirteenth
+    LearnerConfig: {"channel_pad": 1, "bias_grad": "reduce", "edge_layers": "strided",
+                    "lstm_grad": "autodiff"},
 }
 
 

@@ -68,7 +68,8 @@ class LearnerConfig:
     dsa_encoder: str = "bilstm"  # DSA's static/dynamic encoders: one of DSA_ENCODERS
     rnn_unroll: int = 1  # recurrent steps per scan iteration (networks.SequenceModel.unroll; same numbers)
     # The LSTMs' backward pass: "written" (networks.lstm_scan: W_h's gradient as one matmul after
-    # the loop, 1.3-1.5x faster on the H100) or "autodiff" (JAX's own); same function and gradients.
+    # the loop; each LSTM's forward + backward 1.25-1.5x faster on the H100) or "autodiff" (JAX's
+    # own); same function and gradients. A config.json written before the field reads "autodiff".
     lstm_grad: str = "written"
     # SPAIR only (spair.py); the other learners ignore these. Defaults follow the original
     # (Crawford & Pineau 2019) where it says, and the bulb paper (28 px glimpses, 4x4 grid).
