@@ -180,6 +180,17 @@ def test_nan_loss_is_reported() -> None:
         check_finite({"loss": jnp.array([1.0, jnp.nan])}, "svae update, epoch 3")
 
 
+def assert_same_loss_and_grads(ref, other, params, loss_rtol: float) -> None:
+    """Two learners that differ only in how they compute give, from the same params, window batch
+    and key, the same loss (to `loss_rtol`) and gradients (to float reassociation)."""
+    k = jax.random.key(2)
+    (l0, _), g0 = jax.jit(jax.value_and_grad(ref.loss, has_aux=True))(params, WINDOWS, k)
+    (l1, _), g1 = jax.jit(jax.value_and_grad(other.loss, has_aux=True))(params, WINDOWS, k)
+    np.testing.assert_allclose(float(l1), float(l0), rtol=loss_rtol)
+    for a, b in zip(jax.tree.leaves(g0), jax.tree.leaves(g1)):
+        np.testing.assert_allclose(np.asarray(b), np.asarray(a), rtol=1e-3, atol=1e-6)
+
+
 @pytest.mark.parametrize("name", ["svae", "dsa"])
 def test_rnn_unroll_gives_the_same_function(name: str) -> None:
     """`rnn_unroll` only changes how the LSTM scans are laid out: the same loss, gradients and
@@ -187,12 +198,7 @@ def test_rnn_unroll_gives_the_same_function(name: str) -> None:
     plain = make_learner(name, LATENT, SMALL, action_dim=ACT)
     unrolled = make_learner(name, LATENT, {**SMALL, "rnn_unroll": L}, action_dim=ACT)
     params = plain.init(jax.random.key(1), (RES, RES, 3)).params
-    k = jax.random.key(2)
-    (l0, _), g0 = jax.jit(jax.value_and_grad(plain.loss, has_aux=True))(params, WINDOWS, k)
-    (l1, _), g1 = jax.jit(jax.value_and_grad(unrolled.loss, has_aux=True))(params, WINDOWS, k)
-    np.testing.assert_allclose(float(l1), float(l0), rtol=1e-5)
-    for a, b in zip(jax.tree.leaves(g0), jax.tree.leaves(g1)):
-        np.testing.assert_allclose(np.asarray(b), np.asarray(a), rtol=1e-3, atol=1e-6)
+    assert_same_loss_and_grads(plain, unrolled, params, loss_rtol=1e-5)
     np.testing.assert_allclose(np.asarray(unrolled.encode(params, WINDOWS)),
                                np.asarray(plain.encode(params, WINDOWS)), rtol=1e-5, atol=1e-6)
     with pytest.raises(ValueError, match="rnn_unroll"):
@@ -265,11 +271,6 @@ def test_lstm_grad_option() -> None:
     written = make_learner("dsa", LATENT, SMALL, action_dim=ACT)
     auto = make_learner("dsa", LATENT, {**SMALL, "lstm_grad": "autodiff"}, action_dim=ACT)
     params = written.init(jax.random.key(1), (RES, RES, 3)).params
-    k = jax.random.key(2)
-    (l0, _), g0 = jax.jit(jax.value_and_grad(auto.loss, has_aux=True))(params, WINDOWS, k)
-    (l1, _), g1 = jax.jit(jax.value_and_grad(written.loss, has_aux=True))(params, WINDOWS, k)
-    np.testing.assert_allclose(float(l1), float(l0), rtol=1e-6)
-    for a, b in zip(jax.tree.leaves(g0), jax.tree.leaves(g1)):
-        np.testing.assert_allclose(np.asarray(b), np.asarray(a), rtol=1e-3, atol=1e-6)
+    assert_same_loss_and_grads(auto, written, params, loss_rtol=1e-6)
     with pytest.raises(ValueError, match="lstm_grad"):
         make_learner("dsa", LATENT, {**SMALL, "lstm_grad": "cudnn"}, action_dim=ACT)
