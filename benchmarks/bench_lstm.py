@@ -30,7 +30,6 @@ import importlib.util
 import json
 import os
 import sys
-import time
 from typing import Any, Callable
 
 import jax
@@ -38,6 +37,9 @@ import jax.numpy as jnp
 from jax.experimental import rnn
 
 HERE = os.path.dirname(os.path.abspath(__file__))
+sys.path.insert(0, HERE)
+from timing import time_fn  # noqa: E402  (jax only)
+
 _spec = importlib.util.spec_from_file_location(
     "bj_networks", os.path.join(os.path.dirname(HERE), "bulbjax", "learners", "networks.py"))
 networks = importlib.util.module_from_spec(_spec)
@@ -122,18 +124,6 @@ def grad_fn(form: Callable) -> Callable:
     return jax.jit(lambda *a: jax.lax.map(one, a))
 
 
-def timed(f: Callable, args: tuple, repeats: int) -> tuple[float, float]:
-    t0 = time.perf_counter()
-    jax.block_until_ready(f(*args))
-    first = time.perf_counter() - t0
-    ts = []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        jax.block_until_ready(f(*args))
-        ts.append(time.perf_counter() - t0)
-    return first, sorted(ts)[len(ts) // 2]
-
-
 def main(argv: list[str] | None = None) -> dict[str, Any]:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--seeds", type=int, default=6)
@@ -171,7 +161,8 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         outs = {}
         for form_name, form in forms.items():
             f = grad_fn(form)
-            first, med = timed(f, args, a.repeats)
+            t = time_fn(lambda f=f: f(*args), a.repeats)
+            first, med = t["first_s"], t["median_s"]
             outs[form_name] = f(*args)
             row = {"case": name, "directions": d, "input": n_in, "form": form_name,
                    "first_s": first, "median_s": med, "ms_per_seed": 1e3 * med / a.seeds}

@@ -33,7 +33,7 @@ import jax.numpy as jnp  # noqa: E402
 
 from bulbjax.experiment.loop import train_learner  # noqa: E402
 from bulbjax.learners import LearnerConfig, make_learner  # noqa: E402
-from profile_epoch import time_fn as timed  # noqa: E402  (first call, then median/min of repeats)
+from timing import time_fn as timed  # noqa: E402  (first call, then median/min of repeats)
 
 
 def main(argv: list[str] | None = None) -> dict[str, Any]:

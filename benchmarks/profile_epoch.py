@@ -41,6 +41,7 @@ sys.path.insert(0, REPO)
 import jax  # noqa: E402
 
 import warp_ffi_stats  # noqa: E402
+from timing import time_fn  # noqa: E402
 
 from bulbjax.envs import registry  # noqa: E402
 from bulbjax.experiment import report, small_config  # noqa: E402
@@ -105,19 +106,6 @@ def only_learner(exp: Experiment, name: str) -> Iterator[None]:
         yield
     finally:
         exp.learners = saved
-
-
-def time_fn(fn: Callable[[], Any], repeats: int) -> dict[str, float]:
-    """First call (compile + run) and the median/min of `repeats` further calls, in seconds."""
-    t0 = time.perf_counter()
-    jax.block_until_ready(fn())
-    first = time.perf_counter() - t0
-    times = []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        jax.block_until_ready(fn())
-        times.append(time.perf_counter() - t0)
-    return {"first_s": first, "median_s": statistics.median(times), "min_s": min(times)}
 
 
 def profile(cfg: ExperimentConfig, repeats: int, warm_epochs: int, trace_dir: str | None,
