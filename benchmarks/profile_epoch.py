@@ -62,7 +62,7 @@ def add_config_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--rnn-unroll", type=int, default=0, help="sequential learners' LSTM unroll (default: the preset's)")
     p.add_argument("--learner-option", action="append", default=[], metavar="KEY=VALUE",
                    help="a LearnerConfig field (repeatable), e.g. channel_pad=8 or bias_grad=split")
-    p.add_argument("--seed-loop", default="", choices=("", "auto", "vmap", "map"),
+    p.add_argument("--seed-loop", default="", choices=("", "auto", "vmap", "map", "hybrid"),
                    help="learner work over the seed axis (default: the preset's)")
     p.add_argument("--no-shared-updates", action="store_true",
                    help="one update and probe program per frame VAE, not one for vae/vae_rpl/beta_vae "

@@ -14,8 +14,8 @@ import pytest
 from bulbjax.eval.probe import ProbeConfig
 from bulbjax.experiment import Experiment, ExperimentConfig
 from bulbjax.experiment import report
-from bulbjax.experiment.loop import buffer_key, update_groups
-from bulbjax.learners import LearnerConfig
+from bulbjax.experiment.loop import buffer_key, learner_loop, update_groups, with_seed_loop
+from bulbjax.learners import LearnerConfig, make_learner
 from bulbjax.rl.ppo import PPOConfig
 
 SEEDS = 2
@@ -94,25 +94,30 @@ def test_epoch_is_deterministic_under_a_key(run):
 
 def test_seed_loop_map_equals_vmap(run):
     """The learners' updates run over the seed axis with `lax.map` (one seed at a time; the
-    default on one GPU) or `vmap` (the default on the CPU): the same numbers either way."""
+    default on one GPU), `vmap` (the default on the CPU) or "hybrid" (SVAE vmapped with its
+    convolutions one seed at a time): the same numbers every way."""
     exp, *_, rs1 = run
     saved, saved_loop = exp.learners, exp.seed_loop
-    exp.learners = {n: saved[n] for n in ("vae_rpl", "svae")}  # a frame and a sequential learner
     try:
         out = {}
-        for loop in ("vmap", "map"):
+        for loop in ("vmap", "map", "hybrid"):
+            # a frame and a sequential learner, as the loop makes them
+            exp.learners = {n: with_seed_loop(saved[n], loop) for n in ("vae_rpl", "svae")}
             exp.seed_loop = loop
+            assert exp.learners["svae"].per_seed_frames == (loop == "hybrid")
             learners = {n: rs1.learners[n] for n in exp.learners}
             out[loop] = jax.device_get(jax.jit(exp.learn_phase)(learners, rs1.buffers, jax.random.PRNGKey(7),
                                                                 rs1.windows))
     finally:
         exp.learners, exp.seed_loop = saved, saved_loop
     for name in ("vae_rpl", "svae"):
-        a, b = out["vmap"][0][name].params, out["map"][0][name].params
+        a = out["vmap"][0][name].params
         before = jax.tree.leaves(rs1.learners[name].params)[0]
         assert not np.allclose(jax.tree.leaves(a)[0], before)  # the updates did move the weights
-        jax.tree.map(lambda x, y: np.testing.assert_allclose(x, y, rtol=2e-4, atol=2e-5), a, b)
-        np.testing.assert_allclose(out["vmap"][1][name]["loss"], out["map"][1][name]["loss"], rtol=1e-4)
+        for loop in ("map", "hybrid"):
+            b = out[loop][0][name].params
+            jax.tree.map(lambda x, y: np.testing.assert_allclose(x, y, rtol=2e-4, atol=2e-5), a, b)
+            np.testing.assert_allclose(out["vmap"][1][name]["loss"], out[loop][1][name]["loss"], rtol=1e-4)
 
 
 @pytest.fixture(scope="module")
@@ -127,10 +132,10 @@ def test_probe_phase_same_under_either_seed_loop(run, held):
     seeds either way (`probe_over_seeds`); the scores agree, and differ between seeds."""
     exp, *_, rs1 = run
     saved, saved_loop = exp.learners, exp.seed_loop
-    exp.learners = {n: saved[n] for n in ("vae_rpl", "svae")}
     try:
         out = {}
-        for loop in ("vmap", "map"):
+        for loop in ("vmap", "map", "hybrid"):
+            exp.learners = {n: with_seed_loop(saved[n], loop) for n in ("vae_rpl", "svae")}
             exp.seed_loop = loop
             out[loop] = jax.device_get(jax.jit(exp.probe_phase)(rs1.learners, rs1.buffers, held,
                                                                 jax.random.PRNGKey(4), rs1.windows))
@@ -138,9 +143,10 @@ def test_probe_phase_same_under_either_seed_loop(run, held):
         exp.learners, exp.seed_loop = saved, saved_loop
     for name in ("vae_rpl", "svae"):
         for stream in ("curr", "rand"):
-            a, b = out["vmap"][name][stream]["mae"], out["map"][name][stream]["mae"]
+            a = out["vmap"][name][stream]["mae"]
             assert a.shape == (SEEDS, exp.env.state_dim) and np.all(np.isfinite(a))
-            np.testing.assert_allclose(a, b, rtol=1e-3, atol=1e-5)
+            for loop in ("map", "hybrid"):
+                np.testing.assert_allclose(a, out[loop][name][stream]["mae"], rtol=1e-3, atol=1e-5)
             assert not np.allclose(a[0], a[1])
 
 
@@ -189,6 +195,13 @@ def test_seed_loop_choice():
     mesh = make_mesh(jax.devices()[:1], 2, 4)
     assert resolve_seed_loop("auto", mesh) == ("vmap" if jax.default_backend() == "cpu" else "map")
     assert resolve_seed_loop("map", mesh) == "map"
+    assert resolve_seed_loop("hybrid", mesh) == "hybrid"
+    # hybrid: learners with LSTMs vmapped (their convolutions looping over seeds), the others mapped
+    svae, pred = (make_learner(n, 4, LearnerConfig(), 1) for n in ("svae", "pred"))
+    assert learner_loop("hybrid", with_seed_loop(svae, "hybrid")) == "vmap"
+    assert learner_loop("hybrid", with_seed_loop(pred, "hybrid")) == "map"
+    assert learner_loop("hybrid", None) == "map" and learner_loop("vmap", svae) == "vmap"
+    assert not with_seed_loop(svae, "map").per_seed_frames
     with pytest.raises(ValueError, match="learner_seed_loop"):
         resolve_seed_loop("loop", mesh)
     with pytest.raises(ValueError, match="learner_seed_loop"):

@@ -10,7 +10,7 @@ from bulbjax.learners import LEARNER_NAMES, SEQUENCE_LEARNER_NAMES, LearnerConfi
 from bulbjax.rl.ppo import PPOConfig
 
 # How learner work may run over the seed axis (`ExperimentConfig.learner_seed_loop`).
-SEED_LOOPS = ("auto", "vmap", "map")
+SEED_LOOPS = ("auto", "vmap", "map", "hybrid")
 
 # Default window length of the sequential learners per domain (paper Sec. IV.A).
 SEQUENCE_LENGTHS: dict[str, int] = {"CartPole": 24, "InvertedPendulum": 24, "HalfCheetah": 16, "Ant": 16}
@@ -67,8 +67,9 @@ class ExperimentConfig:
     # "pixels": the current frame through a small conv encoder trained end to end by PPO.
     rl_input: str = "state"
     # How learner work runs over the seed axis (`loop.resolve_seed_loop`): "vmap", "map" (one
-    # seed at a time; ~1.9x faster VAE updates on the H100) or "auto" (map on one GPU, else vmap).
-    # The same numbers either way, up to floating-point reassociation.
+    # seed at a time; ~1.9x faster VAE updates on the H100), "hybrid" (map, but learners with
+    # LSTMs vmapped with their frame networks one seed at a time) or "auto" (map on one GPU,
+    # else vmap). The same numbers either way, up to floating-point reassociation.
     learner_seed_loop: str = "auto"
     # Frame learners that differ only in beta and replay retention (vae, vae_rpl, beta_vae) run
     # their updates and probe encodings as one program over the group (`loop.update_groups`):

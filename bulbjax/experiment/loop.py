@@ -18,6 +18,7 @@ L steps ending at it (`PolicyHistory`, kept per world in the run state).
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import threading
 from concurrent.futures import Future
@@ -197,6 +198,9 @@ def resolve_seed_loop(choice: str, mesh: Mesh) -> str:
     which on the H100 runs a VAE update at half the rate of S separate updates (6 seeds, bf16:
     7.97 against 4.19 ms per seed-update, `benchmarks/bench_seed_axis.py`). "map" runs the seeds
     one after another (`lax.map`), each a plain batch-1,024 update that fills the GPU alone.
+    "hybrid" is "map" except for learners with LSTMs, which are vmapped with their convolutions
+    one seed at a time (`with_seed_loop`, `learner_loop`): an LSTM step at ~42 windows leaves
+    the GPU idle, so S seeds' steps cost about one seed's when batched.
     "auto" picks "map" on a GPU or TPU with the seeds on one device, "vmap" elsewhere: on the
     CPU, XLA runs convolutions inside loops several times slower (tests), and with the seed axis
     sharded over devices a loop over it would gather it."""
@@ -206,6 +210,24 @@ def resolve_seed_loop(choice: str, mesh: Mesh) -> str:
         return choice
     platform = mesh.devices.flat[0].platform
     return "map" if platform != "cpu" and mesh.size == 1 else "vmap"
+
+
+def with_seed_loop(learner: Any, loop: str) -> Any:
+    """The learner as a run with seed loop `loop` uses it: with "hybrid", a learner with LSTMs
+    (`recurrent`) runs its frame networks one seed at a time under vmap (`per_seed_frames`)."""
+    if loop == "hybrid" and getattr(learner, "recurrent", False):
+        return dataclasses.replace(learner, per_seed_frames=True)
+    return learner
+
+
+def learner_loop(loop: str, learner: Any) -> str:
+    """`over_seeds`' loop for one learner's work in a run with seed loop `loop`: with "hybrid",
+    "vmap" for a learner whose frame networks loop over seeds themselves (`with_seed_loop`: its
+    LSTMs, heads and Adam batched over seeds, one kernel per step for all of them), "map" for
+    the others."""
+    if loop == "hybrid":
+        return "vmap" if getattr(learner, "per_seed_frames", False) else "map"
+    return loop
 
 
 def over_seeds(loop: str, fn: Callable[..., Any], *args: Any) -> Any:
@@ -379,7 +401,8 @@ class Experiment:
         latent = c.latent_factor * self.env.state_dim
         # Actions as the sequential learners see them: one-hot for discrete, the clipped vector else.
         self.action_dim = self.env.num_actions if self.env.discrete else self.env.action_size
-        self.learners = {n: make_learner(n, latent, c.learner, self.action_dim) for n in c.learners}
+        self.learners = {n: with_seed_loop(make_learner(n, latent, c.learner, self.action_dim), self.seed_loop)
+                         for n in c.learners}
         # PPO observes the true state, the frame (rl_input "pixels") or a learner's latent of it.
         self.rl_learner = c.rl_learner
         self.rl_pixels = c.rl_input == "pixels"
@@ -594,7 +617,7 @@ class Experiment:
         -> `[S, N, T, F]`, each seed's current params, no gradient into the learner."""
         learner = self.learners[self.rl_learner]
         fn = lambda p, f: learner.frame_features(jax.lax.stop_gradient(p), f)  # noqa: E731
-        return self.over_seeds(fn, learners[self.rl_learner].params, frames)
+        return self.over_seeds(fn, learners[self.rl_learner].params, frames, learner=self.rl_learner)
 
     def policy_window(self, learners: dict, history: PolicyHistory) -> PolicyWindow:
         """`history` with the features of its frames under the learners' current params: L conv
@@ -626,7 +649,8 @@ class Experiment:
             return jnp.take_along_axis(z, (count - 1)[:, None, None], axis=1)[:, 0]
 
         h = window.history
-        return self.over_seeds(one_seed, learners[self.rl_learner].params, window.features, h.actions, h.count)
+        return self.over_seeds(one_seed, learners[self.rl_learner].params, window.features, h.actions, h.count,
+                               learner=self.rl_learner)
 
     @property
     def policy_renders(self) -> bool:
@@ -665,7 +689,8 @@ class Experiment:
             return frames
         if learners is None:
             raise ValueError("PPO observes a learner's latent: pass the learners' states")
-        return self.over_seeds(self._encode_frames, learners[self.rl_learner].params, frames)
+        return self.over_seeds(self._encode_frames, learners[self.rl_learner].params, frames,
+                               learner=self.rl_learner)
 
     def _policy_step(self, ppo_state: PPOState, es: EnvState, key: jax.Array, random: bool,
                      learners: dict | None = None, view: PolicyView = None):
@@ -901,9 +926,14 @@ class Experiment:
         keys = jax.random.split(k_ins, self.S)
         return {k: jax.vmap(sequence.insert)(b, keys, w) for k, b in windows.items()}
 
-    def over_seeds(self, fn: Callable[..., Any], *args: Any) -> Any:
-        """`fn` over every seed's slice of `args` with the run's seed loop (`over_seeds`)."""
-        return over_seeds(self.seed_loop, fn, *args)
+    def over_seeds(self, fn: Callable[..., Any], *args: Any, learner: str | None = None) -> Any:
+        """`fn` over every seed's slice of `args` with the run's seed loop (`over_seeds`), as
+        `learner`'s work runs over seeds (`learner_loop`; None: a frame learner's)."""
+        return over_seeds(self.loop_of(learner), fn, *args)
+
+    def loop_of(self, learner: str | None) -> str:
+        """The seed loop ("map" or "vmap") of `learner`'s work (`learner_loop`)."""
+        return learner_loop(self.seed_loop, self.learners.get(learner))
 
     def learn_phase(self, learners: dict, buffers: dict, key: jax.Array,
                     windows: dict | None = None) -> tuple[dict, dict]:
@@ -934,7 +964,7 @@ class Experiment:
             keys = jax.random.split(jax.random.fold_in(key, i), self.S)
             buf = (windows if seq else buffers)[buffer_key(self.retention[name])]
             with jax.named_scope(f"bj.learn.{name}"):
-                out[name], m = self.over_seeds(train_seed, learners[name], buf, keys)
+                out[name], m = self.over_seeds(train_seed, learners[name], buf, keys, learner=name)
             metrics[name] = jax.tree.map(lambda x: x.mean(-1), m)
         return {n: out[n] for n in self.learners}, {n: metrics[n] for n in self.learners}
 
@@ -1040,7 +1070,7 @@ class Experiment:
             k_s, k_p = jax.vmap(jax.random.split)(keys).swapaxes(0, 1)
             buf = (windows if seq else buffers)[buffer_key(self.retention[name])]
             with jax.named_scope(f"bj.probe.{name}"):
-                out[name] = probe_over_seeds(self.seed_loop, latents_seed, fit_seed, k_p,
+                out[name] = probe_over_seeds(self.loop_of(name), latents_seed, fit_seed, k_p,
                                              k_s, learners[name], buf, held_out)
         return {n: out[n] for n in self.learners}
 

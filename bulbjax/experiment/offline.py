@@ -34,8 +34,8 @@ from bulbjax.eval import probe
 from bulbjax.eval.spec import StateEntry
 from bulbjax.experiment import report
 from bulbjax.experiment.config import ExperimentConfig
-from bulbjax.experiment.loop import (fit_and_score, make_mesh, over_seeds, probe_latents, probe_over_seeds,
-                                     resolve_seed_loop, train_learner)
+from bulbjax.experiment.loop import (fit_and_score, learner_loop, make_mesh, over_seeds, probe_latents,
+                                     probe_over_seeds, resolve_seed_loop, train_learner, with_seed_loop)
 from bulbjax.learners import check_finite, is_sequential, make_learner
 
 
@@ -168,11 +168,12 @@ class OfflineFit:
         self.source = source or make_source(config)
         b = c.base
         latent = b.latent_factor * len(self.source.spec)
-        self.learners = {n: make_learner(n, latent, b.learner, self.source.action_dim) for n in b.learners}
-        self.spec = self.source.spec
-        self.S = b.seeds
         # learner updates and probe encodings over seeds: lax.map on one GPU, vmap on the CPU
         self.seed_loop = resolve_seed_loop(b.learner_seed_loop, make_mesh(jax.devices()[:1], b.seeds, 1))
+        self.learners = {n: with_seed_loop(make_learner(n, latent, b.learner, self.source.action_dim), self.seed_loop)
+                         for n in b.learners}
+        self.spec = self.source.spec
+        self.S = b.seeds
         per_call = c.updates_per_call or (1 if jax.default_backend() == "cpu" else c.probe_every)
         self.per_call = min(per_call, c.probe_every)
         self.init = jax.jit(self._init)
@@ -199,7 +200,7 @@ class OfflineFit:
         for i, (name, l) in enumerate(self.learners.items()):
             keys = jax.random.split(jax.random.fold_in(key, i), self.S)
             run = lambda st, k, l=l: train_learner(l, st, self._sampler(l, data), k, updates, unroll)  # noqa: E731
-            out[name], m = over_seeds(self.seed_loop, run, states[name], keys)
+            out[name], m = over_seeds(learner_loop(self.seed_loop, l), run, states[name], keys)
             metrics[name] = jax.tree.map(lambda x: x.mean(-1), m)
         return out, metrics
 
@@ -226,7 +227,8 @@ class OfflineFit:
 
             keys = jax.random.split(jax.random.fold_in(key, i), self.S)
             k_s, k_p = jax.vmap(jax.random.split)(keys).swapaxes(0, 1)
-            out[name] = probe_over_seeds(self.seed_loop, latents_seed, fit_seed, k_p, k_s, states[name])
+            out[name] = probe_over_seeds(learner_loop(self.seed_loop, l), latents_seed, fit_seed, k_p, k_s,
+                                         states[name])
         return out
 
 

@@ -44,6 +44,7 @@ from bulbjax.learners.networks import (
     check_frame_shape,
     lecun_normal_flat,
 )
+from bulbjax.learners.per_seed import per_seed
 
 
 def _normal(key: jax.Array, like: jax.Array) -> jax.Array:
@@ -86,7 +87,13 @@ class SequentialVAE:
     latent_dim: int
     config: LearnerConfig = LearnerConfig()
     action_dim: int = 1  # one-hot size for discrete actions, action_size for continuous
+    # Frame networks (conv stack; decoder + likelihood) one seed at a time when vmapped over
+    # seeds (`per_seed`), the rest batched: how the run's learner loop uses one GPU for learners
+    # with recurrences (`loop.resolve_seed_loop`). Same numbers, another schedule.
+    per_seed_frames: bool = False
     sequential: ClassVar[bool] = True
+    # Whether the learner has LSTMs, which batch over seeds far better than they loop.
+    recurrent: ClassVar[bool] = False
 
     def __post_init__(self) -> None:
         if self.latent_dim < 1:
@@ -133,7 +140,7 @@ class SequentialVAE:
     # ------------------------------------------------------------------ inputs
     def _inputs(self, params: Any, windows: Windows, length: int
                 ) -> tuple[jax.Array, jax.Array, jax.Array]:
-        """Checked, cut to `length` steps: frames in [0, 1] [B, T, R, R, 3], a_prev [B, T, A]
+        """Checked, cut to `length` steps: uint8 frames [B, T, R, R, 3], a_prev [B, T, A]
         (zero at step 0), valid as float32 [B, T]."""
         if not isinstance(windows, Windows):
             raise TypeError(f"{type(self).__name__} trains on Windows (bulbjax.data.sequence), "
@@ -158,12 +165,18 @@ class SequentialVAE:
             raise ValueError(f"these params were initialised for {r}x{r}x3 frames; got frames "
                              f"of shape {tuple(f.shape[2:])}")
         w = windows.head(length)
-        return _unit_frames(w.frames), _prev_actions(w.actions), w.valid.astype(jnp.float32)
+        return w.frames, _prev_actions(w.actions), w.valid.astype(jnp.float32)
 
-    def _features(self, module: nn.Module, params: Any, x: jax.Array) -> jax.Array:
-        """Per-frame module over [B, T, ...] frames -> [B, T, F]."""
-        b, t = x.shape[:2]
-        return module.apply({"params": params}, x.reshape((b * t,) + x.shape[2:])).reshape((b, t, -1))
+    def _per_frame(self, fn: Any) -> Any:
+        """`fn(diff, frames)`, one seed at a time under vmap if `per_seed_frames`."""
+        return per_seed(fn) if self.per_seed_frames else fn
+
+    def _features(self, module: nn.Module, params: Any, frames: jax.Array) -> jax.Array:
+        """Per-frame module over uint8 frames [B, T, R, R, 3] -> [B, T, F]."""
+        def run(p: Any, f: jax.Array) -> jax.Array:
+            x = _unit_frames(f.reshape((-1,) + f.shape[2:]))
+            return module.apply({"params": p}, x).reshape(f.shape[:2] + (-1,))
+        return self._per_frame(run)(params, frames)
 
     def _decode_logits(self, params: Any, z: jax.Array) -> jax.Array:
         """Decoder-input latents [B, T, Z] -> pixel logits [B, T, R, R, 3]."""
@@ -172,10 +185,14 @@ class SequentialVAE:
         logits = dec.apply({"params": params["decoder"]}, z.reshape((b * t, -1)))
         return logits.reshape((b, t) + logits.shape[1:])
 
-    @staticmethod
-    def _recon(logits: jax.Array, x: jax.Array) -> jax.Array:
-        """Bernoulli negative log-likelihood per frame [B, T]."""
-        return optax.sigmoid_binary_cross_entropy(logits, x).sum(axis=(2, 3, 4))
+    def _recon(self, params: Any, z: jax.Array, frames: jax.Array) -> jax.Array:
+        """Bernoulli negative log-likelihood per frame [B, T] of uint8 frames [B, T, R, R, 3]
+        under the decoder of latents z [B, T, Z] (decoder and likelihood one program per seed
+        with `per_seed_frames`: the logits never leave it)."""
+        def nll(d: tuple[Any, jax.Array], f: jax.Array) -> jax.Array:
+            logits = self._decode_logits(d[0], d[1])
+            return optax.sigmoid_binary_cross_entropy(logits, _unit_frames(f)).sum(axis=(2, 3, 4))
+        return self._per_frame(nll)((params, z), frames)
 
     # ------------------------------------------------------------------ interface
     def init(self, key: jax.Array, frame_shape: tuple[int, int, int]) -> LearnerState:
@@ -190,9 +207,9 @@ class SequentialVAE:
     def loss(self, params: Any, windows: Windows, key: jax.Array) -> tuple[jax.Array, Metrics]:
         """Per-valid-frame negative ELBO on the first `window_length` steps, with its parts."""
         x, a_prev, valid = self._inputs(params, windows, self.window_length)
-        logits, kl_steps, kl_seq = self._loss_parts(params, x, a_prev, key)
+        z, kl_steps, kl_seq = self._loss_parts(params, x, a_prev, key)
         n = jnp.maximum(valid.sum(), 1.0)
-        recon = (self._recon(logits, x) * valid).sum() / n
+        recon = (self._recon(params, z, x) * valid).sum() / n
         kl = ((kl_steps * valid).sum() + kl_seq.sum()) / n
         loss = recon + self.config.beta * kl
         return loss, {"loss": loss, "recon": recon, "kl": kl, "valid_frac": valid.mean()}
@@ -221,7 +238,7 @@ class SequentialVAE:
         keep them per frame and get `encode`'s latents from `encode_features`."""
         if frames.dtype != jnp.uint8 or frames.ndim != 5:
             raise TypeError(f"frames must be uint8 [B, T, R, R, 3], got {frames.dtype} {frames.shape}")
-        return self._features(self._conv, params["conv"], _unit_frames(frames))
+        return self._features(self._conv, params["conv"], frames)
 
     def encode_features(self, params: Any, features: jax.Array, actions: jax.Array) -> jax.Array:
         """`encode` from `frame_features` of a window's frames: features `[B, T, F]` and the
@@ -254,11 +271,12 @@ class SequentialVAE:
 
     def _loss_parts(self, params: Any, x: jax.Array, a_prev: jax.Array, key: jax.Array
                     ) -> tuple[jax.Array, jax.Array, jax.Array]:
-        """(logits [B, T, R, R, 3], KL per step [B, T], KL per sequence [B]) with sampled latents.
+        """(decoder-input latents [B, T, Z], KL per step [B, T], KL per sequence [B]) from uint8
+        frames x [B, T, R, R, 3], with sampled latents.
         Default (SVAE, PRED): reparameterised sample of `_posterior`, N(0, I) prior per step."""
         mean, logvar = self._posterior(params, x, a_prev)
         z = mean + jnp.exp(0.5 * logvar) * _normal(key, mean)
-        return self._decode_logits(params, z), _kl_std_normal(mean, logvar), jnp.zeros(x.shape[:1])
+        return z, _kl_std_normal(mean, logvar), jnp.zeros(x.shape[:1])
 
     def _means(self, params: Any, x: jax.Array, a_prev: jax.Array) -> jax.Array:
         """Decoder-input latent means per step [B, T', latent_dim]."""
@@ -281,6 +299,8 @@ class SVAE(SequentialVAE):
     The prior of every z_t is N(0, I); the LSTM makes each z_t depend on frames 1..t and actions
     a_1..a_{t-1}, so reconstructions are conditioned on the actions.
     """
+
+    recurrent: ClassVar[bool] = True
 
     @property
     def _conv(self) -> FrameFeatures:
@@ -371,6 +391,8 @@ class DSA(SequentialVAE):
     paper's DSA, `gru`, `rnn`, `conv`, `fc`); the prior stays a causal LSTM.
     """
 
+    recurrent: ClassVar[bool] = True
+
     def __post_init__(self) -> None:
         super().__post_init__()
         if self.latent_dim < 2:
@@ -438,7 +460,7 @@ class DSA(SequentialVAE):
         z = z_mean + jnp.exp(0.5 * z_logvar) * _normal(k_z, z_mean)
         p_mean, p_logvar = self._prior(params, z, a_prev)
         kl_z = _kl_normal(z_mean, z_logvar, p_mean, p_logvar)
-        return self._decode_logits(params, self._join(f, z)), kl_z, _kl_std_normal(f_mean, f_logvar)
+        return self._join(f, z), kl_z, _kl_std_normal(f_mean, f_logvar)
 
     def _means_of_features(self, params, h, a_prev):
         f_mean, _ = self._static(params, h)
