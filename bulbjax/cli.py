@@ -298,8 +298,8 @@ def main(argv: Sequence[str] | None = None) -> int:
                         "(one per world and episode); default 0, fig3 presets random")
     r.add_argument("--seed-loop", default=None, choices=("auto", "vmap", "map", "hybrid"),
                    help="learner work over the seed axis: vmap, map (one seed at a time: ~1.9x faster "
-                        "conv updates on a GPU), hybrid (map, but learners with LSTMs vmapped with "
-                        "their convolutions one seed at a time), auto (map on one GPU, else vmap; default)")
+                        "conv updates on a GPU), hybrid (map, but DSA vmapped with its convolutions one "
+                        "seed at a time: its LSTMs batched), auto (hybrid on one GPU, else vmap; default)")
     r.add_argument("--small", action="store_true", help="CPU-sized settings (not the paper's)")
     r.add_argument("--bf16", action="store_true", help="bf16 compute in the learners (GPU)")
     r.add_argument("--rnn-unroll", type=int, default=None, metavar="N",

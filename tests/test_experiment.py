@@ -94,23 +94,23 @@ def test_epoch_is_deterministic_under_a_key(run):
 
 def test_seed_loop_map_equals_vmap(run):
     """The learners' updates run over the seed axis with `lax.map` (one seed at a time; the
-    default on one GPU), `vmap` (the default on the CPU) or "hybrid" (SVAE vmapped with its
-    convolutions one seed at a time): the same numbers every way."""
+    default before "hybrid"), `vmap` (the default on the CPU) or "hybrid" (the default on one
+    GPU: DSA vmapped with its convolutions one seed at a time): the same numbers every way."""
     exp, *_, rs1 = run
     saved, saved_loop = exp.learners, exp.seed_loop
+    names = ("vae_rpl", "svae", "dsa")  # a frame learner, a mapped and a vmapped sequential one
     try:
         out = {}
         for loop in ("vmap", "map", "hybrid"):
-            # a frame and a sequential learner, as the loop makes them
-            exp.learners = {n: with_seed_loop(saved[n], loop) for n in ("vae_rpl", "svae")}
+            exp.learners = {n: with_seed_loop(saved[n], loop) for n in names}  # as the loop makes them
             exp.seed_loop = loop
-            assert exp.learners["svae"].per_seed_frames == (loop == "hybrid")
+            assert exp.learners["dsa"].per_seed_frames == ("remat" if loop == "hybrid" else "")
             learners = {n: rs1.learners[n] for n in exp.learners}
             out[loop] = jax.device_get(jax.jit(exp.learn_phase)(learners, rs1.buffers, jax.random.PRNGKey(7),
                                                                 rs1.windows))
     finally:
         exp.learners, exp.seed_loop = saved, saved_loop
-    for name in ("vae_rpl", "svae"):
+    for name in names:
         a = out["vmap"][0][name].params
         before = jax.tree.leaves(rs1.learners[name].params)[0]
         assert not np.allclose(jax.tree.leaves(a)[0], before)  # the updates did move the weights
@@ -135,13 +135,13 @@ def test_probe_phase_same_under_either_seed_loop(run, held):
     try:
         out = {}
         for loop in ("vmap", "map", "hybrid"):
-            exp.learners = {n: with_seed_loop(saved[n], loop) for n in ("vae_rpl", "svae")}
+            exp.learners = {n: with_seed_loop(saved[n], loop) for n in ("vae_rpl", "dsa")}
             exp.seed_loop = loop
             out[loop] = jax.device_get(jax.jit(exp.probe_phase)(rs1.learners, rs1.buffers, held,
                                                                 jax.random.PRNGKey(4), rs1.windows))
     finally:
         exp.learners, exp.seed_loop = saved, saved_loop
-    for name in ("vae_rpl", "svae"):
+    for name in ("vae_rpl", "dsa"):
         for stream in ("curr", "rand"):
             a = out["vmap"][name][stream]["mae"]
             assert a.shape == (SEEDS, exp.env.state_dim) and np.all(np.isfinite(a))
@@ -193,15 +193,16 @@ def test_seed_loop_choice():
     from bulbjax.experiment.loop import make_mesh, resolve_seed_loop
 
     mesh = make_mesh(jax.devices()[:1], 2, 4)
-    assert resolve_seed_loop("auto", mesh) == ("vmap" if jax.default_backend() == "cpu" else "map")
+    assert resolve_seed_loop("auto", mesh) == ("vmap" if jax.default_backend() == "cpu" else "hybrid")
     assert resolve_seed_loop("map", mesh) == "map"
     assert resolve_seed_loop("hybrid", mesh) == "hybrid"
-    # hybrid: learners with LSTMs vmapped (their convolutions looping over seeds), the others mapped
-    svae, pred = (make_learner(n, 4, LearnerConfig(), 1) for n in ("svae", "pred"))
-    assert learner_loop("hybrid", with_seed_loop(svae, "hybrid")) == "vmap"
-    assert learner_loop("hybrid", with_seed_loop(pred, "hybrid")) == "map"
-    assert learner_loop("hybrid", None) == "map" and learner_loop("vmap", svae) == "vmap"
-    assert not with_seed_loop(svae, "map").per_seed_frames
+    # hybrid: DSA vmapped (its convolutions looping over seeds), the others mapped
+    dsa, svae, pred = (make_learner(n, 4, LearnerConfig(), 1) for n in ("dsa", "svae", "pred"))
+    assert learner_loop("hybrid", with_seed_loop(dsa, "hybrid")) == "vmap"
+    for other in (svae, pred):
+        assert learner_loop("hybrid", with_seed_loop(other, "hybrid")) == "map"
+    assert learner_loop("hybrid", None) == "map" and learner_loop("vmap", dsa) == "vmap"
+    assert not with_seed_loop(dsa, "map").per_seed_frames
     with pytest.raises(ValueError, match="learner_seed_loop"):
         resolve_seed_loop("loop", mesh)
     with pytest.raises(ValueError, match="learner_seed_loop"):

@@ -67,9 +67,10 @@ class ExperimentConfig:
     # "pixels": the current frame through a small conv encoder trained end to end by PPO.
     rl_input: str = "state"
     # How learner work runs over the seed axis (`loop.resolve_seed_loop`): "vmap", "map" (one
-    # seed at a time; ~1.9x faster VAE updates on the H100), "hybrid" (map, but learners with
-    # LSTMs vmapped with their frame networks one seed at a time) or "auto" (map on one GPU,
-    # else vmap). The same numbers either way, up to floating-point reassociation.
+    # seed at a time; ~1.9x faster VAE updates on the H100), "hybrid" (map, but DSA, whose three
+    # LSTMs dominate its update, vmapped with its frame networks one seed at a time) or "auto"
+    # (hybrid on one GPU, else vmap). The same numbers either way, up to floating-point
+    # reassociation.
     learner_seed_loop: str = "auto"
     # Frame learners that differ only in beta and replay retention (vae, vae_rpl, beta_vae) run
     # their updates and probe encodings as one program over the group (`loop.update_groups`):

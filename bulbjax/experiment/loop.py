@@ -198,10 +198,12 @@ def resolve_seed_loop(choice: str, mesh: Mesh) -> str:
     which on the H100 runs a VAE update at half the rate of S separate updates (6 seeds, bf16:
     7.97 against 4.19 ms per seed-update, `benchmarks/bench_seed_axis.py`). "map" runs the seeds
     one after another (`lax.map`), each a plain batch-1,024 update that fills the GPU alone.
-    "hybrid" is "map" except for learners with LSTMs, which are vmapped with their convolutions
-    one seed at a time (`with_seed_loop`, `learner_loop`): an LSTM step at ~42 windows leaves
-    the GPU idle, so S seeds' steps cost about one seed's when batched.
-    "auto" picks "map" on a GPU or TPU with the seeds on one device, "vmap" elsewhere: on the
+    "hybrid" is "map" except for learners whose LSTMs dominate (`hybrid_vmapped`: DSA), which
+    are vmapped with their convolutions one seed at a time (`with_seed_loop`, `learner_loop`): an
+    LSTM step at ~42 windows leaves the GPU idle, so S seeds' steps cost about one seed's when
+    batched.
+    "auto" picks "hybrid" on a GPU or TPU with the seeds on one device (fig2-invpend, 6 seeds,
+    H100: 1.552 s per epoch against "map"'s 1.593 s, same machine), "vmap" elsewhere: on the
     CPU, XLA runs convolutions inside loops several times slower (tests), and with the seed axis
     sharded over devices a loop over it would gather it."""
     if choice not in SEED_LOOPS:
@@ -209,14 +211,15 @@ def resolve_seed_loop(choice: str, mesh: Mesh) -> str:
     if choice != "auto":
         return choice
     platform = mesh.devices.flat[0].platform
-    return "map" if platform != "cpu" and mesh.size == 1 else "vmap"
+    return "hybrid" if platform != "cpu" and mesh.size == 1 else "vmap"
 
 
 def with_seed_loop(learner: Any, loop: str) -> Any:
     """The learner as a run with seed loop `loop` uses it: with "hybrid", a learner with LSTMs
-    (`recurrent`) runs its frame networks one seed at a time under vmap (`per_seed_frames`)."""
-    if loop == "hybrid" and getattr(learner, "recurrent", False):
-        return dataclasses.replace(learner, per_seed_frames=True)
+    (`hybrid_vmapped`: DSA) runs its frame networks one seed at a time under vmap
+    (`per_seed_frames`)."""
+    if loop == "hybrid" and getattr(learner, "hybrid_vmapped", False):
+        return dataclasses.replace(learner, per_seed_frames="remat")
     return learner
 
 

@@ -168,7 +168,8 @@ class OfflineFit:
         self.source = source or make_source(config)
         b = c.base
         latent = b.latent_factor * len(self.source.spec)
-        # learner updates and probe encodings over seeds: lax.map on one GPU, vmap on the CPU
+        # learner updates and probe encodings over seeds: lax.map (DSA vmapped, `with_seed_loop`) on
+        # one GPU, vmap on the CPU
         self.seed_loop = resolve_seed_loop(b.learner_seed_loop, make_mesh(jax.devices()[:1], b.seeds, 1))
         self.learners = {n: with_seed_loop(make_learner(n, latent, b.learner, self.source.action_dim), self.seed_loop)
                          for n in b.learners}

@@ -44,7 +44,10 @@ from bulbjax.learners.networks import (
     check_frame_shape,
     lecun_normal_flat,
 )
-from bulbjax.learners.per_seed import per_seed
+from bulbjax.learners.per_seed import per_seed, per_seed_loss
+
+# `SequentialVAE.per_seed_frames`: off, conv stack recomputed in its backward loop, or saved.
+PER_SEED_FRAMES = ("", "remat", "saved")
 
 
 def _normal(key: jax.Array, like: jax.Array) -> jax.Array:
@@ -87,15 +90,21 @@ class SequentialVAE:
     latent_dim: int
     config: LearnerConfig = LearnerConfig()
     action_dim: int = 1  # one-hot size for discrete actions, action_size for continuous
-    # Frame networks (conv stack; decoder + likelihood) one seed at a time when vmapped over
-    # seeds (`per_seed`), the rest batched: how the run's learner loop uses one GPU for learners
-    # with recurrences (`loop.resolve_seed_loop`). Same numbers, another schedule.
-    per_seed_frames: bool = False
+    # Frame networks one seed at a time when vmapped over seeds, the rest batched: how the
+    # "hybrid" seed loop runs learners with LSTMs on one GPU (`loop.resolve_seed_loop`). ""
+    # (off), "remat" (the conv stack's forward recomputed in its backward loop) or "saved" (its
+    # activations saved); the decoder and likelihood compute value and gradient in one loop
+    # (`per_seed_loss`). Same numbers, another schedule.
+    per_seed_frames: str = ""
     sequential: ClassVar[bool] = True
-    # Whether the learner has LSTMs, which batch over seeds far better than they loop.
-    recurrent: ClassVar[bool] = False
+    # Whether the "hybrid" seed loop vmaps this learner (`loop.with_seed_loop`): worth it where
+    # LSTMs are a large share of an update (DSA: three; H100, 6 seeds, 5.71 -> 5.18 ms per
+    # seed-update), not for SVAE's one (4.25 -> 4.32 ms; `benchmarks/bench_seed_axis.py`).
+    hybrid_vmapped: ClassVar[bool] = False
 
     def __post_init__(self) -> None:
+        if self.per_seed_frames not in PER_SEED_FRAMES:
+            raise ValueError(f"per_seed_frames must be one of {PER_SEED_FRAMES}, got {self.per_seed_frames!r}")
         if self.latent_dim < 1:
             raise ValueError(f"latent_dim must be >= 1, got {self.latent_dim!r}")
         if self.action_dim < 1:
@@ -167,16 +176,15 @@ class SequentialVAE:
         w = windows.head(length)
         return w.frames, _prev_actions(w.actions), w.valid.astype(jnp.float32)
 
-    def _per_frame(self, fn: Any) -> Any:
-        """`fn(diff, frames)`, one seed at a time under vmap if `per_seed_frames`."""
-        return per_seed(fn) if self.per_seed_frames else fn
-
     def _features(self, module: nn.Module, params: Any, frames: jax.Array) -> jax.Array:
-        """Per-frame module over uint8 frames [B, T, R, R, 3] -> [B, T, F]."""
+        """Per-frame module over uint8 frames [B, T, R, R, 3] -> [B, T, F] (one seed at a time
+        under vmap with `per_seed_frames`)."""
         def run(p: Any, f: jax.Array) -> jax.Array:
             x = _unit_frames(f.reshape((-1,) + f.shape[2:]))
             return module.apply({"params": p}, x).reshape(f.shape[:2] + (-1,))
-        return self._per_frame(run)(params, frames)
+        if self.per_seed_frames:
+            run = per_seed(run, remat=self.per_seed_frames == "remat")
+        return run(params, frames)
 
     def _decode_logits(self, params: Any, z: jax.Array) -> jax.Array:
         """Decoder-input latents [B, T, Z] -> pixel logits [B, T, R, R, 3]."""
@@ -185,14 +193,17 @@ class SequentialVAE:
         logits = dec.apply({"params": params["decoder"]}, z.reshape((b * t, -1)))
         return logits.reshape((b, t) + logits.shape[1:])
 
-    def _recon(self, params: Any, z: jax.Array, frames: jax.Array) -> jax.Array:
-        """Bernoulli negative log-likelihood per frame [B, T] of uint8 frames [B, T, R, R, 3]
-        under the decoder of latents z [B, T, Z] (decoder and likelihood one program per seed
-        with `per_seed_frames`: the logits never leave it)."""
+    def _recon(self, params: Any, z: jax.Array, frames: jax.Array, valid: jax.Array) -> jax.Array:
+        """Bernoulli negative log-likelihood of uint8 frames [B, T, R, R, 3] under the decoder
+        of latents z [B, T, Z], per valid frame (`valid` float [B, T]). With `per_seed_frames`,
+        decoder and likelihood run one seed at a time, value and gradient in one loop."""
         def nll(d: tuple[Any, jax.Array], f: jax.Array) -> jax.Array:
             logits = self._decode_logits(d[0], d[1])
             return optax.sigmoid_binary_cross_entropy(logits, _unit_frames(f)).sum(axis=(2, 3, 4))
-        return self._per_frame(nll)((params, z), frames)
+        n = jnp.maximum(valid.sum(), 1.0)
+        if self.per_seed_frames:
+            return per_seed_loss(nll)((params, z), frames, valid / n)
+        return (nll((params, z), frames) * valid).sum() / n
 
     # ------------------------------------------------------------------ interface
     def init(self, key: jax.Array, frame_shape: tuple[int, int, int]) -> LearnerState:
@@ -209,7 +220,7 @@ class SequentialVAE:
         x, a_prev, valid = self._inputs(params, windows, self.window_length)
         z, kl_steps, kl_seq = self._loss_parts(params, x, a_prev, key)
         n = jnp.maximum(valid.sum(), 1.0)
-        recon = (self._recon(params, z, x) * valid).sum() / n
+        recon = self._recon(params, z, x, valid)
         kl = ((kl_steps * valid).sum() + kl_seq.sum()) / n
         loss = recon + self.config.beta * kl
         return loss, {"loss": loss, "recon": recon, "kl": kl, "valid_frac": valid.mean()}
@@ -300,8 +311,6 @@ class SVAE(SequentialVAE):
     a_1..a_{t-1}, so reconstructions are conditioned on the actions.
     """
 
-    recurrent: ClassVar[bool] = True
-
     @property
     def _conv(self) -> FrameFeatures:
         c = self.config
@@ -391,7 +400,7 @@ class DSA(SequentialVAE):
     paper's DSA, `gru`, `rnn`, `conv`, `fc`); the prior stays a causal LSTM.
     """
 
-    recurrent: ClassVar[bool] = True
+    hybrid_vmapped: ClassVar[bool] = True
 
     def __post_init__(self) -> None:
         super().__post_init__()
