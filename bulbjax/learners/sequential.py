@@ -98,8 +98,8 @@ class SequentialVAE:
     per_seed_frames: str = ""
     sequential: ClassVar[bool] = True
     # Whether the "hybrid" seed loop vmaps this learner (`loop.with_seed_loop`): worth it where
-    # LSTMs are a large share of an update (DSA: three; H100, 6 seeds, 5.71 -> 5.18 ms per
-    # seed-update), not for SVAE's one (4.25 -> 4.32 ms; `benchmarks/bench_seed_axis.py`).
+    # LSTMs are a large share of an update (DSA: three; H100, 6 seeds, 5.74 -> 5.03 ms per
+    # seed-update), not for SVAE's one (4.25 -> 4.28 ms; `benchmarks/bench_seed_axis.py`).
     hybrid_vmapped: ClassVar[bool] = False
 
     def __post_init__(self) -> None:
@@ -201,9 +201,10 @@ class SequentialVAE:
             logits = self._decode_logits(d[0], d[1])
             return optax.sigmoid_binary_cross_entropy(logits, _unit_frames(f)).sum(axis=(2, 3, 4))
         n = jnp.maximum(valid.sum(), 1.0)
+        diff = ({"decoder": params["decoder"]}, z)  # what the decoder reads: its gradient alone
         if self.per_seed_frames:
-            return per_seed_loss(nll)((params, z), frames, valid / n)
-        return (nll((params, z), frames) * valid).sum() / n
+            return per_seed_loss(nll)(diff, frames, valid / n)
+        return (nll(diff, frames) * valid).sum() / n
 
     # ------------------------------------------------------------------ interface
     def init(self, key: jax.Array, frame_shape: tuple[int, int, int]) -> LearnerState:
