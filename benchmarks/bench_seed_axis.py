@@ -18,7 +18,10 @@ at a time (`per_seed_frames`), the LSTMs batched.
     python benchmarks/bench_seed_axis.py --small                                # CPU smoke (~1 min)
 
 With `--trace DIR`, the timed calls of each form run inside a host annotation `bj_timed_<form>`;
-`trace_summary.py DIR --window bj_timed_<form>` gives each one's device time and busy share.
+`trace_summary.py DIR --window bj_timed_<form>` gives each one's device time and busy share. The
+trace starts before anything runs on the device: begun after the first computations, it crashed
+on the H100 with CUDA_ERROR_LAUNCH_FAILED (2026-11-25, as `profile_epoch.py --trace` did; starting
+first is what `--trace-from-start` does there). Not yet run on the GPU since.
 
 Writes <out>/seed_axis_<device>_<stamp>.json and prints a table.
 """
@@ -77,6 +80,8 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     batch = learner.batch_size
     k = jax.random.PRNGKey(0)
     steps = (learner.window_length,) if seq else ()
+    if a.trace:  # before anything runs on the device (see the module docstring)
+        jax.profiler.start_trace(a.trace)
     frames = jax.random.randint(k, (seeds, a.capacity) + steps + (res, res, 3), 0, 256,
                                 dtype=jnp.int32).astype(jnp.uint8)
     if seq:  # random windows: actions, states and valid as the learner's input checks want them
@@ -104,8 +109,6 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
                            "compute_dtype": learner.config.compute_dtype, "rnn_unroll": learner.config.rnn_unroll,
                            "device_kind": jax.devices()[0].device_kind,
                            "jax": jax.__version__, "argv": sys.argv if argv is None else argv}
-    if a.trace:
-        jax.profiler.start_trace(a.trace)
     calls = {**{n: (lambda f=f: f(states, frames, keys)) for n, f in forms.items()},
              "single_seed": lambda: single(st0, fr0, keys[0])}
     if a.forms:
