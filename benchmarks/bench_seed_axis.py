@@ -8,9 +8,11 @@ seeds take 0.48 s, 8 ms per seed-update, against 4.1 ms for the same update alon
 grouped one (feature groups = seeds), which cuDNN may run far slower than S ordinary ones. This
 measures that, on random uint8 frames held on the device (the gather from a [S, 5000, 64, 64, 3]
 replay buffer included, as in the epoch). Sequential learners (svae, pred, dsa) train on windows
-of random frames (`--capacity` windows of `sequence_length` steps per seed) and add the form
-"hybrid" (`--seed-loop hybrid` of the experiment): vmapped over seeds, the frame networks one seed
-at a time (`per_seed_frames`), the LSTMs batched.
+of random frames (`--capacity` windows of `sequence_length` steps per seed); svae and dsa add the
+forms "hybrid_remat" (what `--seed-loop hybrid` of the experiment runs for DSA) and
+"hybrid_saved": vmapped over seeds, the frame networks one seed at a time (`per_seed_frames`,
+the conv stack's forward recomputed in its backward loop or its activations saved), the LSTMs
+batched.
 
     python benchmarks/bench_seed_axis.py --bf16 --out "$OUT"                    # GPU
     python benchmarks/bench_seed_axis.py --learner dsa --bf16 --rnn-unroll 4 --capacity 200 \

@@ -193,14 +193,15 @@ class SequentialVAE:
         logits = dec.apply({"params": params["decoder"]}, z.reshape((b * t, -1)))
         return logits.reshape((b, t) + logits.shape[1:])
 
-    def _recon(self, params: Any, z: jax.Array, frames: jax.Array, valid: jax.Array) -> jax.Array:
+    def _recon(self, params: Any, z: jax.Array, frames: jax.Array, valid: jax.Array, n: jax.Array
+               ) -> jax.Array:
         """Bernoulli negative log-likelihood of uint8 frames [B, T, R, R, 3] under the decoder
-        of latents z [B, T, Z], per valid frame (`valid` float [B, T]). With `per_seed_frames`,
-        decoder and likelihood run one seed at a time, value and gradient in one loop."""
+        of latents z [B, T, Z], summed over the valid frames (`valid` float [B, T]) and divided by
+        `n`. With `per_seed_frames`, decoder and likelihood run one seed at a time, value and
+        gradient in one loop."""
         def nll(d: tuple[Any, jax.Array], f: jax.Array) -> jax.Array:
             logits = self._decode_logits(d[0], d[1])
             return optax.sigmoid_binary_cross_entropy(logits, _unit_frames(f)).sum(axis=(2, 3, 4))
-        n = jnp.maximum(valid.sum(), 1.0)
         diff = ({"decoder": params["decoder"]}, z)  # what the decoder reads: its gradient alone
         if self.per_seed_frames:
             return per_seed_loss(nll)(diff, frames, valid / n)
@@ -221,7 +222,7 @@ class SequentialVAE:
         x, a_prev, valid = self._inputs(params, windows, self.window_length)
         z, kl_steps, kl_seq = self._loss_parts(params, x, a_prev, key)
         n = jnp.maximum(valid.sum(), 1.0)
-        recon = self._recon(params, z, x, valid)
+        recon = self._recon(params, z, x, valid, n)
         kl = ((kl_steps * valid).sum() + kl_seq.sum()) / n
         loss = recon + self.config.beta * kl
         return loss, {"loss": loss, "recon": recon, "kl": kl, "valid_frac": valid.mean()}
