@@ -27,6 +27,7 @@ import argparse
 import contextlib
 import dataclasses
 import datetime as dt
+import functools
 import json
 import os
 import statistics
@@ -46,7 +47,8 @@ from timing import time_fn  # noqa: E402
 from bulbjax.envs import registry  # noqa: E402
 from bulbjax.experiment import report, small_config  # noqa: E402
 from bulbjax.experiment.config import ExperimentConfig, preset  # noqa: E402
-from bulbjax.experiment.loop import Experiment, without_probes  # noqa: E402
+from bulbjax.experiment.loop import Experiment  # noqa: E402
+from bulbjax.experiment.programs import without_probes  # noqa: E402
 from bulbjax.learners import parse_learner_options  # noqa: E402
 
 
@@ -64,6 +66,9 @@ def add_config_args(p: argparse.ArgumentParser) -> None:
                    help="a LearnerConfig field (repeatable), e.g. channel_pad=8 or bias_grad=split")
     p.add_argument("--seed-loop", default="", choices=("", "auto", "vmap", "map", "hybrid"),
                    help="learner work over the seed axis (default: the preset's)")
+    p.add_argument("--programs", default="", choices=("", "auto", "fused", "split"),
+                   help="init and the epoch as one program each or several (ExperimentConfig.programs; "
+                        "default: the preset's)")
     p.add_argument("--no-shared-updates", action="store_true",
                    help="one update and probe program per frame VAE, not one for vae/vae_rpl/beta_vae "
                         "(ExperimentConfig.shared_updates)")
@@ -71,7 +76,7 @@ def add_config_args(p: argparse.ArgumentParser) -> None:
 
 def build_config(a: argparse.Namespace) -> ExperimentConfig:
     """The preset with the domain's PPO settings, then --small, --seeds, --learners, --bf16,
-    --deconv-impl, --rnn-unroll, --learner-option, --seed-loop, --no-shared-updates."""
+    --deconv-impl, --rnn-unroll, --learner-option, --seed-loop, --no-shared-updates, --programs."""
     cfg = preset(a.preset)
     cfg = cfg.replace(ppo=registry.ppo_config_for(cfg.env, cfg.ppo))
     if a.small:
@@ -94,6 +99,8 @@ def build_config(a: argparse.Namespace) -> ExperimentConfig:
         cfg = cfg.replace(learner_seed_loop=a.seed_loop)
     if a.no_shared_updates:
         cfg = cfg.replace(shared_updates=False)
+    if getattr(a, "programs", ""):
+        cfg = cfg.replace(programs=a.programs)
     return cfg
 
 
@@ -136,6 +143,8 @@ def profile(cfg: ExperimentConfig, repeats: int, warm_epochs: int, trace_dir: st
         t0 = time.perf_counter()
         progs = exp.programs((True, False))
         out["trace_s"] = time.perf_counter() - t0
+        out["split_programs"] = progs.split
+        out["programs"] = progs.names
         t0 = time.perf_counter()
         progs.prepare("init")
         t_lower_init = time.perf_counter() - t0
@@ -172,7 +181,12 @@ def profile(cfg: ExperimentConfig, repeats: int, warm_epochs: int, trace_dir: st
             if tag not in tags:
                 continue
             k = jax.random.fold_in(key, 100 + probe)
-            if program == "flag":  # one program for both tags: compiled once per variant
+            if program == "flag" and progs.split:  # the split programs, as a run calls them
+                if vopts:
+                    raise ValueError("--variant compiles the fused epoch program: use --programs fused")
+                compiled = functools.partial(progs.epoch, probe=probe)
+                lower_s, compile_s = out["lower_s"], out["epoch_ready_s"]
+            elif program == "flag":  # one program for both tags: compiled once per variant
                 if vi == 0 and not vopts:
                     flag_variant = (flag_compiled, out["lower_s"], out["epoch_ready_s"])
                 elif flag_variant is None:
@@ -194,9 +208,8 @@ def profile(cfg: ExperimentConfig, repeats: int, warm_epochs: int, trace_dir: st
             if vi == 0:
                 compiled_by_tag[tag] = compiled
                 if hlo_dir:  # the executable's optimised HLO, for trace_summary's scopes
-                    exe = flag_compiled if program == "flag" else compiled
                     with open(os.path.join(hlo_dir, f"epoch_{program}_{tag}.hlo.txt"), "w") as f:
-                        f.write(exe.as_text())
+                        f.write(_hlo_text(flag_compiled if program == "flag" else compiled))
             log(f"[{vname}] fused epoch ({tag}): lower {lower_s:.1f} s, compile {compile_s:.1f} s")
             times, get_s, rec_s, ffi = [], [], [], []
             for i in range(warm_epochs + repeats):
@@ -245,7 +258,7 @@ def profile(cfg: ExperimentConfig, repeats: int, warm_epochs: int, trace_dir: st
             d = os.path.join(trace_dir, tag)
             os.makedirs(d, exist_ok=True)
             with open(os.path.join(d, "epoch.hlo.txt"), "w") as f:  # instruction -> phase scope
-                f.write((flag_compiled if program == "flag" else comp).as_text())  # (trace_summary.hlo_scopes)
+                f.write(_hlo_text(flag_compiled if program == "flag" else comp))  # (trace_summary.hlo_scopes)
             with jax.profiler.trace(d):
                 for i in range(2):
                     rs, m = comp(rs, jax.random.fold_in(key, 200 + i))
@@ -287,6 +300,13 @@ def profile(cfg: ExperimentConfig, repeats: int, warm_epochs: int, trace_dir: st
     out["done"] = True
     save(out)
     return out
+
+
+def _hlo_text(exe: Any) -> str:
+    """An executable's optimised HLO; split programs (a dict of them) one after another."""
+    if isinstance(exe, dict):
+        return "\n".join(e.as_text() for e in exe.values())
+    return exe.as_text()
 
 
 def _with_flag(compiled: Callable, flag: jax.Array, probe: bool) -> Callable:

@@ -11,6 +11,8 @@ from bulbjax.rl.ppo import PPOConfig
 
 # How learner work may run over the seed axis (`ExperimentConfig.learner_seed_loop`).
 SEED_LOOPS = ("auto", "vmap", "map", "hybrid")
+# How init and the epoch are compiled (`ExperimentConfig.programs`).
+PROGRAM_FORMS = ("auto", "fused", "split")
 
 # Default window length of the sequential learners per domain (paper Sec. IV.A).
 SEQUENCE_LENGTHS: dict[str, int] = {"CartPole": 24, "InvertedPendulum": 24, "HalfCheetah": 16, "Ant": 16}
@@ -77,6 +79,12 @@ class ExperimentConfig:
     # traced and compiled once instead of once per learner, the probe MLPs of all of them fitted
     # side by side. The same numbers either way, up to floating-point reassociation.
     shared_updates: bool = True
+    # How init and the epoch are compiled (`loop.resolve_programs`): "fused" (one program each),
+    # "split" (`programs.Stages`: the environment work, each learner unit's updates, the held-out
+    # rollouts and each unit's probes as programs of their own, compiled side by side: XLA
+    # compiles one program on one thread) or "auto" (split on one GPU, else fused). The same
+    # numbers either way, up to floating-point reassociation.
+    programs: str = "auto"
 
     @property
     def rl_learner(self) -> str | None:
@@ -110,6 +118,8 @@ class ExperimentConfig:
                                  f"its learners: {', '.join(self.learners)}")
         if self.learner_seed_loop not in SEED_LOOPS:
             raise ValueError(f"learner_seed_loop must be one of {SEED_LOOPS}, got {self.learner_seed_loop!r}")
+        if self.programs not in PROGRAM_FORMS:
+            raise ValueError(f"programs must be one of {PROGRAM_FORMS}, got {self.programs!r}")
         if not (self.version == "random" or (isinstance(self.version, int) and self.version >= 0)):
             raise ValueError(f"version must be an int >= 0 or 'random', got {self.version!r}")
         for name in ("seeds", "epochs", "num_envs", "ppo_updates_per_epoch", "learner_batches",

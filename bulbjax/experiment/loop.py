@@ -20,9 +20,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import threading
-from concurrent.futures import Future
-from typing import Any, Callable, Mapping, Sequence
+from typing import Any, Callable, Mapping, NamedTuple, Sequence
 
 import jax
 import jax.numpy as jnp
@@ -37,7 +35,7 @@ from bulbjax.data.sequence import Windows
 from bulbjax.envs.base import EnvState, MjxPixelEnv
 from bulbjax.envs.render import warp_devices
 from bulbjax.eval import objects, probe
-from bulbjax.experiment.config import SEED_LOOPS, ExperimentConfig
+from bulbjax.experiment.config import PROGRAM_FORMS, SEED_LOOPS, ExperimentConfig
 from bulbjax.learners import is_sequential, make_learner
 from bulbjax.rl.ppo import PPO, PPOState, Transition
 
@@ -139,6 +137,21 @@ class RunState:
     epoch: jax.Array
 
 
+class EnvStage(NamedTuple):
+    """What `Experiment.env_stage` hands on to the rest of an epoch."""
+
+    ppo: PPOState
+    train_env: EnvState
+    buffers: dict
+    windows: dict
+    train_hist: PolicyHistory | None
+    metrics: dict
+    epoch: jax.Array
+    k_learn: jax.Array
+    k_eval: jax.Array
+    k_probe: jax.Array
+
+
 SEED_AXIS, WORLD_AXIS = "seeds", "worlds"
 
 
@@ -212,6 +225,21 @@ def resolve_seed_loop(choice: str, mesh: Mesh) -> str:
         return choice
     platform = mesh.devices.flat[0].platform
     return "hybrid" if platform != "cpu" and mesh.size == 1 else "vmap"
+
+
+def resolve_programs(choice: str, mesh: Mesh) -> str:
+    """How init and the epoch are compiled (`ExperimentConfig.programs`): "auto" is "split" on
+    one GPU (its compile is the slow one: minutes for a six-learner epoch as one program) and
+    "fused" elsewhere (one device of the CPU: one program traces and compiles sooner on few
+    cores; several devices: the layouts are set on the fused programs)."""
+    if choice not in PROGRAM_FORMS:
+        raise ValueError(f"programs must be one of {PROGRAM_FORMS}, got {choice!r}")
+    if choice == "split" and mesh.size > 1:
+        raise ValueError("programs='split' runs on one device; this run's mesh has "
+                         f"{mesh.size} devices: use 'fused' (or 'auto')")
+    if choice != "auto":
+        return choice
+    return "split" if mesh.size == 1 and mesh.devices.flat[0].platform == "gpu" else "fused"
 
 
 def with_seed_loop(learner: Any, loop: str) -> Any:
@@ -389,6 +417,8 @@ class Experiment:
         self.mesh = make_mesh(devices or jax.devices()[:1], c.seeds, c.num_envs)
         self.sharded = self.mesh.size > 1
         self.seed_loop = resolve_seed_loop(c.learner_seed_loop, self.mesh)
+        # init and the epoch as one program each, or as several compiled side by side (`Stages`)
+        self.split_programs = resolve_programs(c.programs, self.mesh) == "split"
         try:
             self.env: MjxPixelEnv = bulbjax.make(c.env, num_envs=c.seeds * c.num_envs // self.mesh.size,
                                                  resolution=c.resolution, render=True,
@@ -440,7 +470,7 @@ class Experiment:
         self._rep = NamedSharding(self.mesh, P())
         shapes = jax.eval_shape(self._init, jax.random.PRNGKey(0))
         self._state_sh = self.state_shardings(shapes)
-        self._programs: dict[tuple[bool, ...], Programs] = {}
+        self._programs: dict[tuple[bool, ...], Any] = {}
         # traced once here: every later use reads this, so that a process's sequence of traces
         # (which numbers MuJoCo Warp's FFI calls, see `Programs`) does not depend on how often
         # it asks for the state's shapes
@@ -518,12 +548,13 @@ class Experiment:
         """Shapes, dtypes and shardings of the RunState (what a checkpoint is restored into)."""
         return self._abstract_state
 
-    def programs(self, probes: Sequence[bool] = (True, False)) -> "Programs":
+    def programs(self, probes: Sequence[bool] = (True, False)) -> Any:
         """The init and epoch executables of a run (`probes`: which epochs it runs), traced in
         one fixed order before anything runs; see `Programs`. Kept per `probes`, so that several
         runs of one experiment in a process (tests) compile once."""
         probes = tuple(bool(p) for p in probes)
         if probes not in self._programs:
+            from bulbjax.experiment.programs import Programs  # (it builds on this module)
             self._programs[probes] = Programs(self, probes)
         return self._programs[probes]
 
@@ -789,15 +820,26 @@ class Experiment:
 
     # ------------------------------------------------------------------ init
     def _init(self, key: jax.Array) -> RunState:
+        """The run state before the first epoch: `init_env`'s, with every learner's `init_learner`."""
+        return self.init_env(key).replace(learners={n: self.init_learner(n, key) for n in self.learners})
+
+    def init_learner(self, name: str, key: jax.Array) -> Any:
+        """Learner `name`'s state for every seed `[S]`, from the run's init key."""
+        k_learn = jax.random.split(key, 5)[1]
+        keys = jax.random.split(jax.random.fold_in(k_learn, list(self.learners).index(name)), self.S)
+        learner = self.learners[name]
+        # one seed at a time: the same parameters as a vmap, and on the GPU a much cheaper
+        # compile for DSA (its init over 6 seeds: 23 s under lax.map, 40 s vmapped; H100)
+        return jax.lax.map(lambda k: learner.init(k, self.env.frame_shape), keys)
+
+    def init_env(self, key: jax.Array) -> RunState:
+        """The run state before the first epoch without the learners' states (`learners={}`):
+        PPO, the worlds, replay and window buffers filled by the random policy, the reference
+        spread."""
         c = self.config
-        k_ppo, k_learn, k_env, k_fill, k_keep = jax.random.split(key, 5)
+        k_ppo, _, k_env, k_fill, k_keep = jax.random.split(key, 5)
         ppo_state = jax.vmap(self.ppo.init)(jax.random.split(k_ppo, self.S))
-        learners = {}
-        for i, (name, learner) in enumerate(self.learners.items()):
-            keys = jax.random.split(jax.random.fold_in(k_learn, i), self.S)
-            # one seed at a time: the same parameters as a vmap, and on the GPU a much cheaper
-            # compile for DSA (its init over 6 seeds: 23 s under lax.map, 40 s vmapped; H100)
-            learners[name] = jax.lax.map(lambda k, l=learner: l.init(k, self.env.frame_shape), keys)
+        learners: dict[str, Any] = {}
         ke = jax.random.split(k_env, 4)
         train_env, curr_env, rand_env = (self._env_reset(k) for k in ke[:3])
         # The reference spread of every state entry, once per run: the random policy's held-out
@@ -938,38 +980,51 @@ class Experiment:
         """The seed loop ("map" or "vmap") of `learner`'s work (`learner_loop`)."""
         return learner_loop(self.seed_loop, self.learners.get(learner))
 
+    def units(self) -> list[tuple[str, ...]]:
+        """The learners in the units that one update (and probe) program serves, in order: a
+        group of VAEs sharing one program (`update_groups`, `ExperimentConfig.shared_updates`)
+        or one learner alone. A unit's work reads only its own members' states (and the
+        buffers), so units run in any order, fused in one epoch or as programs of their own
+        (`Stages`)."""
+        return update_groups(self.learners, self.config.shared_updates)
+
     def learn_phase(self, learners: dict, buffers: dict, key: jax.Array,
                     windows: dict | None = None) -> tuple[dict, dict]:
         """`learner_batches` updates of every learner on batches sampled from its replay buffer:
         `learner.batch_size` frames (frame learners) or windows (sequential learners: the frame
-        batch divided by the sequence length, the paper's equalised compute)."""
-        c = self.config
+        batch divided by the sequence length, the paper's equalised compute). One `learn_unit`
+        per unit (`units`)."""
         out, metrics = {}, {}
-        for group in update_groups(self.learners, c.shared_updates):
-            if len(group) == 1:
-                continue
-            with jax.named_scope(f"bj.learn.{'+'.join(group)}"):
-                states, m = self._learn_group(group, learners, buffers, key)
+        for unit in self.units():
+            with jax.named_scope(f"bj.learn.{'+'.join(unit)}"):
+                states, m = self.learn_unit(unit, learners, buffers, key, windows)
             out.update(states)
-            metrics.update({n: jax.tree.map(lambda x: x.mean(-1), mm) for n, mm in m.items()})
-        for i, (name, learner) in enumerate(self.learners.items()):
-            seq = self.sequential[name]
-            if name in out:
-                continue
-
-            def train_seed(state, b, k, learner=learner, seq=seq):
-                if seq:
-                    sample = lambda kk: sequence.sample(b, kk, learner.batch_size)  # noqa: E731
-                else:
-                    sample = lambda kk: replay.sample(b, kk, learner.batch_size)[0]  # noqa: E731
-                return train_learner(learner, state, sample, k, c.learner_batches)
-
-            keys = jax.random.split(jax.random.fold_in(key, i), self.S)
-            buf = (windows if seq else buffers)[buffer_key(self.retention[name])]
-            with jax.named_scope(f"bj.learn.{name}"):
-                out[name], m = self.over_seeds(train_seed, learners[name], buf, keys, learner=name)
-            metrics[name] = jax.tree.map(lambda x: x.mean(-1), m)
+            metrics.update(m)
         return {n: out[n] for n in self.learners}, {n: metrics[n] for n in self.learners}
+
+    def learn_unit(self, unit: Sequence[str], learners: dict, buffers: dict, key: jax.Array,
+                   windows: dict | None = None) -> tuple[dict, dict]:
+        """`learn_phase` for one unit (`units`): its members' new states and per-seed mean
+        metrics. `key` is the epoch's learning key; each member's keys are folded in with its
+        position among all learners, so a unit gets the same keys alone as in the whole phase."""
+        c = self.config
+        if len(unit) > 1:
+            states, m = self._learn_group(unit, learners, buffers, key)
+            return states, {n: jax.tree.map(lambda x: x.mean(-1), mm) for n, mm in m.items()}
+        (name,) = unit
+        learner, seq, i = self.learners[name], self.sequential[name], list(self.learners).index(name)
+
+        def train_seed(state, b, k):
+            if seq:
+                sample = lambda kk: sequence.sample(b, kk, learner.batch_size)  # noqa: E731
+            else:
+                sample = lambda kk: replay.sample(b, kk, learner.batch_size)[0]  # noqa: E731
+            return train_learner(learner, state, sample, k, c.learner_batches)
+
+        keys = jax.random.split(jax.random.fold_in(key, i), self.S)
+        buf = (windows if seq else buffers)[buffer_key(self.retention[name])]
+        state, m = self.over_seeds(train_seed, learners[name], buf, keys, learner=name)
+        return {name: state}, {name: jax.tree.map(lambda x: x.mean(-1), m)}
 
     def _group_inputs(self, group: Sequence[str], buffers: dict, key: jax.Array
                       ) -> tuple[Any, tuple, jax.Array, jax.Array]:
@@ -1046,36 +1101,39 @@ class Experiment:
         per-step latents of replay windows (probe_train_frames valid steps drawn from them) and
         of the held-out windows; the latent at step t is matched with the state at step t.
         Learners with boxes (SPAIR) in domains with objects also get the object-level probe
-        on the same held-out steps, per stream under `"objects"` (`_object_scorer`)."""
-        c = self.config
+        on the same held-out steps, per stream under `"objects"` (`_object_scorer`). One
+        `probe_unit` per unit (`units`)."""
         out = {}
-        for group in update_groups(self.learners, c.shared_updates):
-            if len(group) > 1:
-                with jax.named_scope(f"bj.probe.{'+'.join(group)}"):
-                    out.update(self._probe_group(group, learners, buffers, held_out, key))
-        for i, (name, learner) in enumerate(self.learners.items()):
-            seq = self.sequential[name]
-            if name in out:
-                continue
-
-            def latents_seed(k_c, k_s, lstate, b, held, learner=learner, seq=seq):
-                if seq:
-                    train = sequence.sample(b, k_s, -(-c.probe_train_frames // learner.sequence_length))
-                else:
-                    frames, states, extras = replay.sample_with_extras(b, k_s, c.probe_train_frames)
-                    train = (frames, states, extras["world"])
-                return probe_latents(learner, lstate.params, train, held, k_c, c.probe, c.probe_train_frames)
-
-            def fit_seed(lat, k_f, k_s, lstate, b, held, learner=learner):
-                return fit_and_score(lat, held, k_f, c.probe, self._object_scorer(learner))
-
-            keys = jax.random.split(jax.random.fold_in(key, i), self.S)
-            k_s, k_p = jax.vmap(jax.random.split)(keys).swapaxes(0, 1)
-            buf = (windows if seq else buffers)[buffer_key(self.retention[name])]
-            with jax.named_scope(f"bj.probe.{name}"):
-                out[name] = probe_over_seeds(self.loop_of(name), latents_seed, fit_seed, k_p,
-                                             k_s, learners[name], buf, held_out)
+        for unit in self.units():
+            with jax.named_scope(f"bj.probe.{'+'.join(unit)}"):
+                out.update(self.probe_unit(unit, learners, buffers, held_out, key, windows))
         return {n: out[n] for n in self.learners}
+
+    def probe_unit(self, unit: Sequence[str], learners: dict, buffers: dict, held_out: dict,
+                   key: jax.Array, windows: dict | None = None) -> dict:
+        """`probe_phase` for one unit (`units`), with the keys its members get in the whole phase."""
+        c = self.config
+        if len(unit) > 1:
+            return self._probe_group(unit, learners, buffers, held_out, key)
+        (name,) = unit
+        learner, seq, i = self.learners[name], self.sequential[name], list(self.learners).index(name)
+
+        def latents_seed(k_c, k_s, lstate, b, held):
+            if seq:
+                train = sequence.sample(b, k_s, -(-c.probe_train_frames // learner.sequence_length))
+            else:
+                frames, states, extras = replay.sample_with_extras(b, k_s, c.probe_train_frames)
+                train = (frames, states, extras["world"])
+            return probe_latents(learner, lstate.params, train, held, k_c, c.probe, c.probe_train_frames)
+
+        def fit_seed(lat, k_f, k_s, lstate, b, held):
+            return fit_and_score(lat, held, k_f, c.probe, self._object_scorer(learner))
+
+        keys = jax.random.split(jax.random.fold_in(key, i), self.S)
+        k_s, k_p = jax.vmap(jax.random.split)(keys).swapaxes(0, 1)
+        buf = (windows if seq else buffers)[buffer_key(self.retention[name])]
+        return {name: probe_over_seeds(self.loop_of(name), latents_seed, fit_seed, k_p,
+                                       k_s, learners[name], buf, held_out)}
 
     def _probe_group(self, group: Sequence[str], learners: dict, buffers: dict, held_out: dict,
                      key: jax.Array) -> dict:
@@ -1106,41 +1164,66 @@ class Experiment:
         lat = self.over_seeds(latents_seed, k_c, k_s, states, bufs, held_out)
         return unstack_members(jax.vmap(fit_seed)(lat, k_f, held_out), group)
 
+    def _rl_learners(self, learners: dict) -> dict | None:
+        """The learner states PPO's policy reads (its `rl_input` learner's), None when it reads none."""
+        return None if self.rl_learner is None else {self.rl_learner: learners[self.rl_learner]}
+
+    def env_stage(self, ppo_state: PPOState, train_env: EnvState, buffers: dict, windows: dict,
+                  train_hist: PolicyHistory | None, learners: dict | None, ref_spread: jax.Array,
+                  epoch: jax.Array, key: jax.Array) -> "EnvStage":
+        """An epoch's environment work, before any learner updates: PPO (rollouts and updates),
+        frames of its rollouts into replay, windows into the window buffers; the epoch's
+        metrics of it, its counter moved on, and the keys of the later phases. `learners`: the
+        states PPO's policy reads (`_rl_learners`)."""
+        k_rl, k_rep, k_learn, k_eval, k_probe = jax.random.split(key, 5)
+        # named scopes label each phase's ops in a profiler trace (benchmarks/trace_summary.py)
+        with jax.named_scope("bj.rl"):
+            ppo_state, train_env, ppo_m, ret_sum, count, steps, train_hist = self.rl_phase(
+                ppo_state, train_env, k_rl, learners, train_hist)
+        with jax.named_scope("bj.replay"):
+            buffers = self.replay_phase(buffers, steps, k_rep)
+        with jax.named_scope("bj.windows"):
+            windows = self.window_phase(windows, steps, jax.random.fold_in(k_rep, 1))
+        metrics = {
+            "rl_return": jnp.where(count > 0, ret_sum / jnp.maximum(count, 1), jnp.nan),
+            "rl_episodes": count,
+            "ppo": ppo_m,
+            "ref_spread": jnp.broadcast_to(ref_spread, (self.S,) + ref_spread.shape),
+            "replay_dropped": {**{k: b.num_dropped for k, b in buffers.items()},
+                               **{f"windows_{k}": b.num_dropped for k, b in windows.items()}},
+        }
+        return EnvStage(ppo_state, train_env, buffers, windows, train_hist, metrics, epoch + 1,
+                        k_learn, k_eval, k_probe)
+
+    def eval_stage(self, ppo_state: PPOState, curr_env: EnvState, rand_env: EnvState,
+                   rl_learners: dict | None, curr_hist: PolicyHistory | None, key: jax.Array) -> tuple:
+        """A probing epoch's held-out rollouts (`eval_phase`); `rl_learners`: the updated states
+        PPO's policy reads (`_rl_learners`)."""
+        with jax.named_scope("bj.eval"):
+            return self.eval_phase(ppo_state, curr_env, rand_env, key, rl_learners, curr_hist)
+
     def _epoch(self, rs: RunState, key: jax.Array, probe: bool | jax.Array = True
                ) -> tuple[RunState, dict[str, Any]]:
         """One epoch; with `probe=False` no held-out rollout or probe (metrics without `probes`).
         A traced boolean `probe` (`epoch_flag`) puts both in one program: the held-out rollouts
         and probes run under `lax.cond`, and the metrics always have `probes` (NaN or 0 where the
-        epoch did not probe; `Programs.epoch` drops them)."""
-        k_rl, k_rep, k_learn, k_eval, k_probe = jax.random.split(key, 5)
+        epoch did not probe; `Programs.epoch` drops them). `Stages` runs the same steps
+        (`env_stage`, `learn_unit`, `eval_stage`, `probe_unit`) as programs of their own."""
         hist = dict(rs.policy_history)
-        # named scopes label each phase's ops in a profiler trace (benchmarks/trace_summary.py)
-        with jax.named_scope("bj.rl"):
-            ppo_state, train_env, ppo_m, ret_sum, count, steps, train_hist = self.rl_phase(
-                rs.ppo, rs.train_env, k_rl, rs.learners, hist.get("train"))
-        if train_hist is not None:
-            hist["train"] = train_hist
-        with jax.named_scope("bj.replay"):
-            buffers = self.replay_phase(rs.buffers, steps, k_rep)
-        with jax.named_scope("bj.windows"):
-            windows = self.window_phase(rs.windows, steps, jax.random.fold_in(k_rep, 1))
-        learners, learn_m = self.learn_phase(rs.learners, buffers, k_learn, windows)
-        metrics = {
-            "rl_return": jnp.where(count > 0, ret_sum / jnp.maximum(count, 1), jnp.nan),
-            "rl_episodes": count,
-            "ppo": ppo_m,
-            "learners": learn_m,
-            "ref_spread": jnp.broadcast_to(rs.ref_spread, (self.S,) + rs.ref_spread.shape),
-            "replay_dropped": {**{k: b.num_dropped for k, b in buffers.items()},
-                               **{f"windows_{k}": b.num_dropped for k, b in windows.items()}},
-        }
+        env = self.env_stage(rs.ppo, rs.train_env, rs.buffers, rs.windows, hist.get("train"),
+                             self._rl_learners(rs.learners), rs.ref_spread, rs.epoch, key)
+        if env.train_hist is not None:
+            hist["train"] = env.train_hist
+        ppo_state, train_env, buffers, windows = env.ppo, env.train_env, env.buffers, env.windows
+        k_eval, k_probe = env.k_eval, env.k_probe
+        learners, learn_m = self.learn_phase(rs.learners, buffers, env.k_learn, windows)
+        metrics = {**env.metrics, "learners": learn_m}
         curr_env, rand_env = rs.curr_env, rs.rand_env
 
         def evaluate(ops: tuple) -> tuple:
             curr_env, rand_env, curr_hist, ppo_state, learners, buffers, windows = ops
-            with jax.named_scope("bj.eval"):
-                curr_env, rand_env, held_out, curr_hist = self.eval_phase(ppo_state, curr_env, rand_env, k_eval,
-                                                                          learners, curr_hist)
+            curr_env, rand_env, held_out, curr_hist = self.eval_stage(ppo_state, curr_env, rand_env,
+                                                                      self._rl_learners(learners), curr_hist, k_eval)
             return curr_env, rand_env, curr_hist, self.probe_phase(learners, buffers, held_out, k_probe, windows)
 
         ops = (curr_env, rand_env, hist.get("curr"), ppo_state, learners, buffers, windows)
@@ -1171,7 +1254,7 @@ class Experiment:
                 hist["curr"] = curr_hist
         new = RunState(ppo=ppo_state, learners=learners, buffers=buffers, windows=windows,
                        train_env=train_env, curr_env=curr_env, rand_env=rand_env, policy_history=hist,
-                       ref_spread=rs.ref_spread, epoch=rs.epoch + 1)
+                       ref_spread=rs.ref_spread, epoch=env.epoch)
         if self.sharded:  # the next epoch gets the layout this one got
             new = jax.lax.with_sharding_constraint(new, self._state_sh)
         return new, metrics
@@ -1180,95 +1263,3 @@ class Experiment:
 def _blank(s: jax.ShapeDtypeStruct) -> jax.Array:
     """NaN (floats) or 0 of a shape: the probes of an epoch that did not probe."""
     return jnp.full(s.shape, jnp.nan if jnp.issubdtype(s.dtype, jnp.inexact) else 0, s.dtype)
-
-
-class Programs:
-    """A run's init and epoch executables, traced in one fixed order and then only called.
-
-    MuJoCo Warp writes two per-process counters into every program that steps or renders: the
-    FFI target's name (`<function>_<n>`, numbered in the order the targets are first traced)
-    and each call site's `call_id` (numbered in the order the call sites are traced). Both are
-    part of the compiled program and so of its persistent compile-cache key. A process that
-    traced anything else first, or traced the same function twice (a jit call whose arguments
-    differ in placement from an earlier trace retraces it: on the GPU a fresh run's `init` call
-    did, a resumed run never calls `init`), numbers the calls differently and misses the
-    cache: minutes of compile for every resumed stretch on the GPU. Here every process, fresh
-    or resumed, traces `init` and then the epoch on abstract arguments before anything runs,
-    and later calls go to executables compiled from exactly those traces, so nothing is traced
-    again.
-
-    One epoch program: a run that probes every epoch (`probes=(True,)`) gets the probing epoch,
-    one that probes some epochs (`(True, False)`) gets `Experiment.epoch_flag`, whose flag
-    switches the probes on. `prepare(names)` compiles (or loads from the compile cache) in
-    background threads, so that init's and the epoch's compiles overlap each other and a
-    resume's checkpoint restore; a program not prepared compiles on first use."""
-
-    def __init__(self, exp: Experiment, probes: Sequence[bool]) -> None:
-        key, rs = exp.abstract_key(), exp.abstract_state()
-        self._exp = exp
-        self.probes = frozenset(bool(p) for p in probes)
-        if not self.probes:
-            raise ValueError("Programs needs at least one probe value (True, False or both)")
-        self.flag = len(self.probes) == 2
-        self._traced: dict[str, Any] = {"init": exp.init.trace(key)}
-        if self.flag:
-            self._traced["epoch"] = exp.epoch_flag.trace(rs, key, exp.abstract_flag())
-        else:
-            self._traced["epoch"] = exp.epoch.trace(rs, key, probe=next(iter(self.probes)))
-        self._lowered: dict[str, Any] = {}
-        self._compiled: dict[str, Future] = {}
-
-    def lowered(self, which: str) -> Any:
-        """The lowered program (`"init"` or `"epoch"`): what is compiled, e.g. for its text."""
-        if which not in self._lowered:
-            self._lowered[which] = self._traced[which].lower()
-        return self._lowered[which]
-
-    def prepare(self, *which: str) -> "Programs":
-        """Start compiling the named programs (`"init"`, `"epoch"`): each is lowered here, then
-        compiled in a background thread."""
-        for w in which:
-            if w not in self._compiled:
-                self._compiled[w] = _in_thread(self.lowered(w).compile)
-        return self
-
-    def compiled(self, which: str) -> Any:
-        """The compiled program, waiting for (or starting) its compile."""
-        return self.prepare(which)._compiled[which].result()
-
-    def init(self, key: jax.Array) -> RunState:
-        """`Experiment.init` of a host PRNG key (placed on the mesh here)."""
-        return self.compiled("init")(self._exp.put_key(key))
-
-    def epoch(self, rs: RunState, key: jax.Array, probe: bool = True) -> tuple[RunState, Any]:
-        """`Experiment.epoch` (`rs` donated); the key is placed on the mesh here. The metrics of
-        an epoch that does not probe have no `probes`, whichever program ran it."""
-        probe = bool(probe)
-        if probe not in self.probes:
-            raise KeyError(f"this run's epoch was traced for probe in {sorted(self.probes)}, not {probe!r}: "
-                           "pass every probe value the run uses to Experiment.programs")
-        if not self.flag:
-            return self.compiled("epoch")(rs, self._exp.put_key(key))
-        rs, m = self.compiled("epoch")(rs, self._exp.put_key(key), self._exp.put_flag(probe))
-        return rs, m if probe else without_probes(m)
-
-
-def without_probes(metrics: dict[str, Any]) -> dict[str, Any]:
-    """An `epoch_flag` epoch's metrics as a non-probing epoch has them: no `probes` (its NaN/0
-    placeholders dropped)."""
-    return {k: v for k, v in metrics.items() if k != "probes"}
-
-
-def _in_thread(fn: Callable[[], Any]) -> Future:
-    """`fn()` in a daemon thread (an XLA compile releases the GIL), its result as a Future. Daemon:
-    a process that fails meanwhile exits without waiting for a compile it no longer needs."""
-    fut: Future = Future()
-
-    def run() -> None:
-        try:
-            fut.set_result(fn())
-        except BaseException as e:  # re-raised by fut.result() in the caller's thread
-            fut.set_exception(e)
-
-    threading.Thread(target=run, daemon=True, name="bulbjax-compile").start()
-    return fut

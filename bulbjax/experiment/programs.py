@@ -1,0 +1,262 @@
+"""A run's init and epoch executables: traced in one fixed order, compiled side by side, then
+only called (`Programs`); an epoch as one program or as several (`Stages`)."""
+
+from __future__ import annotations
+
+import functools
+import threading
+from concurrent.futures import Future
+from typing import Any, Callable, Sequence
+
+import jax
+
+from bulbjax.experiment.loop import Experiment, RunState
+
+
+class Stages:
+    """Init and the epoch as several programs, run one after another with nothing fetched to the
+    host in between, the same steps in the same order as the fused programs (`Experiment._init`,
+    `Experiment._epoch`) and so the same numbers up to floating-point reassociation.
+
+    Why: XLA compiles one program's HLO passes (fusion, autotuning) on one thread, so a fused
+    six-learner epoch's compile is the sum of its parts (~150 s on an H100), while the parts as
+    programs of their own compile side by side, in threads (`Programs.prepare`). The parts:
+    init's environment half and each learner's init; the epoch's environment work
+    (`Experiment.env_stage`), one update program per unit (`Experiment.units`: the VAE group,
+    each other learner), the held-out rollouts (`eval_stage`) and one probe program per unit,
+    the last two only in epochs that probe (a Python choice: no `lax.cond`). One device only:
+    the sharded run's layouts are set on the fused programs' outputs."""
+
+    def __init__(self, exp: Experiment) -> None:
+        if exp.sharded:
+            raise ValueError("split programs run on one device; a run over several devices uses "
+                             "the fused programs (programs='fused')")
+        self.exp = exp
+        self.units = exp.units()
+        opts = exp.compiler_options or None
+        jit = functools.partial(jax.jit, compiler_options=opts)
+        self.jits: dict[str, Any] = {"init/env": jit(exp.init_env)}
+        for n in exp.learners:
+            self.jits[f"init/learner/{n}"] = jit(functools.partial(exp.init_learner, n))
+        # donated: what the stage replaces (its outputs take their buffers)
+        self.jits["epoch/env"] = jit(exp.env_stage, donate_argnums=(0, 1, 2, 3, 4))
+        for u in self.units:
+            self.jits[self.learn_name(u)] = jit(functools.partial(_learn, exp, u), donate_argnums=0)
+        self.jits["epoch/eval"] = jit(exp.eval_stage, donate_argnums=(1, 2, 4))
+        for u in self.units:
+            self.jits[self.probe_name(u)] = jit(functools.partial(_probe, exp, u))
+
+    @staticmethod
+    def learn_name(unit: Sequence[str]) -> str:
+        return "epoch/learn/" + "+".join(unit)
+
+    @staticmethod
+    def probe_name(unit: Sequence[str]) -> str:
+        return "epoch/probe/" + "+".join(unit)
+
+    def trace(self, probes: bool) -> dict[str, Any]:
+        """Every program traced on abstract arguments, in one fixed order (see `Programs`); the
+        eval and probe programs only if some epoch `probes`."""
+        exp = self.exp
+        rs, key = exp.abstract_state(), exp.abstract_key()
+        hist = rs.policy_history
+        t: dict[str, Any] = {"init/env": self.jits["init/env"].trace(key)}
+        for n in exp.learners:
+            t[f"init/learner/{n}"] = self.jits[f"init/learner/{n}"].trace(key)
+        t["epoch/env"] = self.jits["epoch/env"].trace(rs.ppo, rs.train_env, rs.buffers, rs.windows,
+                                                      hist.get("train"), exp._rl_learners(rs.learners),
+                                                      rs.ref_spread, rs.epoch, key)
+        for u in self.units:
+            t[self.learn_name(u)] = self.jits[self.learn_name(u)].trace(_members(rs.learners, u), rs.buffers,
+                                                                        key, rs.windows)
+        if probes:
+            t["epoch/eval"] = self.jits["epoch/eval"].trace(rs.ppo, rs.curr_env, rs.rand_env,
+                                                            exp._rl_learners(rs.learners), hist.get("curr"), key)
+            held = t["epoch/eval"].out_info[2]
+            for u in self.units:
+                t[self.probe_name(u)] = self.jits[self.probe_name(u)].trace(_members(rs.learners, u), rs.buffers,
+                                                                            held, key, rs.windows)
+        return t
+
+    def init(self, run: Callable[[str], Callable], key: jax.Array) -> RunState:
+        """`Experiment.init` from the programs (`run(name)`: the named executable)."""
+        rs = run("init/env")(key)
+        return rs.replace(learners={n: run(f"init/learner/{n}")(key) for n in self.exp.learners})
+
+    def epoch(self, run: Callable[[str], Callable], rs: RunState, key: jax.Array, probe: bool
+              ) -> tuple[RunState, dict[str, Any]]:
+        """`Experiment.epoch` from the programs (`rs` donated); metrics without `probes` when
+        not probing."""
+        exp = self.exp
+        hist = dict(rs.policy_history)
+        env = run("epoch/env")(rs.ppo, rs.train_env, rs.buffers, rs.windows, hist.get("train"),
+                               exp._rl_learners(rs.learners), rs.ref_spread, rs.epoch, key)
+        if env.train_hist is not None:
+            hist["train"] = env.train_hist
+        learners, learn_m = {}, {}
+        for u in self.units:
+            states, m = run(self.learn_name(u))(_members(rs.learners, u), env.buffers, env.k_learn, env.windows)
+            learners.update(states)
+            learn_m.update(m)
+        learners = {n: learners[n] for n in exp.learners}
+        metrics = {**env.metrics, "learners": {n: learn_m[n] for n in exp.learners}}
+        curr_env, rand_env = rs.curr_env, rs.rand_env
+        if probe:
+            curr_env, rand_env, held, curr_hist = run("epoch/eval")(env.ppo, curr_env, rand_env,
+                                                                    exp._rl_learners(learners), hist.get("curr"),
+                                                                    env.k_eval)
+            if curr_hist is not None:
+                hist["curr"] = curr_hist
+            probes: dict[str, Any] = {}
+            for u in self.units:
+                probes.update(run(self.probe_name(u))(_members(learners, u), env.buffers, held, env.k_probe,
+                                                      env.windows))
+            metrics["probes"] = {n: probes[n] for n in exp.learners}
+        new = RunState(ppo=env.ppo, learners=learners, buffers=env.buffers, windows=env.windows,
+                       train_env=env.train_env, curr_env=curr_env, rand_env=rand_env, policy_history=hist,
+                       ref_spread=rs.ref_spread, epoch=env.epoch)
+        return new, metrics
+
+
+def _members(learners: dict, unit: Sequence[str]) -> dict:
+    return {n: learners[n] for n in unit}
+
+
+def _learn(exp: Experiment, unit: tuple[str, ...], states: dict, buffers: dict, key: jax.Array,
+           windows: dict) -> tuple[dict, dict]:
+    with jax.named_scope(f"bj.learn.{'+'.join(unit)}"):
+        return exp.learn_unit(unit, states, buffers, key, windows)
+
+
+def _probe(exp: Experiment, unit: tuple[str, ...], states: dict, buffers: dict, held: dict, key: jax.Array,
+           windows: dict) -> dict:
+    with jax.named_scope(f"bj.probe.{'+'.join(unit)}"):
+        return exp.probe_unit(unit, states, buffers, held, key, windows)
+
+
+class Programs:
+    """A run's init and epoch executables, traced in one fixed order and then only called.
+
+    MuJoCo Warp writes two per-process counters into every program that steps or renders: the
+    FFI target's name (`<function>_<n>`, numbered in the order the targets are first traced)
+    and each call site's `call_id` (numbered in the order the call sites are traced). Both are
+    part of the compiled program and so of its persistent compile-cache key. A process that
+    traced anything else first, or traced the same function twice (a jit call whose arguments
+    differ in placement from an earlier trace retraces it: on the GPU a fresh run's `init` call
+    did, a resumed run never calls `init`), numbers the calls differently and misses the
+    cache: minutes of compile for every resumed stretch on the GPU. Here every process, fresh
+    or resumed, traces `init` and then the epoch on abstract arguments before anything runs,
+    and later calls go to executables compiled from exactly those traces, so nothing is traced
+    again.
+
+    Fused (`Experiment.split_programs` false): one init and one epoch program. A run that
+    probes every epoch (`probes=(True,)`) gets the probing epoch, one that probes some epochs
+    (`(True, False)`) gets `Experiment.epoch_flag`, whose flag switches the probes on. Split:
+    the programs of `Stages`, named `init/...` and `epoch/...`, traced in their fixed order.
+    `prepare(names)` compiles (or loads from the compile cache) in background threads, so that
+    the programs' compiles overlap each other and a resume's checkpoint restore; a program not
+    prepared compiles on first use. A name is a program's or a group's (`"init"`, `"epoch"`:
+    all the programs of init or of the epoch)."""
+
+    def __init__(self, exp: Experiment, probes: Sequence[bool], split: bool | None = None) -> None:
+        key, rs = exp.abstract_key(), exp.abstract_state()
+        self._exp = exp
+        self.probes = frozenset(bool(p) for p in probes)
+        if not self.probes:
+            raise ValueError("Programs needs at least one probe value (True, False or both)")
+        self.flag = len(self.probes) == 2
+        self.split = exp.split_programs if split is None else bool(split)
+        self._stages: Stages | None = None
+        if self.split:
+            self._stages = Stages(exp)
+            self._traced: dict[str, Any] = self._stages.trace(True in self.probes)
+        else:
+            self._traced = {"init": exp.init.trace(key)}
+            if self.flag:
+                self._traced["epoch"] = exp.epoch_flag.trace(rs, key, exp.abstract_flag())
+            else:
+                self._traced["epoch"] = exp.epoch.trace(rs, key, probe=next(iter(self.probes)))
+        self._lowered: dict[str, Any] = {}
+        self._compiled: dict[str, Future] = {}
+
+    @property
+    def names(self) -> list[str]:
+        """Every program's name, in trace order."""
+        return list(self._traced)
+
+    def members(self, which: str) -> list[str]:
+        """The programs a name stands for: itself, or a group's (`"epoch"` -> `epoch/...`)."""
+        out = [n for n in self._traced if n == which or n.startswith(which + "/")]
+        if not out:
+            raise KeyError(f"no program {which!r}; these programs: {', '.join(self._traced)}")
+        return out
+
+    def lowered(self, which: str) -> Any:
+        """The lowered program (e.g. `"init"`, `"epoch"`, or a split program's name): what is
+        compiled, e.g. for its text."""
+        if which not in self._traced:
+            raise KeyError(f"no single program {which!r}; these programs: {', '.join(self._traced)}")
+        if which not in self._lowered:
+            self._lowered[which] = self._traced[which].lower()
+        return self._lowered[which]
+
+    def prepare(self, *which: str) -> "Programs":
+        """Start compiling the named programs (or groups): each is lowered here, in trace order,
+        then compiled in a background thread of its own."""
+        for w in which:
+            for n in self.members(w):
+                if n not in self._compiled:
+                    self._compiled[n] = _in_thread(self.lowered(n).compile)
+        return self
+
+    def compiled(self, which: str) -> Any:
+        """The compiled program, waiting for (or starting) its compile; for a group's name, every
+        member compiled, as `{name: executable}`."""
+        names = self.members(which)
+        self.prepare(*names)
+        if names == [which]:
+            return self._compiled[which].result()
+        return {n: self._compiled[n].result() for n in names}
+
+    def init(self, key: jax.Array) -> RunState:
+        """`Experiment.init` of a host PRNG key (placed on the mesh here)."""
+        if self._stages is not None:
+            self.prepare("init")
+            return self._stages.init(self.compiled, self._exp.put_key(key))
+        return self.compiled("init")(self._exp.put_key(key))
+
+    def epoch(self, rs: RunState, key: jax.Array, probe: bool = True) -> tuple[RunState, Any]:
+        """`Experiment.epoch` (`rs` donated); the key is placed on the mesh here. The metrics of
+        an epoch that does not probe have no `probes`, whichever program ran it."""
+        probe = bool(probe)
+        if probe not in self.probes:
+            raise KeyError(f"this run's epoch was traced for probe in {sorted(self.probes)}, not {probe!r}: "
+                           "pass every probe value the run uses to Experiment.programs")
+        if self._stages is not None:
+            self.prepare("epoch")
+            return self._stages.epoch(self.compiled, rs, self._exp.put_key(key), probe)
+        if not self.flag:
+            return self.compiled("epoch")(rs, self._exp.put_key(key))
+        rs, m = self.compiled("epoch")(rs, self._exp.put_key(key), self._exp.put_flag(probe))
+        return rs, m if probe else without_probes(m)
+
+
+def without_probes(metrics: dict[str, Any]) -> dict[str, Any]:
+    """An `epoch_flag` epoch's metrics as a non-probing epoch has them: no `probes` (its NaN/0
+    placeholders dropped)."""
+    return {k: v for k, v in metrics.items() if k != "probes"}
+
+
+def _in_thread(fn: Callable[[], Any]) -> Future:
+    """`fn()` in a daemon thread (an XLA compile releases the GIL), its result as a Future. Daemon:
+    a process that fails meanwhile exits without waiting for a compile it no longer needs."""
+    fut: Future = Future()
+
+    def run() -> None:
+        try:
+            fut.set_result(fn())
+        except BaseException as e:  # re-raised by fut.result() in the caller's thread
+            fut.set_exception(e)
+
+    threading.Thread(target=run, daemon=True, name="bulbjax-compile").start()
+    return fut
