@@ -66,7 +66,7 @@ def add_config_args(p: argparse.ArgumentParser) -> None:
                    help="a LearnerConfig field (repeatable), e.g. channel_pad=8 or bias_grad=split")
     p.add_argument("--seed-loop", default="", choices=("", "auto", "vmap", "map", "hybrid"),
                    help="learner work over the seed axis (default: the preset's)")
-    p.add_argument("--programs", default="", choices=("", "auto", "fused", "split"),
+    p.add_argument("--programs", default="", choices=("", "fused", "split"),
                    help="init and the epoch as one program each or several (ExperimentConfig.programs; "
                         "default: the preset's)")
     p.add_argument("--no-shared-updates", action="store_true",
@@ -155,6 +155,7 @@ def profile(cfg: ExperimentConfig, repeats: int, warm_epochs: int, trace_dir: st
         out["init_s"] = time.perf_counter() - t0  # lowering + init's compile (or load) + run
         flag_compiled = progs.compiled("epoch")
         out["epoch_ready_s"] = time.perf_counter() - t0  # lowering + the epoch's compile (or load)
+        out["compile_spans_s"] = dict(progs.compile_spans)  # per program: (start, end) after tracing began
         out["to_first_epoch_s"] = out["build_s"] + out["trace_s"] + out["epoch_ready_s"]
         log(f"build {out['build_s']:.1f} s, trace {out['trace_s']:.1f} s, lower {out['lower_s']:.1f} s, "
             f"init ready+run {out['init_s']:.1f} s, epoch ready {out['epoch_ready_s']:.1f} s: "
@@ -210,7 +211,8 @@ def profile(cfg: ExperimentConfig, repeats: int, warm_epochs: int, trace_dir: st
                 if hlo_dir:  # the executable's optimised HLO, for trace_summary's scopes
                     with open(os.path.join(hlo_dir, f"epoch_{program}_{tag}.hlo.txt"), "w") as f:
                         f.write(_hlo_text(flag_compiled if program == "flag" else compiled))
-            log(f"[{vname}] fused epoch ({tag}): lower {lower_s:.1f} s, compile {compile_s:.1f} s")
+            what = "split epoch" if out.get("split_programs") else "fused epoch"
+            log(f"[{vname}] {what} ({tag}): lower {lower_s:.1f} s, compile {compile_s:.1f} s")
             times, get_s, rec_s, ffi = [], [], [], []
             for i in range(warm_epochs + repeats):
                 snap = warp_ffi_stats.snapshot() if warp_stats else None
@@ -238,7 +240,7 @@ def profile(cfg: ExperimentConfig, repeats: int, warm_epochs: int, trace_dir: st
                 res_v[tag]["warp_ffi"] = {"first": ffi[0], "last": ffi[-1],
                                           "per_epoch_totals": [f["total"] for f in ffi]}
                 log(f"[{vname}] warp ffi per epoch ({tag}): first {ffi[0]['total']}, last {ffi[-1]['total']}")
-            log(f"[{vname}] fused epoch ({tag}): median {res_v[tag]['median_s']:.3f} s")
+            log(f"[{vname}] {what} ({tag}): median {res_v[tag]['median_s']:.3f} s")
             del compiled
             save(out)
         flag_variant = None
@@ -404,7 +406,8 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         for tag in ("probe", "no_probe"):
             if tag in rv:
                 v = rv[tag]
-                print(f"[{vname}] fused epoch {tag:8}: lower {v['lower_s']:5.1f} s, compile {v['compile_s']:6.1f} s, "
+                what = "split epoch" if res.get("split_programs") else "fused epoch"
+                print(f"[{vname}] {what} {tag:8}: lower {v['lower_s']:5.1f} s, compile {v['compile_s']:6.1f} s, "
                       f"median {v['median_s']:.3f} s, device_get {v['device_get_s'] * 1e3:.1f} ms, "
                       f"records {v['records_s'] * 1e3:.1f} ms")
         if "epoch_s_probe_every_10" in rv:

@@ -302,10 +302,9 @@ def main(argv: Sequence[str] | None = None) -> int:
                    help="learner work over the seed axis: vmap, map (one seed at a time: ~1.9x faster "
                         "conv updates on a GPU), hybrid (map, but DSA vmapped with its convolutions one "
                         "seed at a time: its LSTMs batched), auto (hybrid on one GPU, else vmap; default)")
-    r.add_argument("--programs", default=None, choices=("auto", "fused", "split"),
-                   help="init and the epoch as one program each (fused) or as several compiled side by "
-                        "side (split: a much shorter first compile on a GPU); auto: split on one GPU, "
-                        "else fused (default); the same numbers either way")
+    r.add_argument("--programs", default=None, choices=("fused", "split"),
+                   help="init and the epoch as one program each (fused, default) or as several compiled "
+                        "side by side (split, one device); the same numbers either way")
     r.add_argument("--small", action="store_true", help="CPU-sized settings (not the paper's)")
     r.add_argument("--bf16", action="store_true", help="bf16 compute in the learners (GPU)")
     r.add_argument("--rnn-unroll", type=int, default=None, metavar="N",

@@ -209,6 +209,60 @@ def test_seed_loop_choice():
         dataclasses.replace(tiny_config(), learner_seed_loop="pmap")
 
 
+def _max_abs_diff(a, b) -> float:
+    return max((float(np.max(np.abs(np.asarray(x, np.float64) - np.asarray(y, np.float64)))) if np.size(x) else 0.0)
+               for x, y in zip(jax.tree.leaves(a), jax.tree.leaves(b)))
+
+
+def test_split_programs_give_the_fused_epoch(run):
+    """Init and the epoch as several programs (`Stages`, `programs="split"`) give the fused
+    programs' run state and metrics: the probing epoch from the same init
+    and key as the fixture's first, then a non-probing one (no held-out rollouts, no `probes`)
+    whose updates equal the fixture's second epoch's."""
+    from bulbjax.experiment.programs import Programs
+
+    exp, _, rs2, m1, m2, _, rs1 = run
+    progs = Programs(exp, (True, False), split=True)
+    assert progs.split and progs.names[:2] == ["init/env", "init/learner/vae"]
+    assert "epoch/learn/vae+vae_rpl+beta_vae" in progs.names and "epoch/probe/dsa" in progs.names
+    with pytest.raises(KeyError, match="no single program"):
+        progs.lowered("epoch")
+    rs = progs.init(jax.random.PRNGKey(0))
+    fused0 = jax.device_get(exp.init(jax.random.PRNGKey(0)))
+    assert jax.tree.structure(jax.device_get(rs)) == jax.tree.structure(fused0)
+    assert _max_abs_diff(jax.device_get(rs), fused0) == 0.0
+    rs, m = progs.epoch(rs, jax.random.PRNGKey(1), probe=True)
+    rs, m = jax.device_get((rs, m))
+    assert jax.tree.structure(m) == jax.tree.structure(m1) and int(rs.epoch) == 1
+    assert _max_abs_diff(rs, rs1) <= 1e-5 and _max_abs_diff(m, m1) <= 1e-4
+    assert np.all(np.isfinite(m["probes"]["dsa"]["curr"]["mae"]))
+    # a non-probing epoch: the same updates as the fixture's second (probing) epoch, the
+    # held-out worlds left where they were
+    rs_n, m_n = jax.device_get(progs.epoch(rs, jax.random.PRNGKey(2), probe=False))
+    assert "probes" not in m_n
+    same = ("ppo", "learners", "buffers", "windows", "train_env")
+    assert _max_abs_diff([getattr(rs_n, f) for f in same], [getattr(rs2, f) for f in same]) <= 1e-5
+    assert _max_abs_diff({k: v for k, v in m_n.items()}, {k: v for k, v in m2.items() if k != "probes"}) <= 1e-4
+    assert _max_abs_diff(rs_n.curr_env, rs.curr_env) == 0.0
+    assert not np.allclose(rs2.curr_env.obs, rs.curr_env.obs)  # (a probing epoch moves them on)
+
+
+def test_program_form_choice():
+    from types import SimpleNamespace
+
+    from bulbjax.experiment.loop import make_mesh, resolve_programs
+
+    mesh = make_mesh(jax.devices()[:1], 2, 4)
+    assert tiny_config().programs == "fused"
+    assert resolve_programs("split", mesh) == "split" and resolve_programs("fused", mesh) == "fused"
+    two = SimpleNamespace(size=2, devices=np.array(jax.devices()[:1] * 2))
+    assert resolve_programs("fused", two) == "fused"
+    with pytest.raises(ValueError, match="one device"):
+        resolve_programs("split", two)
+    with pytest.raises(ValueError, match="programs must be one of"):
+        dataclasses.replace(tiny_config(), programs="auto")
+
+
 def test_config_rejects_bad_settings():
     with pytest.raises(ValueError, match="unknown learners"):
         ExperimentConfig(learners=("vea",))

@@ -12,7 +12,7 @@ from bulbjax.rl.ppo import PPOConfig
 # How learner work may run over the seed axis (`ExperimentConfig.learner_seed_loop`).
 SEED_LOOPS = ("auto", "vmap", "map", "hybrid")
 # How init and the epoch are compiled (`ExperimentConfig.programs`).
-PROGRAM_FORMS = ("auto", "fused", "split")
+PROGRAM_FORMS = ("fused", "split")
 
 # Default window length of the sequential learners per domain (paper Sec. IV.A).
 SEQUENCE_LENGTHS: dict[str, int] = {"CartPole": 24, "InvertedPendulum": 24, "HalfCheetah": 16, "Ant": 16}
@@ -79,12 +79,13 @@ class ExperimentConfig:
     # traced and compiled once instead of once per learner, the probe MLPs of all of them fitted
     # side by side. The same numbers either way, up to floating-point reassociation.
     shared_updates: bool = True
-    # How init and the epoch are compiled (`loop.resolve_programs`): "fused" (one program each),
-    # "split" (`programs.Stages`: the environment work, each learner unit's updates, the held-out
-    # rollouts and each unit's probes as programs of their own, compiled side by side: XLA
-    # compiles one program on one thread) or "auto" (split on one GPU, else fused). The same
-    # numbers either way, up to floating-point reassociation.
-    programs: str = "auto"
+    # How init and the epoch are compiled (`loop.resolve_programs`): "fused" (one program each)
+    # or "split" (`programs.Stages`: the environment work, each learner unit's updates, the
+    # held-out rollouts and each unit's probes as programs of their own, compiled side by side;
+    # one device only). The same numbers either way, up to floating-point reassociation. Split
+    # does not start sooner on an H100 (2026-11-25: the programs' compiles queue on the GPU;
+    # benchmarks/README.md, "Split programs"), so fused is the default.
+    programs: str = "fused"
 
     @property
     def rl_learner(self) -> str | None:

@@ -19,7 +19,6 @@ L steps ending at it (`PolicyHistory`, kept per world in the run state).
 from __future__ import annotations
 
 import dataclasses
-import math
 from typing import Any, Callable, Mapping, NamedTuple, Sequence
 
 import jax
@@ -228,18 +227,15 @@ def resolve_seed_loop(choice: str, mesh: Mesh) -> str:
 
 
 def resolve_programs(choice: str, mesh: Mesh) -> str:
-    """How init and the epoch are compiled (`ExperimentConfig.programs`): "auto" is "split" on
-    one GPU (its compile is the slow one: minutes for a six-learner epoch as one program) and
-    "fused" elsewhere (one device of the CPU: one program traces and compiles sooner on few
-    cores; several devices: the layouts are set on the fused programs)."""
+    """How init and the epoch are compiled (`ExperimentConfig.programs`), checked against the
+    mesh: split programs run on one device (a sharded run's layouts are set on the fused
+    programs' outputs)."""
     if choice not in PROGRAM_FORMS:
         raise ValueError(f"programs must be one of {PROGRAM_FORMS}, got {choice!r}")
     if choice == "split" and mesh.size > 1:
         raise ValueError("programs='split' runs on one device; this run's mesh has "
-                         f"{mesh.size} devices: use 'fused' (or 'auto')")
-    if choice != "auto":
-        return choice
-    return "split" if mesh.size == 1 and mesh.devices.flat[0].platform == "gpu" else "fused"
+                         f"{mesh.size} devices: use 'fused'")
+    return choice
 
 
 def with_seed_loop(learner: Any, loop: str) -> Any:

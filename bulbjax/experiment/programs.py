@@ -4,7 +4,9 @@ only called (`Programs`); an epoch as one program or as several (`Stages`)."""
 from __future__ import annotations
 
 import functools
+import os
 import threading
+import time
 from concurrent.futures import Future
 from typing import Any, Callable, Sequence
 
@@ -13,19 +15,26 @@ import jax
 from bulbjax.experiment.loop import Experiment, RunState
 
 
+# How many programs compile at once (`BULBJAX_COMPILE_WORKERS`; unset or 0: all that are prepared).
+_COMPILE_SLOTS = threading.BoundedSemaphore(int(os.environ.get("BULBJAX_COMPILE_WORKERS", "0") or 0) or 1 << 20)
+
+
 class Stages:
     """Init and the epoch as several programs, run one after another with nothing fetched to the
     host in between, the same steps in the same order as the fused programs (`Experiment._init`,
     `Experiment._epoch`) and so the same numbers up to floating-point reassociation.
 
-    Why: XLA compiles one program's HLO passes (fusion, autotuning) on one thread, so a fused
-    six-learner epoch's compile is the sum of its parts (~150 s on an H100), while the parts as
-    programs of their own compile side by side, in threads (`Programs.prepare`). The parts:
-    init's environment half and each learner's init; the epoch's environment work
+    Why: XLA runs one program's HLO passes on one thread, so the parts as programs of their own
+    might compile side by side (`Programs.prepare` starts each in a thread). The parts: init's
+    environment half and each learner's init; the epoch's environment work
     (`Experiment.env_stage`), one update program per unit (`Experiment.units`: the VAE group,
     each other learner), the held-out rollouts (`eval_stage`) and one probe program per unit,
-    the last two only in epochs that probe (a Python choice: no `lax.cond`). One device only:
-    the sharded run's layouts are set on the fused programs' outputs."""
+    the last two only in epochs that probe (a Python choice: no `lax.cond`). Measured on an H100
+    (fig2-invpend, 6 learners x 6 seeds, 2026-11-25) it does not start sooner: the 17 compiles
+    queue (they end in clusters, DSA's init, 23 s alone, after 199 s) and on one machine the
+    first epoch came after 223 s against the fused programs' 205 s (195 s on another). Kept as an option
+    (`ExperimentConfig.programs="split"`). One device only: the sharded run's layouts are set on
+    the fused programs' outputs."""
 
     def __init__(self, exp: Experiment) -> None:
         if exp.sharded:
@@ -178,6 +187,9 @@ class Programs:
                 self._traced["epoch"] = exp.epoch.trace(rs, key, probe=next(iter(self.probes)))
         self._lowered: dict[str, Any] = {}
         self._compiled: dict[str, Future] = {}
+        self._t0 = time.perf_counter()
+        # per program: (start, end) of its compile (or cache load), seconds after this object was made
+        self.compile_spans: dict[str, tuple[float, float]] = {}
 
     @property
     def names(self) -> list[str]:
@@ -206,8 +218,15 @@ class Programs:
         for w in which:
             for n in self.members(w):
                 if n not in self._compiled:
-                    self._compiled[n] = _in_thread(self.lowered(n).compile)
+                    self._compiled[n] = _in_thread(functools.partial(self._compile, n, self.lowered(n)))
         return self
+
+    def _compile(self, name: str, lowered: Any) -> Any:
+        with _COMPILE_SLOTS:
+            t = time.perf_counter() - self._t0
+            out = lowered.compile()
+            self.compile_spans[name] = (t, time.perf_counter() - self._t0)
+        return out
 
     def compiled(self, which: str) -> Any:
         """The compiled program, waiting for (or starting) its compile; for a group's name, every
