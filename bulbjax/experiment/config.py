@@ -83,8 +83,9 @@ class ExperimentConfig:
     # or "split" (`programs.Stages`: the environment work, each learner unit's updates, the
     # held-out rollouts and each unit's probes as programs of their own, compiled side by side;
     # one device only). The same numbers either way, up to floating-point reassociation. Split
-    # does not start sooner on an H100 (2026-11-25: the programs' compiles queue on the GPU;
-    # benchmarks/README.md, "Split programs"), so fused is the default.
+    # does not start sooner on an H100 (2026-11-25: XLA's autotuning of programs compiled side by
+    # side is slower than one after another; benchmarks/README.md, "Split programs"), so fused
+    # is the default.
     programs: str = "fused"
 
     @property

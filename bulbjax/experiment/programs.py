@@ -30,9 +30,10 @@ class Stages:
     (`Experiment.env_stage`), one update program per unit (`Experiment.units`: the VAE group,
     each other learner), the held-out rollouts (`eval_stage`) and one probe program per unit,
     the last two only in epochs that probe (a Python choice: no `lax.cond`). Measured on an H100
-    (fig2-invpend, 6 learners x 6 seeds, 2026-11-25) it does not start sooner: the 17 compiles
-    queue (they end in clusters, DSA's init, 23 s alone, after 199 s) and on one machine the
-    first epoch came after 223 s against the fused programs' 205 s (195 s on another). Kept as an option
+    (fig2-invpend, 6 learners x 6 seeds, 2026-11-25) it does not start sooner: on one machine
+    the first epoch came after 223 s against the fused programs' 205 s (195 s on another).
+    XLA's autotuning does not run side by side on one GPU: two VAE updates compiled in threads
+    took 58.8 s, one after the other 20.0 s (`benchmarks/diag_parallel_compile.py`). Kept as an option
     (`ExperimentConfig.programs="split"`). One device only: the sharded run's layouts are set on
     the fused programs' outputs."""
 
