@@ -155,7 +155,7 @@ def profile(cfg: ExperimentConfig, repeats: int, warm_epochs: int, trace_dir: st
         out["init_s"] = time.perf_counter() - t0  # lowering + init's compile (or load) + run
         flag_compiled = progs.compiled("epoch")
         out["epoch_ready_s"] = time.perf_counter() - t0  # lowering + the epoch's compile (or load)
-        out["compile_spans_s"] = dict(progs.compile_spans)  # per program: (start, end) after tracing began
+        out["compile_spans_s"] = dict(progs.compile_spans)  # per program: (start, end) of its compile, s after tracing ended
         out["to_first_epoch_s"] = out["build_s"] + out["trace_s"] + out["epoch_ready_s"]
         log(f"build {out['build_s']:.1f} s, trace {out['trace_s']:.1f} s, lower {out['lower_s']:.1f} s, "
             f"init ready+run {out['init_s']:.1f} s, epoch ready {out['epoch_ready_s']:.1f} s: "

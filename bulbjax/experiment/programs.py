@@ -4,7 +4,6 @@ only called (`Programs`); an epoch as one program or as several (`Stages`)."""
 from __future__ import annotations
 
 import functools
-import os
 import threading
 import time
 from concurrent.futures import Future
@@ -13,10 +12,6 @@ from typing import Any, Callable, Sequence
 import jax
 
 from bulbjax.experiment.loop import Experiment, RunState
-
-
-# How many programs compile at once (`BULBJAX_COMPILE_WORKERS`; unset or 0: all that are prepared).
-_COMPILE_SLOTS = threading.BoundedSemaphore(int(os.environ.get("BULBJAX_COMPILE_WORKERS", "0") or 0) or 1 << 20)
 
 
 class Stages:
@@ -189,7 +184,8 @@ class Programs:
         self._lowered: dict[str, Any] = {}
         self._compiled: dict[str, Future] = {}
         self._t0 = time.perf_counter()
-        # per program: (start, end) of its compile (or cache load), seconds after this object was made
+        # per program: (start, end) of its compile (or cache load), seconds after the programs were
+        # traced (lowering, then compiling, begins then: `prepare`)
         self.compile_spans: dict[str, tuple[float, float]] = {}
 
     @property
@@ -223,10 +219,9 @@ class Programs:
         return self
 
     def _compile(self, name: str, lowered: Any) -> Any:
-        with _COMPILE_SLOTS:
-            t = time.perf_counter() - self._t0
-            out = lowered.compile()
-            self.compile_spans[name] = (t, time.perf_counter() - self._t0)
+        t = time.perf_counter() - self._t0
+        out = lowered.compile()
+        self.compile_spans[name] = (t, time.perf_counter() - self._t0)
         return out
 
     def compiled(self, which: str) -> Any:
