@@ -992,8 +992,7 @@ class Experiment:
         per unit (`units`)."""
         out, metrics = {}, {}
         for unit in self.units():
-            with jax.named_scope(f"bj.learn.{'+'.join(unit)}"):
-                states, m = self.learn_unit(unit, learners, buffers, key, windows)
+            states, m = self.learn_unit(unit, learners, buffers, key, windows)
             out.update(states)
             metrics.update(m)
         return {n: out[n] for n in self.learners}, {n: metrics[n] for n in self.learners}
@@ -1002,7 +1001,13 @@ class Experiment:
                    windows: dict | None = None) -> tuple[dict, dict]:
         """`learn_phase` for one unit (`units`): its members' new states and per-seed mean
         metrics. `key` is the epoch's learning key; each member's keys are folded in with its
-        position among all learners, so a unit gets the same keys alone as in the whole phase."""
+        position among all learners, so a unit gets the same keys alone as in the whole phase.
+        Its ops carry the scope `bj.learn.<members>` (benchmarks/trace_summary.py)."""
+        with jax.named_scope(f"bj.learn.{'+'.join(unit)}"):
+            return self._learn_unit(unit, learners, buffers, key, windows)
+
+    def _learn_unit(self, unit: Sequence[str], learners: dict, buffers: dict, key: jax.Array,
+                    windows: dict | None) -> tuple[dict, dict]:
         c = self.config
         if len(unit) > 1:
             states, m = self._learn_group(unit, learners, buffers, key)
@@ -1101,13 +1106,18 @@ class Experiment:
         `probe_unit` per unit (`units`)."""
         out = {}
         for unit in self.units():
-            with jax.named_scope(f"bj.probe.{'+'.join(unit)}"):
-                out.update(self.probe_unit(unit, learners, buffers, held_out, key, windows))
+            out.update(self.probe_unit(unit, learners, buffers, held_out, key, windows))
         return {n: out[n] for n in self.learners}
 
     def probe_unit(self, unit: Sequence[str], learners: dict, buffers: dict, held_out: dict,
                    key: jax.Array, windows: dict | None = None) -> dict:
-        """`probe_phase` for one unit (`units`), with the keys its members get in the whole phase."""
+        """`probe_phase` for one unit (`units`), with the keys its members get in the whole phase;
+        its ops carry the scope `bj.probe.<members>`."""
+        with jax.named_scope(f"bj.probe.{'+'.join(unit)}"):
+            return self._probe_unit(unit, learners, buffers, held_out, key, windows)
+
+    def _probe_unit(self, unit: Sequence[str], learners: dict, buffers: dict, held_out: dict,
+                    key: jax.Array, windows: dict | None) -> dict:
         c = self.config
         if len(unit) > 1:
             return self._probe_group(unit, learners, buffers, held_out, key)

@@ -46,10 +46,10 @@ class Stages:
         # donated: what the stage replaces (its outputs take their buffers)
         self.jits["epoch/env"] = jit(exp.env_stage, donate_argnums=(0, 1, 2, 3, 4))
         for u in self.units:
-            self.jits[self.learn_name(u)] = jit(functools.partial(_learn, exp, u), donate_argnums=0)
+            self.jits[self.learn_name(u)] = jit(functools.partial(exp.learn_unit, u), donate_argnums=0)
         self.jits["epoch/eval"] = jit(exp.eval_stage, donate_argnums=(1, 2, 4))
         for u in self.units:
-            self.jits[self.probe_name(u)] = jit(functools.partial(_probe, exp, u))
+            self.jits[self.probe_name(u)] = jit(functools.partial(exp.probe_unit, u))
 
     @staticmethod
     def learn_name(unit: Sequence[str]) -> str:
@@ -125,18 +125,6 @@ class Stages:
 
 def _members(learners: dict, unit: Sequence[str]) -> dict:
     return {n: learners[n] for n in unit}
-
-
-def _learn(exp: Experiment, unit: tuple[str, ...], states: dict, buffers: dict, key: jax.Array,
-           windows: dict) -> tuple[dict, dict]:
-    with jax.named_scope(f"bj.learn.{'+'.join(unit)}"):
-        return exp.learn_unit(unit, states, buffers, key, windows)
-
-
-def _probe(exp: Experiment, unit: tuple[str, ...], states: dict, buffers: dict, held: dict, key: jax.Array,
-           windows: dict) -> dict:
-    with jax.named_scope(f"bj.probe.{'+'.join(unit)}"):
-        return exp.probe_unit(unit, states, buffers, held, key, windows)
 
 
 class Programs:
