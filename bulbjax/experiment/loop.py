@@ -461,7 +461,7 @@ class Experiment:
         # of the true objects, None for domains without objects in the state (nothing computed).
         self.objects = objects.object_pixels(self.env)
         self.object_radius = objects.default_radius(c.resolution)
-        if self.sharded or warp_devices(list(self.mesh.devices.flat)) != warp_devices():
+        if self.sharded or warp_devices(self.local_mesh_devices()) != warp_devices():
             self._per_device_renderer()  # (also one GPU that is not JAX's default)
         self._rep = NamedSharding(self.mesh, P())
         shapes = jax.eval_shape(self._init, jax.random.PRNGKey(0))
@@ -497,12 +497,16 @@ class Experiment:
 
         r, env = self.env.renderer, self.env
         self._renderers: list[Renderer] = []
-        devs = warp_devices(list(self.mesh.devices.flat))
+        devs = warp_devices(self.local_mesh_devices())
         if devs is not None:
             env.renderer = Renderer(env.mj_model, env.num_envs, env.resolution, depth=r.depth, devices=devs)
         else:
             self._renderers = [Renderer(env.mj_model, env.num_envs, env.resolution, depth=r.depth)
                                for _ in range(self.mesh.size)]
+
+    def local_mesh_devices(self) -> list[jax.Device]:
+        """The mesh's devices of this process (all of them in a single-process run)."""
+        return [d for d in self.mesh.devices.flat if d.process_index == jax.process_index()]
 
     def _render_local(self, render_inputs: Any) -> jax.Array:
         """`env.render_sequence` of this device's worlds (inside `shard_map`), with this
