@@ -1,0 +1,211 @@
+"""The docs name only flags and presets that exist.
+
+Every `--flag` of a `bulbjax <cmd> ...` command in README.md, docs/*.md and benchmarks/README.md
+(in a code block or an inline code span) must be an option of that subcommand's argparse parser
+in bulbjax/cli.py; a lone `--flag` code span in README.md or docs/*.md must be an option of the
+subcommand whose table row it sits in, or else of some subcommand; every `--preset NAME` and every code span that reads as a preset name (`fig2-...`)
+must be a preset of bulbjax.experiment.config. The parser is the CLI's own: `main` is called with
+`ArgumentParser.parse_args` patched to hand back the parser it built, so nothing runs.
+"""
+
+from __future__ import annotations
+
+import argparse
+import glob
+import os
+import re
+from unittest import mock
+
+import pytest
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+# pages a user looks things up in: every flag-like code span must be a CLI flag there
+PAGES = ["README.md", *sorted(os.path.relpath(p, ROOT) for p in glob.glob(os.path.join(ROOT, "docs", "*.md")))]
+# pages that also document other scripts' flags: only `bulbjax ...` commands and presets are checked
+COMMAND_PAGES = ["benchmarks/README.md"]
+
+# `bulbjax run`, `.venv/bin/bulbjax run`, `python -m bulbjax.cli run` (not `bulbjax/cli.py`)
+_COMMAND = re.compile(r"(?<![\w/.-])(?:[\w./-]*/)?bulbjax(?:\.cli)?\s+([a-z]+)\b")
+# a long option: `--probe-every`, not `--xla_gpu_autotune_level` (XLA's) nor `---`
+_FLAG = re.compile(r"(?<![\w-])--([a-z][a-z0-9]*(?:-[a-z0-9]+)*)(?![\w-])")
+_PRESET_ARG = re.compile(r"--preset[ =]+([\w.-]+)")
+_PRESET_LIKE = re.compile(r"^fig\d+-[a-z0-9-]+$")
+_FENCE = re.compile(r"^\s*(```|~~~)")
+_SPAN = re.compile(r"`([^`\n]+)`")
+
+
+class _Parser(Exception):
+    def __init__(self, parser: argparse.ArgumentParser):
+        super().__init__("parser")
+        self.parser = parser
+
+
+def cli_flags() -> dict[str, set[str]]:
+    """{subcommand: its long options} of the parser `bulbjax.cli.main` builds."""
+    from bulbjax import cli
+
+    def hand_back(self, *args, **kwargs):
+        raise _Parser(self)
+
+    with mock.patch.object(argparse.ArgumentParser, "parse_args", hand_back):
+        with pytest.raises(_Parser) as caught:
+            cli.main(["envs"])
+    parser = caught.value.parser
+    subs = [a for a in parser._actions if isinstance(a, argparse._SubParsersAction)]
+    assert len(subs) == 1, "bulbjax's CLI should have one set of subcommands"
+    return {name: {o[2:] for a in sub._actions for o in a.option_strings if o.startswith("--")}
+            for name, sub in subs[0].choices.items()}
+
+
+def preset_names() -> set[str]:
+    from bulbjax.experiment import config
+
+    return set(config.PRESETS)
+
+
+def _commands(text: str) -> list[tuple[str, str]]:
+    """(subcommand, the rest of the line) for each `bulbjax <cmd>` in `text` (one line or span)."""
+    found = list(_COMMAND.finditer(text))
+    out = []
+    for i, m in enumerate(found):
+        end = found[i + 1].start() if i + 1 < len(found) else len(text)
+        out.append((m.group(1), text[m.end():end]))
+    return out
+
+
+def _code_lines(text: str) -> list[tuple[int, str]]:
+    """Lines of fenced code blocks (continuation backslashes joined, `# ...` comments cut)."""
+    out, inside, buf, start = [], False, "", 0
+    for no, line in enumerate(text.splitlines(), 1):
+        if _FENCE.match(line):
+            inside = not inside
+            continue
+        if not inside:
+            continue
+        if not buf:
+            start = no
+        if line.rstrip().endswith("\\"):
+            buf += line.rstrip()[:-1] + " "
+            continue
+        full, buf = buf + line, ""
+        out.append((start, re.split(r"(?:^|\s)#(?:\s|$)", full, maxsplit=1)[0]))
+    return out
+
+
+def _spans(text: str) -> list[tuple[int, str, str | None]]:
+    """Inline code spans outside fenced blocks: (line number, span, the subcommand of the table
+    row it sits in: a row whose first command span is `bulbjax <cmd>`, else None)."""
+    out, inside = [], False
+    for no, line in enumerate(text.splitlines(), 1):
+        if _FENCE.match(line):
+            inside = not inside
+            continue
+        if inside:
+            continue
+        spans = [m.group(1) for m in _SPAN.finditer(line)]
+        row = None
+        if line.lstrip().startswith("|"):
+            row = next((c for sp in spans for c, _ in _commands(sp)), None)
+        out += [(no, sp, row) for sp in spans]
+    return out
+
+
+def problems(text: str, flags: dict[str, set[str]], presets: set[str], where: str = "",
+             lone_flags: bool = True) -> list[str]:
+    """What in `text` names a flag or preset the CLI does not have, one line each.
+
+    `lone_flags`: a code span that is not a `bulbjax` command but holds `--flag`s (and no script:
+    `.py`, `.sh`, `python`) must name flags of its table row's subcommand, or else of some
+    subcommand."""
+    every = set().union(*flags.values())
+    out = []
+
+    def check_command(no: int, piece: str) -> None:
+        for cmd, rest in _commands(piece):
+            if cmd not in flags:
+                if not (_FLAG.search(rest) or piece.lstrip().startswith(f"bulbjax {cmd}")):
+                    continue  # prose ("bulbjax and PyTorch"), not a command
+                out.append(f"{where}:{no}: `bulbjax {cmd}`: no such subcommand (has {', '.join(sorted(flags))})")
+                continue
+            for f in _FLAG.findall(rest):
+                if f not in flags[cmd]:
+                    out.append(f"{where}:{no}: `bulbjax {cmd} --{f}`: no such flag of `bulbjax {cmd}`")
+
+    def check_presets(no: int, piece: str) -> None:
+        for name in _PRESET_ARG.findall(piece):
+            if name.upper() != name and name not in presets:  # NAME, PRESET: placeholders
+                out.append(f"{where}:{no}: --preset {name}: no such preset (has {', '.join(sorted(presets))})")
+
+    for no, line in _code_lines(text):
+        check_command(no, line)
+        check_presets(no, line)
+    for no, span, row in _spans(text):
+        check_presets(no, span)
+        if _PRESET_LIKE.match(span.strip()) and span.strip() not in presets:
+            out.append(f"{where}:{no}: `{span}` reads as a preset name and is none (has {', '.join(sorted(presets))})")
+        if _commands(span):
+            check_command(no, span)
+        elif lone_flags and not re.search(r"\.py\b|\.sh\b|\bpython\b", span):
+            for f in _FLAG.findall(span):
+                if row in flags and f not in flags[row]:
+                    out.append(f"{where}:{no}: `{span}` in the row of `bulbjax {row}`: no such flag of it")
+                elif f not in every:
+                    out.append(f"{where}:{no}: `{span}`: --{f} is no flag of any bulbjax subcommand")
+    return out
+
+
+@pytest.fixture(scope="module")
+def flags() -> dict[str, set[str]]:
+    return cli_flags()
+
+
+@pytest.fixture(scope="module")
+def presets() -> set[str]:
+    return preset_names()
+
+
+def test_parser_is_found(flags, presets):
+    assert {"run", "report", "fit", "recon", "envs", "render"} <= set(flags)
+    assert {"preset", "resume", "probe-every", "small"} <= flags["run"]
+    assert "merge-seeds" in flags["report"] and "merge-seeds" not in flags["run"]
+    assert {"fig2-cartpole", "fig2-invpend"} <= presets
+
+
+@pytest.mark.parametrize("page", PAGES + COMMAND_PAGES)
+def test_docs_name_only_existing_flags_and_presets(page, flags, presets):
+    path = os.path.join(ROOT, page)
+    assert os.path.exists(path), f"{page} is missing"
+    with open(path, encoding="utf-8") as f:
+        text = f.read()
+    found = problems(text, flags, presets, where=page, lone_flags=page not in COMMAND_PAGES)
+    assert not found, "the docs name flags or presets the CLI does not have:\n" + "\n".join(found)
+
+
+def test_docs_cover_the_pages():
+    names = {os.path.basename(p) for p in PAGES}
+    assert {"README.md", "environments.md", "experiments.md", "probes.md", "performance.md", "results.md",
+            "extending.md", "interop.md"} <= names
+
+
+def test_the_checker_catches_what_does_not_exist(flags, presets):
+    """The checks can fail: made-up flags, a flag of another subcommand, a made-up preset."""
+    def bad(text: str) -> list[str]:
+        return problems(text, flags, presets, where="t")
+
+    assert bad("`bulbjax run --no-such-flag 3`") and "--no-such-flag" in bad("`bulbjax run --no-such-flag`")[0]
+    assert bad("```bash\nbulbjax run --env CartPole \\\n    --no-such-flag 3\n```")  # continued line
+    assert bad("```\n.venv/bin/bulbjax run --updates 5\n```")  # a flag of `bulbjax fit`, not of run
+    assert bad("```\npython -m bulbjax.cli report runs/a --resume runs/a\n```")
+    assert bad("`bulbjax frobnicate`") and bad("```\nbulbjax frobnicate --x 1\n```")
+    assert bad("flags such as `--made-up-flag` exist")
+    assert bad("```\nbulbjax run --preset fig9-nothing\n```") and bad("`--preset fig2-cartpol`")
+    assert bad("the `fig2-pendulum` preset")
+    assert bad("| `bulbjax report RUN` | redraw | `--merge-seeds`, `--updates` |")  # fit's flag in report's row
+    assert not bad("| `bulbjax report RUN` | redraw | `--merge-seeds`, `--compare-rl` |")
+    # and what exists passes
+    assert not bad("```bash\nbulbjax run --preset fig2-invpend --bf16 --probe-every 10  # --no-such in a comment\n"
+                   "bulbjax fit --updates 5 --resume\n```")
+    assert not bad("`--probe-every` and `bulbjax report RUN --merge-seeds --out d` and `--preset NAME`")
+    assert not bad("`python benchmarks/profile_epoch.py --trace-from-start DIR` and `--xla_gpu_autotune_level=0`")
+    assert not bad("the file `bulbjax/cli.py --whatever` path")  # a path, not a command
+    assert not bad("```\n# bulbjax and PyTorch side by side --compare\n```")  # a comment
