@@ -209,3 +209,45 @@ def test_the_checker_catches_what_does_not_exist(flags, presets):
     assert not bad("`python benchmarks/profile_epoch.py --trace-from-start DIR` and `--xla_gpu_autotune_level=0`")
     assert not bad("the file `bulbjax/cli.py --whatever` path")  # a path, not a command
     assert not bad("```\n# bulbjax and PyTorch side by side --compare\n```")  # a comment
+
+
+def _slug(heading: str) -> str:
+    """GitHub's anchor of a heading: lower case, punctuation dropped, spaces to hyphens."""
+    text = re.sub(r"[^\w\- ]", "", heading.strip().lower().replace("`", ""))
+    return text.replace(" ", "-")
+
+
+def _anchors(path: str) -> set[str]:
+    with open(path, encoding="utf-8") as f:
+        text = f.read()
+    heads, inside = [], False
+    for line in text.splitlines():
+        if _FENCE.match(line):
+            inside = not inside
+        elif not inside and (m := re.match(r"#{1,6}\s+(.*)", line)):
+            heads.append(_slug(m.group(1)))
+    return set(heads)
+
+
+@pytest.mark.parametrize("page", PAGES + COMMAND_PAGES)
+def test_relative_links_resolve(page):
+    """Every relative link of a page names a file of the repository (and a heading, with #)."""
+    with open(os.path.join(ROOT, page), encoding="utf-8") as f:
+        text = f.read()
+    broken = []
+    for target in re.findall(r"\]\(([^)\s]+)\)", text):
+        if target.startswith(("http://", "https://", "mailto:")):
+            continue
+        path, _, anchor = target.partition("#")
+        full = os.path.normpath(os.path.join(ROOT, os.path.dirname(page), path)) if path else os.path.join(ROOT, page)
+        if not os.path.exists(full):
+            broken.append(f"{target}: no such file")
+        elif anchor and full.endswith(".md") and anchor not in _anchors(full):
+            broken.append(f"{target}: no heading #{anchor} in {os.path.relpath(full, ROOT)}")
+    assert not broken, f"{page}: " + "; ".join(broken)
+
+
+def test_slugs_follow_github():
+    assert _slug("Several GPUs and hosts") == "several-gpus-and-hosts"
+    assert _slug("metrics.jsonl") == "metricsjsonl"
+    assert _slug("Interop (`bulbjax/interop/`, host-side adapters)") == "interop-bulbjaxinterop-host-side-adapters"
