@@ -28,6 +28,16 @@ def _domain_ppo(cfg):
         return cfg
 
 
+def _parse_ids(text: str | None) -> tuple[int, ...] | None:
+    """`--local-devices 0,1` -> (0, 1)."""
+    if text is None:
+        return None
+    try:
+        return tuple(int(x) for x in text.split(",") if x.strip())
+    except ValueError as err:
+        raise ValueError(f"--local-devices {text!r} must be device numbers separated by commas, e.g. 0,1") from err
+
+
 def _parse_version(text: str) -> int | str:
     """An object version from the command line: "random" or a non-negative int."""
     if text == "random":
@@ -120,7 +130,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     # before anything else touches JAX's devices: a multi-process run joins its peers first
     distributed.initialize(distributed.DistributedConfig.from_env(
         coordinator=args.coordinator, num_processes=args.num_processes, process_id=args.process_id,
-        auto=args.distributed))
+        local_device_ids=_parse_ids(args.local_devices), auto=args.distributed))
     import jax
 
     from bulbjax.experiment.run import RunOptions, run
@@ -356,6 +366,9 @@ def main(argv: Sequence[str] | None = None) -> int:
                    help="processes of a multi-process run (or JAX_NUM_PROCESSES)")
     r.add_argument("--process-id", type=int, default=None, metavar="I",
                    help="this process's index in [0, P) (or JAX_PROCESS_ID); process 0 writes the run's files")
+    r.add_argument("--local-devices", default=None, metavar="IDS",
+                   help="a multi-process run's GPUs for this process, e.g. 0 or 0,1 (or JAX_LOCAL_DEVICE_IDS; "
+                        "default all it sees): one process per GPU of a host is the fastest layout")
     r.add_argument("--distributed", action="store_true",
                    help="multi-process run with the process count and index taken from SLURM / Open MPI "
                         "(jax.distributed's cluster detection)")

@@ -26,6 +26,8 @@ run uses groups) or "single" (the first device only).
 from __future__ import annotations
 
 import dataclasses
+import functools
+from concurrent.futures import ThreadPoolExecutor
 from typing import Any, Callable, Sequence
 
 import jax
@@ -159,7 +161,7 @@ class SeedGroups:
     def init(self, key: jax.Array) -> Any:
         """Every local group's initial state; with several groups the reference spread is pooled
         over all of them (all processes), as one experiment of all the seeds pools it."""
-        states = [p.init(key) for p in self._programs]
+        states = _side_by_side([functools.partial(p.init, key) for p in self._programs])
         if self.groups > 1:
             ref = [jax.jit(e.reference_states)(e.put_key(key)) for e in self.exps]
             ref = np.concatenate([np.asarray(r) for r in jax.device_get(ref)], axis=1)  # [T, Sl*N, D]
@@ -173,7 +175,8 @@ class SeedGroups:
         """One epoch of every local group (dispatched together, run side by side on their devices;
         `state` donated). Returns the new state and the metrics of all the run's seeds (host
         arrays, seed axis first, in seed order)."""
-        outs = [p.epoch(rs, key, probe=probe) for p, rs in zip(self._programs, self._unwrap(state))]
+        outs = _side_by_side([functools.partial(p.epoch, rs, key, probe=probe)
+                              for p, rs in zip(self._programs, self._unwrap(state))])
         metrics = [jax.device_get(m) for _, m in outs]
         m = metrics[0] if len(metrics) == 1 else jax.tree.map(lambda *xs: np.concatenate(xs, 0), *metrics)
         if self.processes > 1:
@@ -193,3 +196,13 @@ def _allgather(tree: Any) -> Any:
 
     return jax.tree.map(np.asarray, multihost_utils.process_allgather(tree, tiled=True))
 
+
+
+def _side_by_side(calls: list[Callable[[], Any]]) -> list[Any]:
+    """Each call in a thread of its own, results in order. A GPU program with MJX-Warp holds the
+    thread that runs it until its last kernel is launched (its loops and FFI calls are driven
+    from the host), so groups called one after another from one thread run one after another."""
+    if len(calls) == 1:
+        return [calls[0]()]
+    with ThreadPoolExecutor(len(calls), thread_name_prefix="bulbjax-group") as pool:
+        return list(pool.map(lambda c: c(), calls))
