@@ -50,6 +50,26 @@ def test_group_count():
         group_count(3, 4, processes=2)
 
 
+def test_process_checkpoint_round_trip(tmp_path):
+    """A process's own checkpoint folder (multi-process runs) saves host copies and restores them
+    onto the devices of the state it is restored into."""
+    import jax
+    import jax.numpy as jnp
+
+    from bulbjax.experiment.checkpoint import Checkpointer
+
+    state = {"a": jnp.arange(6.0).reshape(2, 3), "b": jnp.zeros((0,)), "k": jax.random.PRNGKey(3)}
+    ck = Checkpointer(str(tmp_path), process=0)
+    ck.save(4, state, {"epoch": 4})
+    ck.close()
+    assert os.listdir(tmp_path / "checkpoints") == ["process_0"]
+    got, host, epoch = Checkpointer(str(tmp_path), process=0).restore(state)
+    assert epoch == 4 and host == {"epoch": 4}
+    for k in state:
+        np.testing.assert_array_equal(np.asarray(got[k]), np.asarray(state[k]))
+        assert isinstance(got[k], jax.Array)
+
+
 def test_distributed_settings():
     assert not DistributedConfig().wanted
     with pytest.raises(ValueError, match="--num-processes"):
@@ -62,7 +82,9 @@ def test_distributed_settings():
 
 
 def test_two_processes_equal_one(tmp_path):
-    env = {**os.environ, "JAX_PLATFORMS": "cpu", "BULBJAX_COMPILE_CACHE": "off", "PYTHONUNBUFFERED": "1"}
+    # a compile cache of the test's own: the two-process resume loads what the first stretch compiled
+    env = {**os.environ, "JAX_PLATFORMS": "cpu", "BULBJAX_COMPILE_CACHE": str(tmp_path / "xla"),
+           "PYTHONUNBUFFERED": "1"}
     env.pop("XLA_FLAGS", None)
     one_dir, two_dir = tmp_path / "one", tmp_path / "two"
     one = _cli([*RUN, "--out", str(one_dir)], env)
@@ -87,6 +109,17 @@ def test_two_processes_equal_one(tmp_path):
         for stream in ("curr", "rand"):
             pa, pb = a["probes"]["vae_rpl"][stream], b["probes"]["vae_rpl"][stream]
             np.testing.assert_allclose(pa["overall"]["mae_norm"], pb["overall"]["mae_norm"], rtol=0.05, atol=1e-3)
+    # the two processes resume from their own checkpoints and extend the run by one epoch
+    port = _free_port()
+    more = [_cli(["run", "--resume", str(two_dir), "--epochs", "3", "--coordinator", f"127.0.0.1:{port}",
+                  "--num-processes", "2", "--process-id", str(i)], env) for i in range(2)]
+    logs = [p.communicate(timeout=1500)[0] for p in more]
+    for p, log in zip(more, logs):
+        assert p.returncode == 0, log[-3000:]
+    assert "resuming" in logs[0] and "at epoch 2" in logs[0]
+    r3 = _records(two_dir)
+    assert [(r["epoch"], r["seed"]) for r in r3] == [(e, s) for e in range(3) for s in range(2)]
+    assert r3[:4] == r2  # the first stretch's records kept as they were
     # a resume with another process count is refused in one clear line
     r = subprocess.run([sys.executable, "-m", "bulbjax.cli", "run", "--resume", str(two_dir), "--epochs", "3"],
                        env=env, capture_output=True, text=True, timeout=600)

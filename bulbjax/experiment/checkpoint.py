@@ -43,10 +43,13 @@ class Checkpointer:
             # one process of a multi-process run: it saves the states of its own devices' seed
             # groups (single-device arrays) in a folder of its own, coordinating with no other
             self.directory = os.path.join(self.directory, f"process_{process}")
+            os.makedirs(self.directory, exist_ok=True)  # orbax will not create it for a process subset
             mp = ocp.options.MultiprocessingOptions(primary_host=process, active_processes={process},
                                                     barrier_sync_key_prefix=f"bulbjax_p{process}")
         self.keep = keep
-        opts = ocp.CheckpointManagerOptions(max_to_keep=keep, create=True,
+        # orbax refuses arrays of one process's devices in a multi-process run: they go as numpy
+        self.host_arrays = process is not None
+        opts = ocp.CheckpointManagerOptions(max_to_keep=keep, create=process is None,
                                             enable_async_checkpointing=False, multiprocessing_options=mp)
         self._mngr = ocp.CheckpointManager(self.directory, options=opts)
 
@@ -63,6 +66,8 @@ class Checkpointer:
         pytree of arrays; `host` is JSON-able metadata stored beside it."""
         leaves = jax.tree.leaves(state)
         flat = {f"{i:05d}": x for i, x in enumerate(leaves) if np.size(x)}
+        if self.host_arrays:
+            flat = jax.device_get(flat)
         meta = {"format": _FORMAT, "epoch": int(epoch), "paths": _paths(state),
                 "shapes": [list(np.shape(x)) for x in leaves],
                 "dtypes": [str(x.dtype) for x in leaves],
@@ -89,10 +94,15 @@ class Checkpointer:
                              f"({diff}); it was written with another configuration, code version or "
                              "device count. Resume with the run's own config.json on the same number "
                              "of devices, or start a new run")
-        abstract = {f"{i:05d}": jax.ShapeDtypeStruct(x.shape, x.dtype, sharding=getattr(x, "sharding", None))
-                    for i, x in enumerate(leaves) if int(np.prod(x.shape))}
+        if self.host_arrays:  # numpy on the host, then onto the devices the state lives on
+            abstract = {f"{i:05d}": np.zeros(x.shape, x.dtype) for i, x in enumerate(leaves) if int(np.prod(x.shape))}
+        else:
+            abstract = {f"{i:05d}": jax.ShapeDtypeStruct(x.shape, x.dtype, sharding=getattr(x, "sharding", None))
+                        for i, x in enumerate(leaves) if int(np.prod(x.shape))}
         got = self._mngr.restore(epoch, args=ocp.args.Composite(state=ocp.args.StandardRestore(abstract)))
         got = got["state"]
+        if self.host_arrays:
+            got = {k: jax.device_put(v, getattr(leaves[int(k)], "sharding", None)) for k, v in got.items()}
 
         def leaf(i: int, x: Any) -> jax.Array:
             if f"{i:05d}" in got:
