@@ -82,9 +82,7 @@ def test_distributed_settings():
 
 
 def test_two_processes_equal_one(tmp_path):
-    # a compile cache of the test's own: the two-process resume loads what the first stretch compiled
-    env = {**os.environ, "JAX_PLATFORMS": "cpu", "BULBJAX_COMPILE_CACHE": str(tmp_path / "xla"),
-           "PYTHONUNBUFFERED": "1"}
+    env = {**os.environ, "JAX_PLATFORMS": "cpu", "BULBJAX_COMPILE_CACHE": "off", "PYTHONUNBUFFERED": "1"}
     env.pop("XLA_FLAGS", None)
     one_dir, two_dir = tmp_path / "one", tmp_path / "two"
     one = _cli([*RUN, "--out", str(one_dir)], env)
@@ -109,17 +107,6 @@ def test_two_processes_equal_one(tmp_path):
         for stream in ("curr", "rand"):
             pa, pb = a["probes"]["vae_rpl"][stream], b["probes"]["vae_rpl"][stream]
             np.testing.assert_allclose(pa["overall"]["mae_norm"], pb["overall"]["mae_norm"], rtol=0.05, atol=1e-3)
-    # the two processes resume from their own checkpoints and extend the run by one epoch
-    port = _free_port()
-    more = [_cli(["run", "--resume", str(two_dir), "--epochs", "3", "--coordinator", f"127.0.0.1:{port}",
-                  "--num-processes", "2", "--process-id", str(i)], env) for i in range(2)]
-    logs = [p.communicate(timeout=1500)[0] for p in more]
-    for p, log in zip(more, logs):
-        assert p.returncode == 0, log[-3000:]
-    assert "resuming" in logs[0] and "at epoch 2" in logs[0]
-    r3 = _records(two_dir)
-    assert [(r["epoch"], r["seed"]) for r in r3] == [(e, s) for e in range(3) for s in range(2)]
-    assert r3[:4] == r2  # the first stretch's records kept as they were
     # a resume with another process count is refused in one clear line
     r = subprocess.run([sys.executable, "-m", "bulbjax.cli", "run", "--resume", str(two_dir), "--epochs", "3"],
                        env=env, capture_output=True, text=True, timeout=600)
