@@ -15,6 +15,7 @@ arrived (a second SIGINT interrupts at once).
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import datetime
 import hashlib
@@ -33,8 +34,9 @@ from typing import Any, Callable, Sequence
 
 import jax
 
-from bulbjax.experiment import report
+from bulbjax.experiment import report, rundir
 from bulbjax.experiment.checkpoint import CHECKPOINT_DIR, Checkpointer
+from bulbjax.experiment.console import StageLog
 from bulbjax.experiment.config import ExperimentConfig, read_run_config
 from bulbjax.experiment.loop import Experiment
 
@@ -236,8 +238,8 @@ def _start_fresh(run_dir: str, log: Callable[[str], None]) -> None:
 
 
 def _metrics_up_to(path: str, epoch: int, seeds: int) -> list[dict[str, Any]]:
-    """The records of epochs < `epoch` (later ones, written after the checkpoint, are cut off
-    and the file rewritten); an error if any of them is missing."""
+    """The records of epochs < `epoch` (later ones, written after the checkpoint, and a
+    half-written last line are cut off and the file rewritten); an error if any is missing."""
     records = report.read_jsonl(path, tolerate_partial=True) if os.path.exists(path) else []
     keep = [r for r in records if r["epoch"] < epoch]
     have = {(r["epoch"], r["seed"]) for r in keep}
@@ -246,7 +248,7 @@ def _metrics_up_to(path: str, epoch: int, seeds: int) -> list[dict[str, Any]]:
         raise ValueError(f"{path} lacks the records of epochs {missing[:5]}{'...' if len(missing) > 5 else ''} "
                          f"that the checkpoint of epoch {epoch} has passed; the metrics cannot be continued "
                          "without a gap. Start a new run")
-    if len(keep) != len(records):
+    if len(keep) != len(records) or rundir.ends_mid_line(path):  # later epochs, or half a record
         report.write_jsonl_atomic(path, keep)
     return keep
 
@@ -272,12 +274,14 @@ class _TensorBoard:
 
 
 def run(cfg: ExperimentConfig, opts: RunOptions, run_dir: str, *, resume: bool = False,
-        devices: Sequence[jax.Device] | None = None,
+        overwrite: bool = False, devices: Sequence[jax.Device] | None = None,
         experiment: Experiment | None = None, argv: Sequence[str] | None = None,
         log: Callable[[str], None] = print, progress: bool = True,
         on_epoch: Callable[[int], None] | None = None,
         compiler_options: dict[str, Any] | None = None) -> RunResult:
     """Run (or, with `resume`, continue) the experiment `cfg` in `run_dir`; see the module doc.
+    A fresh run refuses a folder that holds a run (ValueError naming it) unless `overwrite`,
+    which deletes that run's metrics, checkpoints and plots first (`rundir.check_out_dir`).
     `devices` (default: all local devices) are the mesh of `Experiment`; `experiment` reuses a built `Experiment(cfg)` (tests: one compile for several runs);
     `on_epoch(epochs_done)` is called after each epoch's metrics are written (tests);
     `compiler_options`: XLA options for the jitted init and epoch (recorded in the provenance)."""
@@ -286,7 +290,9 @@ def run(cfg: ExperimentConfig, opts: RunOptions, run_dir: str, *, resume: bool =
     from bulbjax.learners import check_finite
 
     t0 = time.time()
-    os.makedirs(run_dir, exist_ok=True)
+    rundir.check_out_dir(run_dir, resume=resume, overwrite=overwrite)  # nothing lost by accident
+    rundir.remove_stale_temporaries(run_dir)
+    stages = StageLog(log, t0)
     metrics_path = os.path.join(run_dir, "metrics.jsonl")
     config_path = os.path.join(run_dir, "config.json")
     if resume:
@@ -298,25 +304,34 @@ def run(cfg: ExperimentConfig, opts: RunOptions, run_dir: str, *, resume: bool =
                "run": {k: getattr(opts, k) for k in IDENTITY}}
     if experiment is not None and experiment.config != cfg:
         raise ValueError("run(experiment=...) was built for another config")
-    exp = experiment or Experiment(cfg, devices=jax.local_devices() if devices is None else devices,
-                                   compiler_options=compiler_options)
+    if experiment is None:
+        with stages("building the environment and learners"):
+            exp = Experiment(cfg, devices=jax.local_devices() if devices is None else devices,
+                             compiler_options=compiler_options)
+    else:
+        exp = experiment
     stretch = provenance(argv, exp)
     if resume:
         raw.setdefault("resumes", []).append(stretch)
         raw["experiment"]["epochs"] = cfg.epochs
     else:
         raw["provenance"] = stretch
-    ckpt = Checkpointer(run_dir, keep=opts.keep)
+    # cleanup_tmp: a checkpoint a killed stretch left half-written goes (this process alone writes here)
+    ckpt = Checkpointer(run_dir, keep=opts.keep, cleanup_tmp=True)
     # init and the epochs this run uses, traced before anything else in this process so that a
     # resumed stretch compiles the same programs as the fresh one (and hits the compile cache);
     # probe_every is part of a run's identity, so fresh and resumed stretches trace the same ones
-    programs = exp.programs((True,) if opts.probe_every == 1 else (True, False))
-    # compiles (or compile-cache loads) in background threads: init's and the epoch's overlap,
-    # and a resume's restore overlaps the epoch's
-    programs.prepare(*(("epoch",) if resume else ("init", "epoch")))
+    with stages("tracing and lowering " + ("the epoch" if resume else "init and the epoch")):
+        programs = exp.programs((True,) if opts.probe_every == 1 else (True, False))
+        # compiles (or compile-cache loads) in background threads: init's and the epoch's overlap,
+        # and a resume's restore overlaps the epoch's
+        programs.prepare(*(("epoch",) if resume else ("init", "epoch")))
+    stages.line("compiling " + ("the epoch" if resume else "init and the epoch")
+                + " in the background (or loading them from the compile cache)")
     if resume:
         like = {"run": exp.abstract_state(), "key": exp.abstract_key()}
-        state, host, start = ckpt.restore(like)
+        with stages(f"restoring the checkpoint of epoch {ckpt.latest()}"):
+            state, host, start = ckpt.restore(like)
         rs, key = state["run"], state["key"]
         if int(rs.epoch) != start or host.get("epoch") != start:
             raise ValueError(f"checkpoint {start} holds epoch {int(rs.epoch)}: the checkpoint folder is inconsistent")
@@ -324,10 +339,15 @@ def run(cfg: ExperimentConfig, opts: RunOptions, run_dir: str, *, resume: bool =
         raw["resumes"][-1]["from_epoch"] = start
         log(f"resuming {run_dir} at epoch {start} (checkpoints: {ckpt.steps()})")
     else:
-        rs = programs.init(jax.random.PRNGKey(opts.seed))
+        with stages("compiling and running init"):
+            rs = programs.init(jax.random.PRNGKey(opts.seed))
+            jax.block_until_ready(rs)
         key, start, records = exp.put_key(jax.random.PRNGKey(opts.seed + 1)), 0, []
     _write_json_atomic(config_path, raw)
     jax.block_until_ready(rs)
+    if start < cfg.epochs:
+        with stages("compiling the epoch"):
+            programs.compiled("epoch")
     t_init = time.time() - t0
     tb = _TensorBoard(run_dir, purge_step=start if resume else None) if opts.tensorboard else None
     figs, drawn = None, None
@@ -339,6 +359,8 @@ def run(cfg: ExperimentConfig, opts: RunOptions, run_dir: str, *, resume: bool =
     epoch, stopped, t_first, saved = start, "done", None, ckpt.latest() if resume else None
     bar = tqdm(total=cfg.epochs, initial=start, desc=f"{cfg.env} x{cfg.seeds} seeds", unit="epoch",
                disable=not progress)
+    if progress:
+        stages.log = bar.write  # the first epoch's lines above the bar
     try:
         with StopSignal(bar.write) as stop:
             while epoch < cfg.epochs:
@@ -349,14 +371,18 @@ def run(cfg: ExperimentConfig, opts: RunOptions, run_dir: str, *, resume: bool =
                     stopped = "stop-after"
                     break
                 key, k = jax.random.split(key)
-                rs, m = programs.epoch(rs, k, probe=_probe_now(epoch, cfg, opts))
-                m = jax.device_get(m)
+                with stages(f"first epoch ({epoch})") if t_first is None else contextlib.nullcontext():
+                    rs, m = programs.epoch(rs, k, probe=_probe_now(epoch, cfg, opts))
+                    m = jax.device_get(m)
                 if t_first is None:
                     t_first = time.time() - t0 - t_init
                 for name, lm in m["learners"].items():
                     check_finite(lm, where=f"learner {name} at epoch {epoch}")
                 recs = report.epoch_records(epoch, m, exp.spec)
-                report.write_jsonl(metrics_path, recs)  # metrics first: a checkpoint never runs ahead
+                try:  # metrics first: a checkpoint never runs ahead; whole records or none
+                    report.write_jsonl(metrics_path, recs)
+                except OSError as err:
+                    raise _write_failed(run_dir, f"metrics.jsonl (epoch {epoch})", err) from err
                 if tb:
                     tb.write(recs)
                 records += recs
@@ -365,7 +391,7 @@ def run(cfg: ExperimentConfig, opts: RunOptions, run_dir: str, *, resume: bool =
                 if recs[0]["probes"]:
                     bar.set_postfix(_postfix(recs, records))
                 if opts.checkpoint_every and epoch % opts.checkpoint_every == 0:
-                    ckpt.save(epoch, {"run": rs, "key": key}, {"epoch": epoch})
+                    _save(ckpt, run_dir, epoch, rs, key)
                     saved = epoch
                 if figs is not None and epoch % opts.recon_every == 0:
                     figs.draw(rs, run_dir, epoch)
@@ -376,7 +402,7 @@ def run(cfg: ExperimentConfig, opts: RunOptions, run_dir: str, *, resume: bool =
                     stopped = f"signal {signal.Signals(stop.signum).name}"
                     break
             if saved != epoch:
-                ckpt.save(epoch, {"run": rs, "key": key}, {"epoch": epoch})
+                _save(ckpt, run_dir, epoch, rs, key)
                 saved = epoch
     finally:
         bar.close()
@@ -388,13 +414,33 @@ def run(cfg: ExperimentConfig, opts: RunOptions, run_dir: str, *, resume: bool =
     if stopped != "done":
         log(f"stopped after epoch {epoch} ({stopped}); continue with: bulbjax run --resume {run_dir}")
     wall = time.time() - t0
-    first = f", first epoch incl. compile {t_first:.1f} s" if t_first is not None else ""
-    timing = (f"wall time of the last stretch {wall:.1f} s (build+init/restore {t_init:.1f} s{first}) "
+    first = f", first epoch {t_first:.1f} s" if t_first is not None else ""
+    timing = (f"wall time of the last stretch {wall:.1f} s (start-up: build, compile, init/restore "
+              f"{t_init:.1f} s{first}) "
               f"on {exp.mesh.size} x {jax.devices()[0].device_kind}")
     if records:
         tab = report.write_reports(run_dir, records, cfg, exp.spec, exp.env.solved_return, footer=timing)
         log(f"\n{tab}\n\n{timing}\nplot: {os.path.join(run_dir, 'fig2.png')}\nmetrics: {metrics_path}")
     return RunResult(epochs_done=epoch, stopped=stopped, records=records, checkpoint=saved)
+
+
+def _save(ckpt: Checkpointer, run_dir: str, epoch: int, rs: Any, key: Any) -> None:
+    """The checkpoint of `epoch` epochs done; a failed write stops the run with a clear error
+    (the checkpoints before it stay: orbax renames a checkpoint's folder only once complete)."""
+    try:
+        ckpt.save(epoch, {"run": rs, "key": key}, {"epoch": epoch})
+    except Exception as err:  # OSError, or tensorstore's errors for a full or read-only disk
+        raise _write_failed(run_dir, f"the checkpoint of epoch {epoch}", err) from err
+
+
+def _write_failed(run_dir: str, what: str, err: BaseException) -> ValueError:
+    """The error of a write that failed mid-run: what was kept and how to go on."""
+    steps = rundir.checkpoint_steps(run_dir)
+    on = (f"the newest complete checkpoint is epoch {steps[-1]}; free space (or fix the folder) and "
+          f"continue with: bulbjax run --resume {run_dir}" if steps else
+          "there is no complete checkpoint yet; fix the folder and start again with --overwrite")
+    return ValueError(f"writing {what} in {run_dir} failed ({type(err).__name__}: {err}); the run "
+                      f"stopped, metrics.jsonl holds whole records only and {on}")
 
 
 def _postfix(recs: list[dict], records: list[dict]) -> dict[str, str]:
