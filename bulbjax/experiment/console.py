@@ -137,8 +137,11 @@ def log_to_file(path: str, fresh: bool = False, header: str = "") -> Iterator[st
         os.dup2(saved_fd2, 2)
         os.close(saved_fd2)
         sys.stdout, sys.stderr = old_out, old_err
-        if had_faulthandler:
-            faulthandler.enable(file=sys.stderr)
+        if had_faulthandler:  # on again, on the console (its earlier file is not known)
+            try:
+                faulthandler.enable(file=sys.stderr)
+            except (ValueError, OSError, AttributeError):  # a stream without a file descriptor
+                faulthandler.enable(file=sys.__stderr__)
         else:
             faulthandler.disable()
         console_err.close()
