@@ -19,7 +19,6 @@ from __future__ import annotations
 import dataclasses
 import json
 import os
-import shutil
 import time
 from dataclasses import dataclass, field
 from typing import Any, Callable
@@ -317,7 +316,7 @@ def run(config: OfflineConfig, out_dir: str, cache_dir: str | None = None, max_m
     if not resume:  # a fresh fit: curves and checkpoints of an earlier fit in this folder go
         if os.path.exists(path):
             os.remove(path)
-        shutil.rmtree(os.path.join(out_dir, CHECKPOINT_DIR), ignore_errors=True)
+        rundir.remove_tree(os.path.join(out_dir, CHECKPOINT_DIR))
     ckpt = Checkpointer(out_dir, keep=1, cleanup_tmp=True)
     key = jax.random.PRNGKey(seed)
     k_init, key = jax.random.split(key)

@@ -24,7 +24,6 @@ import json
 import os
 import platform
 import shlex
-import shutil
 import signal
 import subprocess
 import sys
@@ -229,8 +228,8 @@ def _start_fresh(run_dir: str, log: Callable[[str], None]) -> None:
     for name in (CHECKPOINT_DIR, TB_DIR):
         p = os.path.join(run_dir, name)
         if os.path.isdir(p):
-            log(f"starting afresh: removing {p} of an earlier run in {run_dir} (use --resume to continue it)")
-            shutil.rmtree(p)
+            log(f"starting afresh: removing {p} of an earlier run in {run_dir} (--overwrite)")
+            rundir.remove_tree(p)
     from bulbjax.experiment.recon import figure_files
 
     for p in figure_files(run_dir):

@@ -22,6 +22,7 @@ CHECKPOINT_DIR = "checkpoints"  # as `bulbjax.experiment.checkpoint.CHECKPOINT_D
 RUN_FILES = ("config.json", "metrics.jsonl", "metrics.jsonl.gz")  # a `bulbjax run`'s own files
 FIT_FILES = ("config.json", "curves.jsonl")  # a `bulbjax fit`'s own files
 LOG_FILE = "log.txt"
+DELETING = ".deleting-"  # `checkpoints.deleting-<pid>`: an earlier run's checkpoints on their way out
 
 
 class RunFolderExists(ValueError):
@@ -189,8 +190,24 @@ def ends_mid_line(path: str) -> bool:
         return False
 
 
+def remove_tree(path: str) -> None:
+    """Delete the folder `path`, renaming it first (atomic): a process killed meanwhile leaves no
+    half-deleted checkpoint that a resume would take for a complete one."""
+    import shutil
+
+    if os.path.isdir(path):
+        gone = f"{path}{DELETING}{os.getpid()}"
+        os.rename(path, gone)
+        shutil.rmtree(gone)
+
+
 def remove_stale_temporaries(run_dir: str) -> None:
-    """Temporary files of an atomic rewrite (`<name>.tmp<pid>`) that a killed process left."""
+    """Temporary files of an atomic rewrite (`<name>.tmp<pid>`) and checkpoint folders being
+    deleted (`checkpoints.deleting-<pid>`) that a killed process left."""
+    import shutil
+
+    for p in glob.glob(os.path.join(glob.escape(run_dir), "*" + DELETING + "*")):
+        shutil.rmtree(p, ignore_errors=True)
     for name in ("config.json", "metrics.jsonl", "curves.jsonl"):
         for p in glob.glob(os.path.join(glob.escape(run_dir), glob.escape(name) + ".tmp*")):
             if p[len(os.path.join(run_dir, name)) + 4:].isdigit():
