@@ -223,9 +223,12 @@ class Stretch:
     expect: int | None = None  # resume: the newest complete checkpoint when it started
 
 
+STRETCH_FLAGS = ["--checkpoint-every", "1", "--keep", "2"]  # per stretch: a resume must repeat them
+
+
 def run_flags(a: argparse.Namespace) -> list[str]:
     return ["--env", "CartPole", "--learners", "vae", "--seeds", str(a.seeds), "--epochs", str(a.epochs),
-            "--small", "--checkpoint-every", "1", "--keep", "2"]
+            "--small", *STRETCH_FLAGS]
 
 
 def start(a: argparse.Namespace, run_dir: str, cli_args: list[str], tag: str, pauses: bool = True) -> Stretch:
@@ -249,7 +252,7 @@ def stretch_args(a: argparse.Namespace, run_dir: str) -> tuple[list[str], str, i
 
     steps = rundir.checkpoint_steps(run_dir)
     if steps:
-        return ["run", "--resume", run_dir], "resume", steps[-1]
+        return ["run", "--resume", run_dir, *STRETCH_FLAGS], "resume", steps[-1]
     if rundir.holds(run_dir):
         return ["run", *run_flags(a), "--out", run_dir, "--overwrite"], "overwrite", None
     return ["run", *run_flags(a), "--out", run_dir], "fresh", None

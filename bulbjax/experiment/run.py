@@ -2,7 +2,9 @@
 
 A run folder holds `config.json` (the ExperimentConfig, the options that change results, the
 provenance of every stretch), `metrics.jsonl` (one record per epoch and seed), `checkpoints/`
-(orbax, the last K), `fig2.png`, `table.md` and, with `--tensorboard`, `tb/` event files.
+(orbax, the last K), `fig2.png`, `table.md`, `log.txt` (the CLI's console and C++ log lines,
+`console.py`) and, with `--tensorboard`, `tb/` event files. A fresh run never starts over a
+folder that holds a run unless told to (`overwrite`; `rundir.py`, docs/runs.md).
 
 Resuming is exact: a checkpoint holds the whole `RunState` and the host-side key chain, the
 epoch after it draws the same key as in an uninterrupted run, and `metrics.jsonl` is cut back
