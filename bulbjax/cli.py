@@ -115,11 +115,17 @@ def _stretch_options(args: argparse.Namespace) -> dict:
 
 def cmd_run(args: argparse.Namespace) -> int:
     """Parse into (config, options, folder) and hand over to `bulbjax.experiment.run.run`."""
+    from bulbjax import distributed
+
+    # before anything else touches JAX's devices: a multi-process run joins its peers first
+    distributed.initialize(distributed.DistributedConfig.from_env(
+        coordinator=args.coordinator, num_processes=args.num_processes, process_id=args.process_id,
+        auto=args.distributed))
     import jax
 
     from bulbjax.experiment.console import log_to_file
     from bulbjax.experiment.run import RunOptions, run
-    from bulbjax.experiment.rundir import LOG_FILE, check_out_dir
+    from bulbjax.experiment.rundir import check_out_dir, log_name
 
     if args.resume and args.overwrite:
         raise ValueError("--resume continues the run in its folder and --overwrite deletes it: give one of them")
@@ -130,20 +136,21 @@ def cmd_run(args: argparse.Namespace) -> int:
         cfg = build_config(args)
         opts = RunOptions(seed=args.seed or 0, probe_every=args.probe_every or 1, **_stretch_options(args))
         out = args.out or "runs/latest"
-    devices = jax.local_devices()
-    if args.devices is not None:
-        if not 1 <= args.devices <= len(devices):
-            raise ValueError(f"--devices {args.devices}: this machine has {len(devices)} local devices")
-        devices = devices[: args.devices]
+    local = jax.local_devices()
+    if args.devices is not None and not 1 <= args.devices <= len(local):
+        raise ValueError(f"--devices {args.devices}: this machine has {len(local)} local devices")
+    # every process's first D local devices (D: --devices, default all of them)
+    devices = [d for p in range(jax.process_count())
+               for d in [x for x in jax.devices() if x.process_index == p][: args.devices or None]]
     from bulbjax.experiment.loop import parse_compiler_options
 
     compiler_options = parse_compiler_options(args.xla_option or [])
     # before anything is built: a run in the way or an unwritable folder is a one-line error
     check_out_dir(out, resume=bool(args.resume), overwrite=args.overwrite)
     argv = ["bulbjax", *getattr(args, "argv", [])]
-    with log_to_file(os.path.join(out, LOG_FILE), fresh=args.overwrite, header=" ".join(argv)):
+    with log_to_file(os.path.join(out, log_name(jax.process_index())), fresh=args.overwrite, header=" ".join(argv)):
         run(cfg, opts, out, resume=bool(args.resume), overwrite=args.overwrite, devices=devices, argv=argv,
-            compiler_options=compiler_options)
+            compiler_options=compiler_options, layout=args.layout)
     return 0
 
 
@@ -353,7 +360,23 @@ def main(argv: Sequence[str] | None = None) -> int:
     r.add_argument("--stop-after", type=int, default=0, metavar="E",
                    help="stop this stretch after E epochs and checkpoint (0: no limit)")
     r.add_argument("--devices", type=int, default=None,
-                   help="use the first D local devices (default all): seeds (then worlds) sharded over them")
+                   help="use the first D local devices of each process (default all): the seeds are split "
+                        "into one group per device (see --layout)")
+    r.add_argument("--layout", default="auto", choices=("auto", "groups", "sharded", "single"),
+                   help="how the seeds lie over several devices: groups (one program per device, each on "
+                        "its share of the seeds; auto's choice), sharded (one program over a mesh: CPU host "
+                        "devices only, refused on GPUs, where it does not compile with MJX-Warp) or single "
+                        "(the first device)")
+    r.add_argument("--coordinator", default=None, metavar="HOST:PORT",
+                   help="multi-process run (jax.distributed): process 0's address, the same on every process "
+                        "(or JAX_COORDINATOR_ADDRESS); with --num-processes and --process-id")
+    r.add_argument("--num-processes", type=int, default=None, metavar="P",
+                   help="processes of a multi-process run (or JAX_NUM_PROCESSES)")
+    r.add_argument("--process-id", type=int, default=None, metavar="I",
+                   help="this process's index in [0, P) (or JAX_PROCESS_ID); process 0 writes the run's files")
+    r.add_argument("--distributed", action="store_true",
+                   help="multi-process run with the process count and index taken from SLURM / Open MPI "
+                        "(jax.distributed's cluster detection)")
     r.add_argument("--xla-option", action="append", metavar="KEY=VALUE",
                    help="an XLA compile option for the jitted init and epoch (repeatable; how the program "
                         "runs, not what it computes), e.g. xla_gpu_enable_command_buffer=FUSION,CUBLAS,WHILE")

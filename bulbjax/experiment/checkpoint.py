@@ -36,13 +36,20 @@ class Checkpointer:
     unfinished checkpoint folders a killed process left (only for the one process that writes
     the run: a reader must not remove a running run's checkpoint in progress)."""
 
-    def __init__(self, run_dir: str, keep: int = 2, cleanup_tmp: bool = False):
+    def __init__(self, run_dir: str, keep: int = 2, process: int | None = None, cleanup_tmp: bool = False):
         if keep < 1:
             raise ValueError(f"--keep must be >= 1 (checkpoints kept), got {keep}")
         self.directory = os.path.abspath(os.path.join(run_dir, CHECKPOINT_DIR))
+        mp = ocp.options.MultiprocessingOptions()
+        if process is not None:
+            # one process of a multi-process run: it saves the states of its own devices' seed
+            # groups (single-device arrays) in a folder of its own, coordinating with no other
+            self.directory = os.path.join(self.directory, f"process_{process}")
+            mp = ocp.options.MultiprocessingOptions(primary_host=process, active_processes={process},
+                                                    barrier_sync_key_prefix=f"bulbjax_p{process}")
         self.keep = keep
         opts = ocp.CheckpointManagerOptions(max_to_keep=keep, create=True, cleanup_tmp_directories=cleanup_tmp,
-                                            enable_async_checkpointing=False)
+                                            enable_async_checkpointing=False, multiprocessing_options=mp)
         self._mngr = ocp.CheckpointManager(self.directory, options=opts)
 
     def steps(self) -> list[int]:

@@ -405,8 +405,15 @@ class Experiment:
     seed replicated on its devices."""
 
     def __init__(self, config: ExperimentConfig, devices: Sequence[jax.Device] | None = None,
-                 compiler_options: Mapping[str, Any] | None = None):
+                 compiler_options: Mapping[str, Any] | None = None, seed_group: tuple[int, int] | None = None):
         self.config = c = config
+        # `seed_group=(offset, total)`: this experiment runs seeds offset..offset+S-1 of a run of
+        # `total` seeds (`bulbjax.experiment.groups`): every random draw is the one those seeds get
+        # in the whole run (`seed_keys`, `world_keys`), so a run's seeds spread over several
+        # experiments (devices, processes) compute what one experiment of all seeds computes.
+        self.seed_offset, self.seed_total = seed_group or (0, c.seeds)
+        if not 0 <= self.seed_offset <= self.seed_total - c.seeds:
+            raise ValueError(f"seed_group {seed_group} does not hold the config's {c.seeds} seeds")
         # XLA options for compiling init and epoch (e.g. xla_gpu_enable_command_buffer): how the
         # program runs, not what it computes (`parse_compiler_options`).
         self.compiler_options = dict(compiler_options or {})
@@ -461,7 +468,7 @@ class Experiment:
         # of the true objects, None for domains without objects in the state (nothing computed).
         self.objects = objects.object_pixels(self.env)
         self.object_radius = objects.default_radius(c.resolution)
-        if self.sharded or warp_devices(list(self.mesh.devices.flat)) != warp_devices():
+        if self.sharded or warp_devices(self.local_mesh_devices()) != warp_devices():
             self._per_device_renderer()  # (also one GPU that is not JAX's default)
         self._rep = NamedSharding(self.mesh, P())
         shapes = jax.eval_shape(self._init, jax.random.PRNGKey(0))
@@ -497,12 +504,16 @@ class Experiment:
 
         r, env = self.env.renderer, self.env
         self._renderers: list[Renderer] = []
-        devs = warp_devices(list(self.mesh.devices.flat))
+        devs = warp_devices(self.local_mesh_devices())
         if devs is not None:
             env.renderer = Renderer(env.mj_model, env.num_envs, env.resolution, depth=r.depth, devices=devs)
         else:
             self._renderers = [Renderer(env.mj_model, env.num_envs, env.resolution, depth=r.depth)
                                for _ in range(self.mesh.size)]
+
+    def local_mesh_devices(self) -> list[jax.Device]:
+        """The mesh's devices of this process (all of them in a single-process run)."""
+        return [d for d in self.mesh.devices.flat if d.process_index == jax.process_index()]
 
     def _render_local(self, render_inputs: Any) -> jax.Array:
         """`env.render_sequence` of this device's worlds (inside `shard_map`), with this
@@ -574,13 +585,30 @@ class Experiment:
             return f
         return jax.shard_map(f, mesh=self.mesh, in_specs=in_specs, out_specs=out_specs, check_vma=False)
 
+    def seed_keys(self, key: jax.Array) -> jax.Array:
+        """`[S]` keys, one per seed of this experiment: `split(key, total)` of the whole run's seeds,
+        this experiment's slice of them (all of them unless it holds a seed group)."""
+        keys = jax.random.split(key, self.seed_total)
+        return keys if self.seed_total == self.S else keys[self.seed_offset:self.seed_offset + self.S]
+
+    def world_keys(self, key: jax.Array) -> jax.Array:
+        """`[S*N]` keys, one per world of this experiment's seeds, as `seed_keys` slices them."""
+        keys = jax.random.split(key, self.seed_total * self.N)
+        return keys if self.seed_total == self.S else keys[self.seed_offset * self.N:(self.seed_offset + self.S) * self.N]
+
+    def seed_columns(self, x: jax.Array) -> jax.Array:
+        """This experiment's worlds `[..., S*N]` of a draw made for the whole run's `[..., total*N]`."""
+        if self.seed_total == self.S:
+            return x
+        return x[..., self.seed_offset * self.N:(self.seed_offset + self.S) * self.N]
+
     def _env_reset(self, key: jax.Array) -> EnvState:
-        """`env.reset(key)` of all S*N worlds; sharded, each device resets its own worlds from
-        the same per-world keys as one device would."""
+        """`env.reset(key)` of all S*N worlds (`env.reset_keys` of `split(key, S*N)`); sharded,
+        each device resets its own worlds from the same per-world keys as one device would."""
+        keys = self.world_keys(key)
         if not self.sharded:
-            return self.env.reset(key)
+            return self.env.reset_keys(keys)
         w = P((SEED_AXIS, WORLD_AXIS))
-        keys = jax.random.split(key, self.S * self.N)
         return self._on_worlds(self.env.reset_keys, (w,), w)(keys)
 
     def _env_step(self, es: EnvState, action: jax.Array) -> EnvState:
@@ -728,7 +756,7 @@ class Experiment:
         Returns `(next env state, obs, action, logp, value, view, stored)`: the `PolicyView`
         moved on to the next env state (its frames rendered here, once per step) and the step
         as rollouts store it (`_stored`)."""
-        keys = jax.random.split(key, self.S)
+        keys = self.seed_keys(key)
         if random:  # the random policy observes nothing: no frame is rendered for it
             obs = self._per_seed(es.obs)
             action = jax.vmap(lambda k: self.ppo.random_act(k, self.N))(keys)
@@ -822,7 +850,7 @@ class Experiment:
     def init_learner(self, name: str, key: jax.Array) -> Any:
         """Learner `name`'s state for every seed `[S]`, from the run's init key."""
         k_learn = jax.random.split(key, 5)[1]
-        keys = jax.random.split(jax.random.fold_in(k_learn, list(self.learners).index(name)), self.S)
+        keys = self.seed_keys(jax.random.fold_in(k_learn, list(self.learners).index(name)))
         learner = self.learners[name]
         # one seed at a time: the same parameters as a vmap, and on the GPU a much cheaper
         # compile for DSA (its init over 6 seeds: 23 s under lax.map, 40 s vmapped; H100)
@@ -834,7 +862,7 @@ class Experiment:
         spread."""
         c = self.config
         k_ppo, _, k_env, k_fill, k_keep = jax.random.split(key, 5)
-        ppo_state = jax.vmap(self.ppo.init)(jax.random.split(k_ppo, self.S))
+        ppo_state = jax.vmap(self.ppo.init)(self.seed_keys(k_ppo))
         learners: dict[str, Any] = {}
         ke = jax.random.split(k_env, 4)
         train_env, curr_env, rand_env = (self._env_reset(k) for k in ke[:3])
@@ -857,7 +885,7 @@ class Experiment:
                                   extras={"world": jax.ShapeDtypeStruct((), jnp.int32)})
                 buf = replay.insert(buf, k, f, s, {"world": self._world_ids(f.shape[0])})
                 return replay.retain_initial(buf, k, frac) if frac > 0 else buf
-            buffers[buffer_key(frac)] = jax.vmap(fill)(frames, states, jax.random.split(k_keep, self.S))
+            buffers[buffer_key(frac)] = jax.vmap(fill)(frames, states, self.seed_keys(k_keep))
         # Keys of the window buffers are folded in, so frame-only runs keep their random streams.
         windows = self._init_windows(ppo_state, jax.random.fold_in(key, 1)) if self.window_length else {}
         # PPO on a sequential learner's latent: every policy-driven world's window starts at its first frame.
@@ -866,6 +894,17 @@ class Experiment:
         return RunState(ppo=ppo_state, learners=learners, buffers=buffers, windows=windows,
                         train_env=train_env, curr_env=curr_env, rand_env=rand_env, policy_history=history,
                         ref_spread=ref_spread, epoch=jnp.zeros((), jnp.int32))
+
+    def reference_states(self, key: jax.Array) -> jax.Array:
+        """The states `[reference_steps, S*N, D]` that init's reference spread is taken over (the
+        random policy's held-out worlds, `init_env`), recomputed from the init key: a run of seed
+        groups pools them over all its groups (`bulbjax.experiment.groups`)."""
+        k_ppo, _, k_env, _, _ = jax.random.split(key, 5)
+        ppo_state = jax.vmap(self.ppo.init)(self.seed_keys(k_ppo))
+        ke = jax.random.split(k_env, 4)
+        _, (_, ref_states, _, _) = self._rollout(ppo_state, self._env_reset(ke[2]), ke[3],
+                                                 self.config.reference_steps, random=True)
+        return ref_states
 
     def _init_windows(self, ppo_state: PPOState, key: jax.Array) -> dict[str, sequence.WindowBuffer]:
         """Fill the window buffers with windows of a random-policy rollout (consecutive,
@@ -885,7 +924,7 @@ class Experiment:
                 buf = sequence.init(cap, lw, self.env.frame_shape, self.env.state_dim, self.action_dim)
                 buf = sequence.insert(buf, k, w)
                 return sequence.retain_initial(buf, k, frac) if frac > 0 else buf
-            out[buffer_key(frac)] = jax.vmap(fill)(w, jax.random.split(k_keep, self.S))
+            out[buffer_key(frac)] = jax.vmap(fill)(w, self.seed_keys(k_keep))
         return out
 
     # ------------------------------------------------------------------ epoch phases
@@ -919,7 +958,7 @@ class Experiment:
                                                           jax.random.split(k_roll, c.ppo.num_steps))
             traj = jax.tree.map(lambda x: x.swapaxes(0, 1), traj)  # [S, T, N, ...]
             ppo_state, m = jax.vmap(self.ppo.update)(ppo_state, traj, self._policy_obs(es, learners, view),
-                                                    jax.random.split(k_upd, self.S))
+                                                    self.seed_keys(k_upd))
             return (ppo_state, es, view), (m, ep, stored)
 
         (ppo_state, env_state, view), (m, ep, stored) = jax.lax.scan(
@@ -938,7 +977,7 @@ class Experiment:
         k_pick, k_ins = jax.random.split(key)
         pick = jax.random.choice(k_pick, low.shape[0], (c.frames_per_epoch // self.N,), replace=False)
         frames, states = self._frames_of_steps(jax.tree.map(lambda x: x[pick], ri), low[pick])
-        keys = jax.random.split(k_ins, self.S)
+        keys = self.seed_keys(k_ins)
         world = {"world": jnp.broadcast_to(self._world_ids(frames.shape[1]), frames.shape[:2])}
         return {k: jax.vmap(replay.insert)(b, keys, frames, states, world) for k, b in buffers.items()}
 
@@ -959,12 +998,12 @@ class Experiment:
         rounds = -(-per_epoch // self.N)
         k_start, k_pick, k_ins = jax.random.split(key, 3)
         total = steps[1].shape[0]
-        starts = jax.random.randint(k_start, (rounds, self.S * self.N), 0, total - lw + 1)
+        starts = self.seed_columns(jax.random.randint(k_start, (rounds, self.seed_total * self.N), 0, total - lw + 1))
         w = self._windows(steps, starts, lw)
         picks = jax.vmap(lambda k: jax.random.permutation(k, rounds * self.N)[:per_epoch])(
-            jax.random.split(k_pick, self.S))
+            self.seed_keys(k_pick))
         w = jax.vmap(lambda ws, p: jax.tree.map(lambda x: x[p], ws))(w, picks)
-        keys = jax.random.split(k_ins, self.S)
+        keys = self.seed_keys(k_ins)
         return {k: jax.vmap(sequence.insert)(b, keys, w) for k, b in windows.items()}
 
     def over_seeds(self, fn: Callable[..., Any], *args: Any, learner: str | None = None) -> Any:
@@ -1022,7 +1061,7 @@ class Experiment:
                 sample = lambda kk: replay.sample(b, kk, learner.batch_size)[0]  # noqa: E731
             return train_learner(learner, state, sample, k, c.learner_batches)
 
-        keys = jax.random.split(jax.random.fold_in(key, i), self.S)
+        keys = self.seed_keys(jax.random.fold_in(key, i))
         buf = (windows if seq else buffers)[buffer_key(self.retention[name])]
         state, m = self.over_seeds(train_seed, learners[name], buf, keys, learner=name)
         return {name: state}, {name: jax.tree.map(lambda x: x.mean(-1), m)}
@@ -1036,7 +1075,7 @@ class Experiment:
         index = {n: i for i, n in enumerate(self.learners)}
         bkeys = list(dict.fromkeys(buffer_key(self.retention[n]) for n in group))
         which = jnp.array([bkeys.index(buffer_key(self.retention[n])) for n in group], jnp.int32)
-        keys = jnp.stack([jax.random.split(jax.random.fold_in(key, index[n]), self.S) for n in group], 1)
+        keys = jnp.stack([self.seed_keys(jax.random.fold_in(key, index[n])) for n in group], 1)
         return self.learners[group[0]].update_key, tuple(buffers[k] for k in bkeys), which, keys
 
     def _learn_group(self, group: Sequence[str], learners: dict, buffers: dict, key: jax.Array
@@ -1135,7 +1174,7 @@ class Experiment:
         def fit_seed(lat, k_f, k_s, lstate, b, held):
             return fit_and_score(lat, held, k_f, c.probe, self._object_scorer(learner))
 
-        keys = jax.random.split(jax.random.fold_in(key, i), self.S)
+        keys = self.seed_keys(jax.random.fold_in(key, i))
         k_s, k_p = jax.vmap(jax.random.split)(keys).swapaxes(0, 1)
         buf = (windows if seq else buffers)[buffer_key(self.retention[name])]
         return {name: probe_over_seeds(self.loop_of(name), latents_seed, fit_seed, k_p,

@@ -35,10 +35,12 @@ from typing import Any, Callable, Sequence
 
 import jax
 
+from bulbjax import distributed
 from bulbjax.experiment import report, rundir
 from bulbjax.experiment.checkpoint import CHECKPOINT_DIR, Checkpointer
 from bulbjax.experiment.console import StageLog
 from bulbjax.experiment.config import ExperimentConfig, read_run_config
+from bulbjax.experiment.groups import SeedGroups
 from bulbjax.experiment.loop import Experiment
 
 VERSIONED = ("jax", "jaxlib", "flax", "optax", "orbax-checkpoint", "mujoco", "mujoco-mjx",
@@ -81,7 +83,8 @@ class RunResult:
 
 
 # ---------------------------------------------------------------------------- provenance
-def provenance(argv: Sequence[str] | None = None, experiment: Experiment | None = None) -> dict[str, Any]:
+def provenance(argv: Sequence[str] | None = None, experiment: Experiment | SeedGroups | None = None
+               ) -> dict[str, Any]:
     """Where and how a stretch of the run was made: command line, package versions, git commit
     of the bulbjax checkout (and whether it had uncommitted changes), devices, host, time."""
     versions = {}
@@ -104,7 +107,10 @@ def provenance(argv: Sequence[str] | None = None, experiment: Experiment | None 
         **git_state(),
         "source_sha256": source_hash(),
     }
-    if experiment is not None:
+    if isinstance(experiment, SeedGroups):
+        out.update(experiment.provenance())
+        out["compiler_options"] = dict(experiment.exp.compiler_options)
+    elif experiment is not None:
         out["mesh"] = dict(experiment.mesh.shape)
         out["compiler_options"] = dict(experiment.compiler_options)
     return out
@@ -184,6 +190,21 @@ def check_resume(run_dir: str, cfg: ExperimentConfig, opts: RunOptions) -> None:
         raise ValueError(f"--resume {run_dir}: the given settings differ from the run's config.json: "
                          + "; ".join(diff) + ". Resume without those flags (the run keeps its own "
                          "settings; only --epochs may grow), or start a new run with another --out")
+
+
+def saved_processes(raw: dict[str, Any]) -> int:
+    """The process count a run was made with (its first stretch's provenance; 1 before it was recorded)."""
+    return int(raw.get("provenance", {}).get("processes", 1))
+
+
+def check_processes(run_dir: str, raw: dict[str, Any]) -> None:
+    """Raise ValueError when this resume runs with another process count than the run: each
+    process's checkpoints hold its own seed groups."""
+    saved, now = saved_processes(raw), jax.process_count()
+    if saved != now:
+        raise ValueError(f"--resume {run_dir}: the run was made by {saved} process(es) and this resume has {now}; "
+                         f"each process checkpoints its own seeds, so resume with {saved} process(es) "
+                         "(the same --num-processes, or the same SLURM/MPI task count)")
 
 
 # ---------------------------------------------------------------------------- signals
@@ -279,11 +300,16 @@ def run(cfg: ExperimentConfig, opts: RunOptions, run_dir: str, *, resume: bool =
         experiment: Experiment | None = None, argv: Sequence[str] | None = None,
         log: Callable[[str], None] = print, progress: bool = True,
         on_epoch: Callable[[int], None] | None = None,
-        compiler_options: dict[str, Any] | None = None) -> RunResult:
+        compiler_options: dict[str, Any] | None = None, layout: str = "auto") -> RunResult:
     """Run (or, with `resume`, continue) the experiment `cfg` in `run_dir`; see the module doc.
     A fresh run refuses a folder that holds a run (ValueError naming it) unless `overwrite`,
     which deletes that run's metrics, checkpoints and plots first (`rundir.check_out_dir`).
-    `devices` (default: all local devices) are the mesh of `Experiment`; `experiment` reuses a built `Experiment(cfg)` (tests: one compile for several runs);
+    `devices` (default: every device of every process) carry the seeds as `SeedGroups` lays them
+    out (`layout`: "auto", "groups", "sharded", "single"); `experiment` reuses a built
+    `Experiment(cfg)` (tests: one compile for several runs). With several processes
+    (`bulbjax.distributed`) every process calls this with the same arguments: each runs its
+    devices' seed groups and writes its own checkpoints (`checkpoints/process_<i>`), process 0
+    alone writes config.json, metrics.jsonl and the reports;
     `on_epoch(epochs_done)` is called after each epoch's metrics are written (tests);
     `compiler_options`: XLA options for the jitted init and epoch (recorded in the provenance)."""
     from tqdm import tqdm
@@ -291,50 +317,59 @@ def run(cfg: ExperimentConfig, opts: RunOptions, run_dir: str, *, resume: bool =
     from bulbjax.learners import check_finite
 
     t0 = time.time()
+    writer = distributed.is_writer()
+    if not writer:
+        progress = False
     rundir.check_out_dir(run_dir, resume=resume, overwrite=overwrite)  # nothing lost by accident
-    rundir.remove_stale_temporaries(run_dir)
+    if writer:
+        rundir.remove_stale_temporaries(run_dir)
     stages = StageLog(log, t0)
     metrics_path = os.path.join(run_dir, "metrics.jsonl")
     config_path = os.path.join(run_dir, "config.json")
     if resume:
         check_resume(run_dir, cfg, opts)
         _, raw = read_run_config(run_dir)
+        check_processes(run_dir, raw)
     else:
-        _start_fresh(run_dir, log)
+        if writer:
+            _start_fresh(run_dir, log)
         raw = {"experiment": dataclasses.asdict(cfg),
                "run": {k: getattr(opts, k) for k in IDENTITY}}
+    distributed.barrier("bulbjax-run-folder")  # process 0 cleared the folder before anyone writes
     if experiment is not None and experiment.config != cfg:
         raise ValueError("run(experiment=...) was built for another config")
-    if experiment is None:
-        with stages("building the environment and learners"):
-            exp = Experiment(cfg, devices=jax.local_devices() if devices is None else devices,
-                             compiler_options=compiler_options)
+    if experiment is not None:
+        groups = SeedGroups.of(experiment)
     else:
-        exp = experiment
-    stretch = provenance(argv, exp)
+        with stages("building the environment and learners"):
+            groups = SeedGroups(cfg, devices=devices, compiler_options=compiler_options, form=layout, log=log)
+    exp = groups.exp
+    log(f"devices: {groups.describe()}")
+    stretch = provenance(argv, groups)
     if resume:
         raw.setdefault("resumes", []).append(stretch)
         raw["experiment"]["epochs"] = cfg.epochs
     else:
         raw["provenance"] = stretch
-    # cleanup_tmp: a checkpoint a killed stretch left half-written goes (this process alone writes here)
-    ckpt = Checkpointer(run_dir, keep=opts.keep, cleanup_tmp=True)
+    # cleanup_tmp: a checkpoint a killed stretch left half-written goes (each process writes its own)
+    ckpt = Checkpointer(run_dir, keep=opts.keep, process=jax.process_index() if groups.processes > 1 else None,
+                        cleanup_tmp=True)
     # init and the epochs this run uses, traced before anything else in this process so that a
     # resumed stretch compiles the same programs as the fresh one (and hits the compile cache);
     # probe_every is part of a run's identity, so fresh and resumed stretches trace the same ones
     with stages("tracing and lowering " + ("the epoch" if resume else "init and the epoch")):
-        programs = exp.programs((True,) if opts.probe_every == 1 else (True, False))
+        programs = groups.programs((True,) if opts.probe_every == 1 else (True, False))
         # compiles (or compile-cache loads) in background threads: init's and the epoch's overlap,
         # and a resume's restore overlaps the epoch's
         programs.prepare(*(("epoch",) if resume else ("init", "epoch")))
     stages.line("compiling " + ("the epoch" if resume else "init and the epoch")
                 + " in the background (or loading them from the compile cache)")
     if resume:
-        like = {"run": exp.abstract_state(), "key": exp.abstract_key()}
+        like = {"run": groups.abstract_state(), "key": groups.abstract_key()}
         with stages(f"restoring the checkpoint of epoch {ckpt.latest()}"):
             state, host, start = ckpt.restore(like)
         rs, key = state["run"], state["key"]
-        if int(rs.epoch) != start or host.get("epoch") != start:
+        if int(groups.group_state(rs).epoch) != start or host.get("epoch") != start:
             raise ValueError(f"checkpoint {start} holds epoch {int(rs.epoch)}: the checkpoint folder is inconsistent")
         records = _metrics_up_to(metrics_path, start, cfg.seeds)
         raw["resumes"][-1]["from_epoch"] = start
@@ -343,16 +378,17 @@ def run(cfg: ExperimentConfig, opts: RunOptions, run_dir: str, *, resume: bool =
         with stages("compiling and running init"):
             rs = programs.init(jax.random.PRNGKey(opts.seed))
             jax.block_until_ready(rs)
-        key, start, records = exp.put_key(jax.random.PRNGKey(opts.seed + 1)), 0, []
-    _write_json_atomic(config_path, raw)
+        key, start, records = groups.put_key(jax.random.PRNGKey(opts.seed + 1)), 0, []
+    if writer:
+        _write_json_atomic(config_path, raw)
     jax.block_until_ready(rs)
     if start < cfg.epochs:
         with stages("compiling the epoch"):
             programs.compiled("epoch")
     t_init = time.time() - t0
-    tb = _TensorBoard(run_dir, purge_step=start if resume else None) if opts.tensorboard else None
+    tb = _TensorBoard(run_dir, purge_step=start if resume else None) if opts.tensorboard and writer else None
     figs, drawn = None, None
-    if opts.recon_every:
+    if opts.recon_every and writer:
         from bulbjax.experiment.recon import RunFigures
 
         figs = RunFigures(exp, run_seed=opts.seed)
@@ -365,7 +401,8 @@ def run(cfg: ExperimentConfig, opts: RunOptions, run_dir: str, *, resume: bool =
     try:
         with StopSignal(bar.write) as stop:
             while epoch < cfg.epochs:
-                if opts.max_minutes and time.time() - t0 > 60 * opts.max_minutes:
+                # every process takes process 0's decision: their clocks differ
+                if distributed.broadcast_flag(bool(opts.max_minutes) and time.time() - t0 > 60 * opts.max_minutes):
                     stopped = "max-minutes"
                     break
                 if opts.stop_after and epoch - start >= opts.stop_after:
@@ -374,16 +411,16 @@ def run(cfg: ExperimentConfig, opts: RunOptions, run_dir: str, *, resume: bool =
                 key, k = jax.random.split(key)
                 with stages(f"first epoch ({epoch})") if t_first is None else contextlib.nullcontext():
                     rs, m = programs.epoch(rs, k, probe=_probe_now(epoch, cfg, opts))
-                    m = jax.device_get(m)
                 if t_first is None:
                     t_first = time.time() - t0 - t_init
                 for name, lm in m["learners"].items():
                     check_finite(lm, where=f"learner {name} at epoch {epoch}")
                 recs = report.epoch_records(epoch, m, exp.spec)
-                try:  # metrics first: a checkpoint never runs ahead; whole records or none
-                    report.write_jsonl(metrics_path, recs)
-                except OSError as err:
-                    raise _write_failed(run_dir, f"metrics.jsonl (epoch {epoch})", err) from err
+                if writer:
+                    try:  # metrics first: a checkpoint never runs ahead; whole records or none
+                        report.write_jsonl(metrics_path, recs)
+                    except OSError as err:
+                        raise _write_failed(run_dir, f"metrics.jsonl (epoch {epoch})", err) from err
                 if tb:
                     tb.write(recs)
                 records += recs
@@ -395,12 +432,12 @@ def run(cfg: ExperimentConfig, opts: RunOptions, run_dir: str, *, resume: bool =
                     _save(ckpt, run_dir, epoch, rs, key)
                     saved = epoch
                 if figs is not None and epoch % opts.recon_every == 0:
-                    figs.draw(rs, run_dir, epoch)
+                    figs.draw(groups.group_state(rs), run_dir, epoch)
                     drawn = epoch
                 if on_epoch is not None:
                     on_epoch(epoch)
-                if stop.signum is not None:
-                    stopped = f"signal {signal.Signals(stop.signum).name}"
+                if distributed.broadcast_flag(stop.signum is not None):
+                    stopped = f"signal {signal.Signals(stop.signum).name}" if stop.signum else "signal (process 0)"
                     break
             if saved != epoch:
                 _save(ckpt, run_dir, epoch, rs, key)
@@ -411,15 +448,14 @@ def run(cfg: ExperimentConfig, opts: RunOptions, run_dir: str, *, resume: bool =
         if tb:
             tb.close()
     if figs is not None and epoch > start and drawn != epoch:  # and at the end
-        figs.draw(rs, run_dir, epoch)
+        figs.draw(groups.group_state(rs), run_dir, epoch)
     if stopped != "done":
         log(f"stopped after epoch {epoch} ({stopped}); continue with: bulbjax run --resume {run_dir}")
     wall = time.time() - t0
     first = f", first epoch {t_first:.1f} s" if t_first is not None else ""
     timing = (f"wall time of the last stretch {wall:.1f} s (start-up: build, compile, init/restore "
-              f"{t_init:.1f} s{first}) "
-              f"on {exp.mesh.size} x {jax.devices()[0].device_kind}")
-    if records:
+              f"{t_init:.1f} s{first}) on {groups.describe()}")
+    if records and writer:
         tab = report.write_reports(run_dir, records, cfg, exp.spec, exp.env.solved_return, footer=timing)
         log(f"\n{tab}\n\n{timing}\nplot: {os.path.join(run_dir, 'fig2.png')}\nmetrics: {metrics_path}")
     return RunResult(epochs_done=epoch, stopped=stopped, records=records, checkpoint=saved)

@@ -25,26 +25,41 @@ LOG_FILE = "log.txt"
 DELETING = ".deleting-"  # `checkpoints.deleting-<pid>`: an earlier run's checkpoints on their way out
 
 
+def log_name(process: int = 0) -> str:
+    """The log file of a run's process: `log.txt` (process 0), `log_process<i>.txt` (others)."""
+    return LOG_FILE if process == 0 else f"log_process{process}.txt"
+
+
 class RunFolderExists(ValueError):
     """A fresh run was asked to start in a folder that holds a run (neither resume nor overwrite)."""
+
+
+def _steps_in(d: str) -> set[int]:
+    try:
+        names = os.listdir(d)
+    except OSError:
+        return set()
+    return {int(n) for n in names if n.isdigit() and os.path.isdir(os.path.join(d, n))}
 
 
 def checkpoint_steps(run_dir: str) -> list[int]:
     """Epochs (or updates) of the complete checkpoints in `run_dir/checkpoints`, oldest first.
     Orbax writes a checkpoint into `<step>.orbax-checkpoint-tmp-<n>` and renames it to `<step>`
-    once complete, so a folder named by digits alone is a complete checkpoint."""
+    once complete, so a folder named by digits alone is a complete checkpoint. A multi-process
+    run keeps one folder per process (`process_<i>/<step>`): the steps every process has."""
     d = os.path.join(run_dir, CHECKPOINT_DIR)
-    try:
-        names = os.listdir(d)
-    except OSError:
-        return []
-    return sorted(int(n) for n in names if n.isdigit() and os.path.isdir(os.path.join(d, n)))
+    procs = sorted(glob.glob(os.path.join(glob.escape(d), "process_*")))
+    if procs:
+        return sorted(set.intersection(*(_steps_in(p) for p in procs)))
+    return sorted(_steps_in(d))
 
 
 def partial_checkpoints(run_dir: str) -> list[str]:
     """Unfinished checkpoint folders (a process killed while writing one); orbax removes them when
     the run's next stretch opens its checkpoints."""
-    return sorted(glob.glob(os.path.join(run_dir, CHECKPOINT_DIR, "*.orbax-checkpoint-tmp*")))
+    d = glob.escape(os.path.join(run_dir, CHECKPOINT_DIR))
+    return sorted(glob.glob(os.path.join(d, "*.orbax-checkpoint-tmp*"))
+                  + glob.glob(os.path.join(d, "process_*", "*.orbax-checkpoint-tmp*")))
 
 
 def holds(run_dir: str, files: Sequence[str] = RUN_FILES) -> list[str]:
@@ -137,7 +152,9 @@ def _oserror(err: OSError) -> str:
 def probe_writable(run_dir: str, size: int = 65536) -> None:
     """Create, write `size` bytes to, sync and remove a file in `run_dir`: a read-only or full
     folder is a clear error now rather than a lost epoch later."""
-    path = os.path.join(run_dir, f".bulbjax-write-probe-{os.getpid()}")
+    import socket
+
+    path = os.path.join(run_dir, f".bulbjax-write-probe-{socket.gethostname()}-{os.getpid()}")
     try:
         fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
         try:
