@@ -16,8 +16,9 @@ $(STAMP): pyproject.toml
 
 venv: $(STAMP)
 
+# the demo starts afresh each time (--overwrite): a repeated `make demo` replaces runs/demo
 demo: $(STAMP)
-	$(BIN)/bulbjax run --env CartPole --learners vae,vae_rpl,beta_vae --seeds 2 --epochs 6 --out runs/demo --small
+	$(BIN)/bulbjax run --env CartPole --learners vae,vae_rpl,beta_vae --seeds 2 --epochs 6 --out runs/demo --small --overwrite
 
 test: $(STAMP)
 	$(BIN)/python -m pytest -q -n 2 --dist loadfile tests

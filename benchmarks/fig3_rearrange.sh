@@ -30,7 +30,8 @@ if [ -n "$(ls -A "$RUN/checkpoints" 2>/dev/null)" ]; then
   args=(--resume "$RUN")
 else
   # shellcheck disable=SC2206
-  args=(--preset fig3-rearrange-geom --bf16 --probe-every 5 --out "$RUN" ${EXTRA:-})
+  # no checkpoint: nothing to resume, so start afresh over what an earlier stretch left (--overwrite)
+  args=(--preset fig3-rearrange-geom --bf16 --probe-every 5 --out "$RUN" --overwrite ${EXTRA:-})
 fi
 [ -n "${EPOCHS:-}" ] && args+=(--epochs "$EPOCHS")
 timeout -k 15 "$LIMIT" "$PYTHON" -m bulbjax run "${args[@]}" --max-minutes "$MAX_MINUTES" \

@@ -11,7 +11,7 @@
 # runs/cache), PYTHON (default .venv/bin/python if present, else python), EXTRA (more `fit`
 # flags, e.g. the CPU smoke test's "--small --seeds 1 --data-worlds 8 ..."), RESUME=1 (continue the
 # fits in OUT_ROOT from their checkpoints: 5,000 updates take two or three 10-minute calls on the
-# same machine; UPDATES may grow).
+# same machine; UPDATES may grow). Without RESUME a fit starts afresh (--overwrite) over an earlier one.
 # Writes OUT_ROOT/offline_<env>/{curves.jsonl,curves.png,table.md,recon.png,config.json}.
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -22,6 +22,8 @@ CACHE=${CACHE:-runs/cache}
 if [ -z "${PYTHON:-}" ]; then
   if [ -x .venv/bin/python ]; then PYTHON=.venv/bin/python; else PYTHON=python; fi
 fi
+MODE=--overwrite  # a fresh fit replaces an earlier one in OUT_ROOT
+[ -n "${RESUME:-}" ] && MODE=--resume
 ENVS=("$@")
 [ ${#ENVS[@]} -eq 0 ] && ENVS=(invpend cartpole)
 for env in "${ENVS[@]}"; do
@@ -32,5 +34,5 @@ for env in "${ENVS[@]}"; do
   # shellcheck disable=SC2086
   "$PYTHON" -m bulbjax.cli fit --preset "fig2-$env" --learners vae_rpl,svae,pred,dsa --seeds 3 \
     --updates "$UPDATES" --probe-every 250 --bf16 --max-minutes "$MAX_MINUTES" \
-    --cache-dir "$CACHE" --out "$OUT_ROOT/offline_$env" ${RESUME:+--resume} ${EXTRA:-}
+    --cache-dir "$CACHE" --out "$OUT_ROOT/offline_$env" "$MODE" ${EXTRA:-}
 done

@@ -6,7 +6,8 @@
 #   benchmarks/rl_inputs.sh [KIND ...]     KIND: state, latent:vae_rpl, pixels (default: all three)
 #
 # Environment: MINUTES (per run, default 2.5: `run` stops cleanly after it), EPOCHS (default 400),
-# OUT_ROOT (default docs/results/rl_inputs_invpend), PYTHON, EXTRA (more `run` flags).
+# OUT_ROOT (default docs/results/rl_inputs_invpend), PYTHON, EXTRA (more `run` flags). Each call
+# regenerates the runs (--overwrite replaces those of an earlier call).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 MINUTES=${MINUTES:-2.5}
@@ -22,7 +23,7 @@ for kind in "${KINDS[@]}"; do
   out="$OUT_ROOT/${kind//:/_}"
   # shellcheck disable=SC2086
   "$PYTHON" -m bulbjax.cli run --preset fig2-invpend --learners vae_rpl --seeds 3 --epochs "$EPOCHS" \
-    --bf16 --rl-input "$kind" --max-minutes "$MINUTES" --out "$out" ${EXTRA:-}
+    --bf16 --rl-input "$kind" --max-minutes "$MINUTES" --out "$out" --overwrite ${EXTRA:-}
   DIRS+=("$out")
 done
 "$PYTHON" -m bulbjax.cli report --compare-rl "${DIRS[@]}" --out "$OUT_ROOT"

@@ -133,8 +133,12 @@ def cmd_run(args: argparse.Namespace) -> int:
         local_device_ids=_parse_ids(args.local_devices), auto=args.distributed))
     import jax
 
+    from bulbjax.experiment.console import log_to_file
     from bulbjax.experiment.run import RunOptions, run
+    from bulbjax.experiment.rundir import check_out_dir, log_name
 
+    if args.resume and args.overwrite:
+        raise ValueError("--resume continues the run in its folder and --overwrite deletes it: give one of them")
     if args.resume:
         cfg, opts = resume_settings(args)
         out = args.resume
@@ -150,8 +154,13 @@ def cmd_run(args: argparse.Namespace) -> int:
                for d in [x for x in jax.devices() if x.process_index == p][: args.devices or None]]
     from bulbjax.experiment.loop import parse_compiler_options
 
-    run(cfg, opts, out, resume=bool(args.resume), devices=devices, argv=["bulbjax", *getattr(args, "argv", [])],
-        compiler_options=parse_compiler_options(args.xla_option or []), layout=args.layout)
+    compiler_options = parse_compiler_options(args.xla_option or [])
+    # before anything is built: a run in the way or an unwritable folder is a one-line error
+    check_out_dir(out, resume=bool(args.resume), overwrite=args.overwrite)
+    argv = ["bulbjax", *getattr(args, "argv", [])]
+    with log_to_file(os.path.join(out, log_name(jax.process_index())), fresh=args.overwrite, header=" ".join(argv)):
+        run(cfg, opts, out, resume=bool(args.resume), overwrite=args.overwrite, devices=devices, argv=argv,
+            compiler_options=compiler_options, layout=args.layout)
     return 0
 
 
@@ -222,9 +231,15 @@ def build_offline_config(args: argparse.Namespace):
 def cmd_fit(args: argparse.Namespace) -> int:
     from bulbjax.experiment import offline
 
+    from bulbjax.experiment.console import log_to_file
+    from bulbjax.experiment.rundir import LOG_FILE, check_out_dir
+
     cfg = build_offline_config(args)
-    offline.run(cfg, args.out, cache_dir=args.cache_dir, max_minutes=args.max_minutes, seed=args.seed,
-                resume=args.resume)
+    check_out_dir(args.out, resume=args.resume, overwrite=args.overwrite, fit=True)
+    with log_to_file(os.path.join(args.out, LOG_FILE), fresh=args.overwrite,
+                     header=" ".join(["bulbjax", *getattr(args, "argv", [])])):
+        offline.run(cfg, args.out, cache_dir=args.cache_dir, max_minutes=args.max_minutes, seed=args.seed,
+                    resume=args.resume, overwrite=args.overwrite)
     print(f"curves: {args.out}/curves.png, {args.out}/curves.jsonl; table: {args.out}/table.md; "
           f"reconstructions: {args.out}/recon.png")
     return 0
@@ -345,6 +360,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     r.add_argument("--resume", default=None, metavar="RUN_DIR",
                    help="continue the run in RUN_DIR from its newest checkpoint with its own config.json "
                         "(flags that would change it are an error; --epochs may extend it)")
+    r.add_argument("--overwrite", action="store_true",
+                   help="start afresh in an --out folder that holds a run, deleting its metrics, checkpoints "
+                        "and plots (without it such a folder is an error that names the run)")
     r.add_argument("--checkpoint-every", type=int, default=0, metavar="N",
                    help="checkpoint every N epochs (0, default: only when the run stops: at the end, "
                         "--max-minutes, --stop-after, SIGINT/SIGTERM)")
@@ -425,6 +443,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     o.add_argument("--out", default="runs/fit")
     o.add_argument("--resume", action="store_true",
                    help="continue the fit in --out from its checkpoint (same flags; a larger --updates extends it)")
+    o.add_argument("--overwrite", action="store_true",
+                   help="start afresh in an --out folder that holds a fit, replacing its curves and checkpoints "
+                        "(without it such a folder is an error that names the fit)")
     o.set_defaults(fn=cmd_fit)
     e = sub.add_parser("envs", help="list the environments")
     e.set_defaults(fn=cmd_envs)

@@ -68,8 +68,12 @@ def test_recon_every_writes_figures(exp, runs) -> None:
     for j in range(frames.shape[0]):
         y, x = lay.origin(0, j)
         np.testing.assert_allclose(png[y: y + 64: 2, x: x + 64: 2], frames[j] / 255.0, atol=1 / 255 + 1e-6)
-    # a fresh run in the same folder removes the old figures
-    run(exp.config, RunOptions(stop_after=1), d, experiment=exp, progress=False, log=lambda s: None)
+    # a fresh run in the same folder is refused without --overwrite, and with it removes the old figures
+    from bulbjax.experiment.rundir import RunFolderExists
+    with pytest.raises(RunFolderExists):
+        run(exp.config, RunOptions(stop_after=1), d, experiment=exp, progress=False, log=lambda s: None)
+    assert [f for f in os.listdir(d) if f.startswith(("recon_", "boxes_"))]
+    run(exp.config, RunOptions(stop_after=1), d, overwrite=True, experiment=exp, progress=False, log=lambda s: None)
     assert not [f for f in os.listdir(d) if f.startswith(("recon_", "boxes_"))]
 
 

@@ -339,3 +339,121 @@ def test_resumed_process_compiles_the_same_epoch_program():
     assert out["fresh"]["hash"] == out["resume"]["hash"]
     assert out["epoch_first"]["hash"] != out["fresh"]["hash"]
     assert out["init_traced_twice"]["hash"] != out["fresh"]["hash"]
+
+
+def test_overwrite_refused_then_starts_afresh(exp, straight, tmp_path):
+    """A fresh run over a run folder is a ValueError naming it, touching nothing; `overwrite`
+    deletes the earlier run's metrics and checkpoints and starts afresh."""
+    from bulbjax.experiment.rundir import RunFolderExists
+
+    d0, _ = straight
+    d = str(tmp_path / "again")
+    run(exp.config, RunOptions(stop_after=1, seed=5), d, experiment=exp, progress=False, log=lambda s: None)
+    before = _lines(d)
+    with pytest.raises(RunFolderExists, match=r"holds a run \(CartPole \(vae_rpl, svae\), 1 of 4 epochs in "
+                                              r"metrics.jsonl, newest checkpoint at epoch 1\)"):
+        run(exp.config, RunOptions(), d, experiment=exp, progress=False, log=lambda s: None)
+    assert _lines(d) == before and Checkpointer(d).steps() == [1]
+    said = []
+    run(exp.config, RunOptions(checkpoint_every=1, keep=2), d, overwrite=True, experiment=exp, progress=False,
+        log=said.append)
+    assert any("starting afresh: removing" in s for s in said)
+    assert _lines(d) == _lines(d0)  # the seed-5 epoch is gone: the records of a fresh seed-0 run
+    assert Checkpointer(d).steps() == [3, 4]
+    # the start-up stages, in order, each with its elapsed time
+    stages = [s.split("] ", 1)[1] for s in said if s.startswith("[")]
+    assert stages[:2] == ["tracing and lowering init and the epoch ...", "compiling init and the epoch in the "
+                          "background (or loading them from the compile cache)"] or \
+        stages[1].startswith("tracing and lowering init and the epoch: ")
+    order = [next(i for i, s in enumerate(stages) if s.startswith(x)) for x in
+             ("tracing and lowering init and the epoch ...", "compiling and running init ...",
+              "compiling and running init: ", "compiling the epoch ...", "first epoch (0) ...", "first epoch (0): ")]
+    assert order == sorted(order)
+
+
+def _fail_on_call(monkeypatch, module, name, n, make_error):
+    """Make `module.name` fail on its `n`-th call (counting from 1) with `make_error(args)`."""
+    real = getattr(module, name)
+    calls = [0]
+
+    def wrapped(*args, **kw):
+        calls[0] += 1
+        if calls[0] == n:
+            return make_error(real, *args, **kw)
+        return real(*args, **kw)
+
+    monkeypatch.setattr(module, name, wrapped)
+    return calls
+
+
+def test_disk_full_while_appending_metrics_keeps_whole_records(exp, straight, tmp_path, monkeypatch):
+    """The third epoch's metrics append fails half-way (ENOSPC): the run stops with an error
+    saying what was kept, metrics.jsonl holds the two whole epochs (no half record), the
+    checkpoint of epoch 2 stays, and a resume gives the straight run's records."""
+    import errno
+
+    from bulbjax.experiment import rundir
+
+    d0, _ = straight
+    d = str(tmp_path / "full")
+
+    def half_then_enospc(real, fd, data):
+        os.write(fd, bytes(data[: len(data) // 2]))
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    # calls of rundir._write_all: the folder's write probe, then one per epoch's metrics
+    _fail_on_call(monkeypatch, rundir, "_write_all", 4, half_then_enospc)
+    with pytest.raises(ValueError, match=r"writing metrics.jsonl \(epoch 2\) in .* failed \(OSError: .*No space "
+                                         r"left.*newest complete checkpoint is epoch 2; .*bulbjax run --resume"):
+        run(exp.config, RunOptions(checkpoint_every=1), d, experiment=exp, progress=False, log=lambda s: None)
+    monkeypatch.undo()
+    assert _lines(d) == _lines(d0)[:4] and not rundir.ends_mid_line(os.path.join(d, "metrics.jsonl"))
+    assert rundir.checkpoint_steps(d) == [1, 2]
+    res = run(exp.config, RunOptions(), d, resume=True, experiment=exp, progress=False, log=lambda s: None)
+    assert res.epochs_done == 4 and _lines(d) == _lines(d0)
+
+
+def test_failed_checkpoint_write_keeps_the_last_one(exp, straight, tmp_path, monkeypatch):
+    """The checkpoint of epoch 2 fails at orbax's final rename (a full disk): the run stops
+    naming checkpoint 1 as the newest; its unfinished folder is removed when the run resumes,
+    which continues from 1 and gives the straight run's records."""
+    import errno
+
+    from orbax.checkpoint._src.path import async_path
+
+    from bulbjax.experiment import rundir
+
+    d0, _ = straight
+    d = str(tmp_path / "ckfail")
+
+    real = async_path.rename
+
+    async def rename(src, dst):  # the final rename of checkpoint 2 (orbax renames a few things)
+        if os.path.basename(str(dst)) == "2":
+            raise OSError(errno.ENOSPC, "No space left on device")
+        return await real(src, dst)
+
+    monkeypatch.setattr(async_path, "rename", rename)
+    with pytest.raises(ValueError, match=r"writing the checkpoint of epoch 2 .*newest complete checkpoint is "
+                                         r"epoch 1"):
+        run(exp.config, RunOptions(checkpoint_every=1), d, experiment=exp, progress=False, log=lambda s: None)
+    monkeypatch.undo()
+    assert rundir.checkpoint_steps(d) == [1] and rundir.partial_checkpoints(d)
+    assert len(_lines(d)) == 4  # epochs 0 and 1 were written before the checkpoint failed
+    said = []
+    run(exp.config, RunOptions(), d, resume=True, experiment=exp, progress=False, log=said.append)
+    assert any("resuming" in s and "at epoch 1" in s for s in said)
+    assert _lines(d) == _lines(d0) and not rundir.partial_checkpoints(d)
+
+
+def test_resume_cuts_a_half_written_last_line(exp, straight, tmp_path):
+    """Killed in the middle of an append, with every whole record older than the checkpoint:
+    the half line is cut before the resumed run appends (it used to stay, and the next record
+    was glued onto it)."""
+    d0, _ = straight
+    d = str(tmp_path / "half")
+    run(exp.config, RunOptions(stop_after=2), d, experiment=exp, progress=False, log=lambda s: None)
+    with open(os.path.join(d, "metrics.jsonl"), "a") as f:
+        f.write(_lines(d0)[4][:50])  # epoch 2, seed 0, half written
+    run(exp.config, RunOptions(), d, resume=True, experiment=exp, progress=False, log=lambda s: None)
+    assert _lines(d) == _lines(d0)

@@ -32,9 +32,11 @@ def _paths(tree: Any) -> list[str]:
 
 class Checkpointer:
     """Saves and restores `{"run": RunState, "key": host key}` under `run_dir/checkpoints/<epoch>`,
-    keeping the newest `keep`. Steps are the number of epochs done."""
+    keeping the newest `keep`. Steps are the number of epochs done. `cleanup_tmp`: remove the
+    unfinished checkpoint folders a killed process left (only for the one process that writes
+    the run: a reader must not remove a running run's checkpoint in progress)."""
 
-    def __init__(self, run_dir: str, keep: int = 2, process: int | None = None):
+    def __init__(self, run_dir: str, keep: int = 2, process: int | None = None, cleanup_tmp: bool = False):
         if keep < 1:
             raise ValueError(f"--keep must be >= 1 (checkpoints kept), got {keep}")
         self.directory = os.path.abspath(os.path.join(run_dir, CHECKPOINT_DIR))
@@ -49,7 +51,7 @@ class Checkpointer:
         self.keep = keep
         # orbax refuses arrays of one process's devices in a multi-process run: they go as numpy
         self.host_arrays = process is not None
-        opts = ocp.CheckpointManagerOptions(max_to_keep=keep, create=process is None,
+        opts = ocp.CheckpointManagerOptions(max_to_keep=keep, create=process is None, cleanup_tmp_directories=cleanup_tmp,
                                             enable_async_checkpointing=False, multiprocessing_options=mp)
         self._mngr = ocp.CheckpointManager(self.directory, options=opts)
 

@@ -142,6 +142,10 @@ class SeedGroups:
             p.prepare(*which)
         return self
 
+    def compiled(self, which: str) -> list[Any]:
+        """Every group's compiled program `which` (`Programs.compiled`: waits for its compile)."""
+        return [p.compiled(which) for p in self._programs]
+
     def _unwrap(self, state: Any) -> list[RunState]:
         return [state] if len(self.exps) == 1 else list(state)
 

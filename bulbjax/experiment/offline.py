@@ -19,7 +19,6 @@ from __future__ import annotations
 import dataclasses
 import json
 import os
-import shutil
 import time
 from dataclasses import dataclass, field
 from typing import Any, Callable
@@ -279,28 +278,34 @@ def _check_resumable(out_dir: str, now: dict[str, Any]) -> None:
 
 
 def run(config: OfflineConfig, out_dir: str, cache_dir: str | None = None, max_minutes: float = 0.0,
-        seed: int = 0, log: Callable[[str], None] = print, resume: bool = False) -> list[dict[str, Any]]:
+        seed: int = 0, log: Callable[[str], None] = print, resume: bool = False,
+        overwrite: bool = False) -> list[dict[str, Any]]:
     """The whole offline fit: data (cached), training, a probe at update 0 and every
     `probe_every` updates (and at the end), `curves.jsonl`, `curves.png`, `table.md`,
     `recon.png`, `config.json` under `out_dir`. Stops cleanly after `max_minutes` of wall time
     (then the last chunk is probed and everything is written) and checkpoints the learners, the
     key chain and the update count under `out_dir/checkpoints` (the newest only). `resume`
     continues such a fit, same settings (a larger `updates` extends it), appending to
-    `curves.jsonl`: a fit longer than one stretch of GPU time is several calls. Returns all
-    records."""
+    `curves.jsonl`: a fit longer than one stretch of GPU time is several calls. A fresh fit
+    refuses a folder that holds a fit (ValueError naming it) unless `overwrite`, which replaces
+    its curves and checkpoints (the dataset cache stays). Returns all records."""
+    from bulbjax.experiment import rundir
     from bulbjax.experiment.checkpoint import CHECKPOINT_DIR, Checkpointer
 
     c = config
     t0 = time.time()
-    os.makedirs(out_dir, exist_ok=True)
+    rundir.check_out_dir(out_dir, resume=resume, overwrite=overwrite, fit=True)  # nothing lost by accident
+    rundir.remove_stale_temporaries(out_dir)
     cache_dir = cache_dir if cache_dir is not None else os.path.join(out_dir, "data")
     fit = OfflineFit(c)
     cfg_json = _config_json(c, fit, seed)
     if resume:
         _check_resumable(out_dir, cfg_json)
     else:
-        with open(os.path.join(out_dir, "config.json"), "w") as f:
+        tmp = os.path.join(out_dir, f"config.json.tmp{os.getpid()}")
+        with open(tmp, "w") as f:
             json.dump(cfg_json, f, indent=1)
+        os.replace(tmp, os.path.join(out_dir, "config.json"))
     data, held_traj, cached = load_or_collect(c, fit.source, cache_dir)
     held = sequence.consecutive_windows(held_traj, c.eval_length)
     ref_spread = np.asarray(jax.device_get(_ref_spread(held)))
@@ -311,8 +316,8 @@ def run(config: OfflineConfig, out_dir: str, cache_dir: str | None = None, max_m
     if not resume:  # a fresh fit: curves and checkpoints of an earlier fit in this folder go
         if os.path.exists(path):
             os.remove(path)
-        shutil.rmtree(os.path.join(out_dir, CHECKPOINT_DIR), ignore_errors=True)
-    ckpt = Checkpointer(out_dir, keep=1)
+        rundir.remove_tree(os.path.join(out_dir, CHECKPOINT_DIR))
+    ckpt = Checkpointer(out_dir, keep=1, cleanup_tmp=True)
     key = jax.random.PRNGKey(seed)
     k_init, key = jax.random.split(key)
     states = fit.init(k_init)

@@ -59,9 +59,11 @@ def epoch_records(epoch: int, metrics: Any, spec: Sequence[StateEntry]) -> list[
 
 
 def write_jsonl(path: str, records: Sequence[dict[str, Any]]) -> None:
-    with open(path, "a") as f:
-        for r in records:
-            f.write(json.dumps(r, allow_nan=True) + "\n")
+    """Append `records` as JSON lines, all of them or none (`rundir.append_whole`: one write, cut
+    back if it fails), so a killed or failing run never leaves half a record."""
+    from bulbjax.experiment import rundir
+
+    rundir.append_whole(path, "".join(json.dumps(r, allow_nan=True) + "\n" for r in records).encode())
 
 
 def read_jsonl(path: str, tolerate_partial: bool = False) -> list[dict[str, Any]]:

@@ -2,7 +2,9 @@
 
 A run folder holds `config.json` (the ExperimentConfig, the options that change results, the
 provenance of every stretch), `metrics.jsonl` (one record per epoch and seed), `checkpoints/`
-(orbax, the last K), `fig2.png`, `table.md` and, with `--tensorboard`, `tb/` event files.
+(orbax, the last K), `fig2.png`, `table.md`, `log.txt` (the CLI's console and C++ log lines,
+`console.py`) and, with `--tensorboard`, `tb/` event files. A fresh run never starts over a
+folder that holds a run unless told to (`overwrite`; `rundir.py`, docs/runs.md).
 
 Resuming is exact: a checkpoint holds the whole `RunState` and the host-side key chain, the
 epoch after it draws the same key as in an uninterrupted run, and `metrics.jsonl` is cut back
@@ -15,6 +17,7 @@ arrived (a second SIGINT interrupts at once).
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import datetime
 import hashlib
@@ -23,7 +26,6 @@ import json
 import os
 import platform
 import shlex
-import shutil
 import signal
 import subprocess
 import sys
@@ -34,8 +36,9 @@ from typing import Any, Callable, Sequence
 import jax
 
 from bulbjax import distributed
-from bulbjax.experiment import report
+from bulbjax.experiment import report, rundir
 from bulbjax.experiment.checkpoint import CHECKPOINT_DIR, Checkpointer
+from bulbjax.experiment.console import StageLog
 from bulbjax.experiment.config import ExperimentConfig, read_run_config
 from bulbjax.experiment.groups import SeedGroups
 from bulbjax.experiment.loop import Experiment
@@ -248,8 +251,8 @@ def _start_fresh(run_dir: str, log: Callable[[str], None]) -> None:
     for name in (CHECKPOINT_DIR, TB_DIR):
         p = os.path.join(run_dir, name)
         if os.path.isdir(p):
-            log(f"starting afresh: removing {p} of an earlier run in {run_dir} (use --resume to continue it)")
-            shutil.rmtree(p)
+            log(f"starting afresh: removing {p} of an earlier run in {run_dir} (--overwrite)")
+            rundir.remove_tree(p)
     from bulbjax.experiment.recon import figure_files
 
     for p in figure_files(run_dir):
@@ -257,8 +260,8 @@ def _start_fresh(run_dir: str, log: Callable[[str], None]) -> None:
 
 
 def _metrics_up_to(path: str, epoch: int, seeds: int) -> list[dict[str, Any]]:
-    """The records of epochs < `epoch` (later ones, written after the checkpoint, are cut off
-    and the file rewritten); an error if any of them is missing."""
+    """The records of epochs < `epoch` (later ones, written after the checkpoint, and a
+    half-written last line are cut off and the file rewritten); an error if any is missing."""
     records = report.read_jsonl(path, tolerate_partial=True) if os.path.exists(path) else []
     keep = [r for r in records if r["epoch"] < epoch]
     have = {(r["epoch"], r["seed"]) for r in keep}
@@ -267,7 +270,7 @@ def _metrics_up_to(path: str, epoch: int, seeds: int) -> list[dict[str, Any]]:
         raise ValueError(f"{path} lacks the records of epochs {missing[:5]}{'...' if len(missing) > 5 else ''} "
                          f"that the checkpoint of epoch {epoch} has passed; the metrics cannot be continued "
                          "without a gap. Start a new run")
-    if len(keep) != len(records):
+    if len(keep) != len(records) or rundir.ends_mid_line(path):  # later epochs, or half a record
         report.write_jsonl_atomic(path, keep)
     return keep
 
@@ -293,12 +296,14 @@ class _TensorBoard:
 
 
 def run(cfg: ExperimentConfig, opts: RunOptions, run_dir: str, *, resume: bool = False,
-        devices: Sequence[jax.Device] | None = None,
+        overwrite: bool = False, devices: Sequence[jax.Device] | None = None,
         experiment: Experiment | None = None, argv: Sequence[str] | None = None,
         log: Callable[[str], None] = print, progress: bool = True,
         on_epoch: Callable[[int], None] | None = None,
         compiler_options: dict[str, Any] | None = None, layout: str = "auto") -> RunResult:
     """Run (or, with `resume`, continue) the experiment `cfg` in `run_dir`; see the module doc.
+    A fresh run refuses a folder that holds a run (ValueError naming it) unless `overwrite`,
+    which deletes that run's metrics, checkpoints and plots first (`rundir.check_out_dir`).
     `devices` (default: every device of every process) carry the seeds as `SeedGroups` lays them
     out (`layout`: "auto", "groups", "sharded", "single"); `experiment` reuses a built
     `Experiment(cfg)` (tests: one compile for several runs). With several processes
@@ -315,7 +320,10 @@ def run(cfg: ExperimentConfig, opts: RunOptions, run_dir: str, *, resume: bool =
     writer = distributed.is_writer()
     if not writer:
         progress = False
-    os.makedirs(run_dir, exist_ok=True)
+    rundir.check_out_dir(run_dir, resume=resume, overwrite=overwrite)  # nothing lost by accident
+    if writer:
+        rundir.remove_stale_temporaries(run_dir)
+    stages = StageLog(log, t0)
     metrics_path = os.path.join(run_dir, "metrics.jsonl")
     config_path = os.path.join(run_dir, "config.json")
     if resume:
@@ -330,8 +338,11 @@ def run(cfg: ExperimentConfig, opts: RunOptions, run_dir: str, *, resume: bool =
     distributed.barrier("bulbjax-run-folder")  # process 0 cleared the folder before anyone writes
     if experiment is not None and experiment.config != cfg:
         raise ValueError("run(experiment=...) was built for another config")
-    groups = (SeedGroups.of(experiment) if experiment is not None else
-              SeedGroups(cfg, devices=devices, compiler_options=compiler_options, form=layout, log=log))
+    if experiment is not None:
+        groups = SeedGroups.of(experiment)
+    else:
+        with stages("building the environment and learners"):
+            groups = SeedGroups(cfg, devices=devices, compiler_options=compiler_options, form=layout, log=log)
     exp = groups.exp
     log(f"devices: {groups.describe()}")
     stretch = provenance(argv, groups)
@@ -340,17 +351,23 @@ def run(cfg: ExperimentConfig, opts: RunOptions, run_dir: str, *, resume: bool =
         raw["experiment"]["epochs"] = cfg.epochs
     else:
         raw["provenance"] = stretch
-    ckpt = Checkpointer(run_dir, keep=opts.keep, process=jax.process_index() if groups.processes > 1 else None)
+    # cleanup_tmp: a checkpoint a killed stretch left half-written goes (each process writes its own)
+    ckpt = Checkpointer(run_dir, keep=opts.keep, process=jax.process_index() if groups.processes > 1 else None,
+                        cleanup_tmp=True)
     # init and the epochs this run uses, traced before anything else in this process so that a
     # resumed stretch compiles the same programs as the fresh one (and hits the compile cache);
     # probe_every is part of a run's identity, so fresh and resumed stretches trace the same ones
-    programs = groups.programs((True,) if opts.probe_every == 1 else (True, False))
-    # compiles (or compile-cache loads) in background threads: init's and the epoch's overlap,
-    # and a resume's restore overlaps the epoch's
-    programs.prepare(*(("epoch",) if resume else ("init", "epoch")))
+    with stages("tracing and lowering " + ("the epoch" if resume else "init and the epoch")):
+        programs = groups.programs((True,) if opts.probe_every == 1 else (True, False))
+        # compiles (or compile-cache loads) in background threads: init's and the epoch's overlap,
+        # and a resume's restore overlaps the epoch's
+        programs.prepare(*(("epoch",) if resume else ("init", "epoch")))
+    stages.line("compiling " + ("the epoch" if resume else "init and the epoch")
+                + " in the background (or loading them from the compile cache)")
     if resume:
         like = {"run": groups.abstract_state(), "key": groups.abstract_key()}
-        state, host, start = ckpt.restore(like)
+        with stages(f"restoring the checkpoint of epoch {ckpt.latest()}"):
+            state, host, start = ckpt.restore(like)
         rs, key = state["run"], state["key"]
         if int(groups.group_state(rs).epoch) != start or host.get("epoch") != start:
             raise ValueError(f"checkpoint {start} holds epoch {int(rs.epoch)}: the checkpoint folder is inconsistent")
@@ -358,11 +375,16 @@ def run(cfg: ExperimentConfig, opts: RunOptions, run_dir: str, *, resume: bool =
         raw["resumes"][-1]["from_epoch"] = start
         log(f"resuming {run_dir} at epoch {start} (checkpoints: {ckpt.steps()})")
     else:
-        rs = programs.init(jax.random.PRNGKey(opts.seed))
+        with stages("compiling and running init"):
+            rs = programs.init(jax.random.PRNGKey(opts.seed))
+            jax.block_until_ready(rs)
         key, start, records = groups.put_key(jax.random.PRNGKey(opts.seed + 1)), 0, []
     if writer:
         _write_json_atomic(config_path, raw)
     jax.block_until_ready(rs)
+    if start < cfg.epochs:
+        with stages("compiling the epoch"):
+            programs.compiled("epoch")
     t_init = time.time() - t0
     tb = _TensorBoard(run_dir, purge_step=start if resume else None) if opts.tensorboard and writer else None
     figs, drawn = None, None
@@ -374,6 +396,8 @@ def run(cfg: ExperimentConfig, opts: RunOptions, run_dir: str, *, resume: bool =
     epoch, stopped, t_first, saved = start, "done", None, ckpt.latest() if resume else None
     bar = tqdm(total=cfg.epochs, initial=start, desc=f"{cfg.env} x{cfg.seeds} seeds", unit="epoch",
                disable=not progress)
+    if progress:
+        stages.log = bar.write  # the first epoch's lines above the bar
     try:
         with StopSignal(bar.write) as stop:
             while epoch < cfg.epochs:
@@ -385,14 +409,18 @@ def run(cfg: ExperimentConfig, opts: RunOptions, run_dir: str, *, resume: bool =
                     stopped = "stop-after"
                     break
                 key, k = jax.random.split(key)
-                rs, m = programs.epoch(rs, k, probe=_probe_now(epoch, cfg, opts))
+                with stages(f"first epoch ({epoch})") if t_first is None else contextlib.nullcontext():
+                    rs, m = programs.epoch(rs, k, probe=_probe_now(epoch, cfg, opts))
                 if t_first is None:
                     t_first = time.time() - t0 - t_init
                 for name, lm in m["learners"].items():
                     check_finite(lm, where=f"learner {name} at epoch {epoch}")
                 recs = report.epoch_records(epoch, m, exp.spec)
                 if writer:
-                    report.write_jsonl(metrics_path, recs)  # metrics first: a checkpoint never runs ahead
+                    try:  # metrics first: a checkpoint never runs ahead; whole records or none
+                        report.write_jsonl(metrics_path, recs)
+                    except OSError as err:
+                        raise _write_failed(run_dir, f"metrics.jsonl (epoch {epoch})", err) from err
                 if tb:
                     tb.write(recs)
                 records += recs
@@ -401,7 +429,7 @@ def run(cfg: ExperimentConfig, opts: RunOptions, run_dir: str, *, resume: bool =
                 if recs[0]["probes"]:
                     bar.set_postfix(_postfix(recs, records))
                 if opts.checkpoint_every and epoch % opts.checkpoint_every == 0:
-                    ckpt.save(epoch, {"run": rs, "key": key}, {"epoch": epoch})
+                    _save(ckpt, run_dir, epoch, rs, key)
                     saved = epoch
                 if figs is not None and epoch % opts.recon_every == 0:
                     figs.draw(groups.group_state(rs), run_dir, epoch)
@@ -412,7 +440,7 @@ def run(cfg: ExperimentConfig, opts: RunOptions, run_dir: str, *, resume: bool =
                     stopped = f"signal {signal.Signals(stop.signum).name}" if stop.signum else "signal (process 0)"
                     break
             if saved != epoch:
-                ckpt.save(epoch, {"run": rs, "key": key}, {"epoch": epoch})
+                _save(ckpt, run_dir, epoch, rs, key)
                 saved = epoch
     finally:
         bar.close()
@@ -424,9 +452,9 @@ def run(cfg: ExperimentConfig, opts: RunOptions, run_dir: str, *, resume: bool =
     if stopped != "done":
         log(f"stopped after epoch {epoch} ({stopped}); continue with: bulbjax run --resume {run_dir}")
     wall = time.time() - t0
-    first = f", first epoch incl. compile {t_first:.1f} s" if t_first is not None else ""
-    timing = (f"wall time of the last stretch {wall:.1f} s (build+init/restore {t_init:.1f} s{first}) "
-              f"on {groups.describe()}")
+    first = f", first epoch {t_first:.1f} s" if t_first is not None else ""
+    timing = (f"wall time of the last stretch {wall:.1f} s (start-up: build, compile, init/restore "
+              f"{t_init:.1f} s{first}) on {groups.describe()}")
     if records and writer:
         tab = report.write_reports(run_dir, records, cfg, exp.spec, exp.env.solved_return, footer=timing)
         log(f"\n{tab}\n\n{timing}\nplot: {os.path.join(run_dir, 'fig2.png')}\nmetrics: {metrics_path}")
@@ -434,6 +462,25 @@ def run(cfg: ExperimentConfig, opts: RunOptions, run_dir: str, *, resume: bool =
     # shutdown barrier first and time out there on a slow report)
     distributed.barrier("bulbjax-run-end")
     return RunResult(epochs_done=epoch, stopped=stopped, records=records, checkpoint=saved)
+
+
+def _save(ckpt: Checkpointer, run_dir: str, epoch: int, rs: Any, key: Any) -> None:
+    """The checkpoint of `epoch` epochs done; a failed write stops the run with a clear error
+    (the checkpoints before it stay: orbax renames a checkpoint's folder only once complete)."""
+    try:
+        ckpt.save(epoch, {"run": rs, "key": key}, {"epoch": epoch})
+    except Exception as err:  # OSError, or tensorstore's errors for a full or read-only disk
+        raise _write_failed(run_dir, f"the checkpoint of epoch {epoch}", err) from err
+
+
+def _write_failed(run_dir: str, what: str, err: BaseException) -> ValueError:
+    """The error of a write that failed mid-run: what was kept and how to go on."""
+    steps = rundir.checkpoint_steps(run_dir)
+    on = (f"the newest complete checkpoint is epoch {steps[-1]}; free space (or fix the folder) and "
+          f"continue with: bulbjax run --resume {run_dir}" if steps else
+          "there is no complete checkpoint yet; fix the folder and start again with --overwrite")
+    return ValueError(f"writing {what} in {run_dir} failed ({type(err).__name__}: {err}); the run "
+                      f"stopped, metrics.jsonl holds whole records only and {on}")
 
 
 def _postfix(recs: list[dict], records: list[dict]) -> dict[str, str]:

@@ -1,0 +1,150 @@
+"""The console of a run: each start-up stage named with its elapsed time, a ticker while one runs
+long, and the C++ libraries' log lines (XLA's autotuner: "Delay kernel timed out", "Very slow
+compile?") kept in the run's `log.txt` instead of the user's console.
+
+Before its first epoch a run may compile for minutes (the six-learner preset: ~3 minutes on a
+fresh H100). `StageLog` prints `[  12.3 s] compiling the epoch ...` when a stage starts, its
+duration when it ends, and `still compiling the epoch (95 s)` every 30 s while it runs.
+
+`log_to_file(path)` points file descriptor 2 (where XLA, absl and other C++ code write their
+log lines) at the log file and puts a tee in `sys.stdout` and `sys.stderr`: Python's output
+(progress, stage lines, warnings, tracebacks) still reaches the console and is copied into the
+file; C++ log lines go only to the file. A crash in C++ (abort, segfault) prints Python's
+traceback on the console (`faulthandler`), and a run that ends in an error names the log file.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import datetime
+import faulthandler
+import os
+import sys
+import threading
+import time
+from typing import Any, Callable, Iterator, TextIO
+
+
+class StageLog:
+    """`with stages("compiling the epoch"): ...` prints `[elapsed] compiling the epoch ...`, then
+    `[elapsed] compiling the epoch: 27.8 s`, and while the stage runs longer than `tick`
+    seconds, `[elapsed] still compiling the epoch (60 s)` every `tick` seconds (from a
+    background thread: the main thread is blocked in a compile). Elapsed times count from `t0`
+    (default: now). `log` may be swapped (e.g. for a progress bar's `write`)."""
+
+    def __init__(self, log: Callable[[str], None] = print, t0: float | None = None, tick: float = 30.0):
+        self.log = log
+        self.t0 = time.time() if t0 is None else t0
+        self.tick = tick
+
+    def elapsed(self) -> float:
+        return time.time() - self.t0
+
+    def line(self, text: str) -> None:
+        self.log(f"[{self.elapsed():7.1f} s] {text}")
+
+    @contextlib.contextmanager
+    def __call__(self, what: str) -> Iterator[None]:
+        start = time.time()
+        self.line(f"{what} ...")
+        done = threading.Event()
+
+        def ticker() -> None:
+            while not done.wait(self.tick):
+                self.line(f"still {what} ({time.time() - start:.0f} s)")
+
+        t = threading.Thread(target=ticker, daemon=True, name="bulbjax-stage-ticker")
+        if self.tick > 0:
+            t.start()
+        try:
+            yield
+        finally:
+            done.set()
+            if t.is_alive():
+                t.join()
+        self.line(f"{what}: {time.time() - start:.1f} s")
+
+
+class _Tee:
+    """A text stream that writes to the console and copies to the log file. Progress-bar redraws
+    (text with a carriage return) are not copied: the file gets the lines a reader wants."""
+
+    def __init__(self, console: TextIO, log: TextIO):
+        self._console = console
+        self._log = log
+
+    def write(self, s: str) -> int:
+        n = self._console.write(s)
+        if "\r" not in s:
+            try:
+                self._log.write(s)
+            except (OSError, ValueError):  # a full disk or a closed log never hides console output
+                pass
+        return n if n is not None else len(s)
+
+    def flush(self) -> None:
+        self._console.flush()
+        try:
+            self._log.flush()
+        except (OSError, ValueError):
+            pass
+
+    def isatty(self) -> bool:
+        return self._console.isatty()
+
+    def fileno(self) -> int:
+        return self._console.fileno()
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self._console, name)
+
+
+@contextlib.contextmanager
+def log_to_file(path: str, fresh: bool = False, header: str = "") -> Iterator[str]:
+    """Within the block: C++ log output (file descriptor 2) goes to `path` (appended, or
+    truncated when `fresh`), Python's stdout and stderr go to the console and into `path`. On
+    leaving, everything is put back; if the block raised an unexpected error (not a ValueError,
+    whose message says what to do), the console is told where the log is.
+    Yields `path`."""
+    sys.stdout.flush()
+    sys.stderr.flush()
+    log = open(path, "w" if fresh else "a", buffering=1, encoding="utf-8", errors="replace")
+    now = datetime.datetime.now().isoformat(timespec="seconds")
+    log.write(f"==== {now} {header}\n")
+    saved_fd2 = os.dup(2)
+    console_err = os.fdopen(os.dup(saved_fd2), "w", buffering=1, encoding=getattr(sys.stderr, "encoding", None)
+                            or "utf-8", errors="backslashreplace")
+    old_out, old_err = sys.stdout, sys.stderr
+    had_faulthandler = faulthandler.is_enabled()
+    os.dup2(log.fileno(), 2)  # C/C++ writes to fd 2 (absl/XLA logging) now land in the file
+    sys.stdout, sys.stderr = _Tee(old_out, log), _Tee(console_err, log)
+    faulthandler.enable(file=console_err)  # a C++ crash still shows a traceback on the console
+    failed = False
+    try:
+        yield path
+    except (ValueError, KeyboardInterrupt, SystemExit) as err:  # the user's errors: their message says it all
+        print(f"{type(err).__name__}: {err}", file=log)
+        raise
+    except BaseException:
+        failed = True
+        raise
+    finally:
+        for s in (sys.stdout, sys.stderr):
+            try:
+                s.flush()
+            except (OSError, ValueError):
+                pass
+        os.dup2(saved_fd2, 2)
+        os.close(saved_fd2)
+        sys.stdout, sys.stderr = old_out, old_err
+        if had_faulthandler:  # on again, on the console (its earlier file is not known)
+            try:
+                faulthandler.enable(file=sys.stderr)
+            except (ValueError, OSError, AttributeError):  # a stream without a file descriptor
+                faulthandler.enable(file=sys.__stderr__)
+        else:
+            faulthandler.disable()
+        console_err.close()
+        log.close()
+        if failed:
+            print(f"(XLA's and other libraries' log lines of this run: {path})", file=sys.stderr)
