@@ -14,7 +14,8 @@ Layers, top to bottom (a module may import its own layer and the ones below, nev
      `bulbjax.gym`, and the package root `bulbjax` (`bulbjax.make`);
   2. what those use: `bulbjax.data.*` (buffers, windows, synthetic data), `bulbjax.eval.*` (probes,
      state specs, object scores), `bulbjax.rl.*` (PPO);
-  1. utilities: `bulbjax.assets.*` (model assets and their cache), `bulbjax.compile_cache`.
+  1. utilities: `bulbjax.assets.*` (model assets and their cache), `bulbjax.compile_cache`,
+     `bulbjax.distributed` (multi-process settings).
 A new module or package must be given a layer here (the test says which one has none).
 """
 
@@ -34,7 +35,7 @@ LAYERS: dict[str, int] = {
     "bulbjax.experiment": 4,
     "bulbjax.learners": 3, "bulbjax.envs": 3, "bulbjax.interop": 3, "bulbjax.gym": 3, "bulbjax": 3,
     "bulbjax.data": 2, "bulbjax.eval": 2, "bulbjax.rl": 2,
-    "bulbjax.assets": 1, "bulbjax.compile_cache": 1,
+    "bulbjax.assets": 1, "bulbjax.compile_cache": 1, "bulbjax.distributed": 1,
 }
 
 

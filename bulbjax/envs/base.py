@@ -148,8 +148,11 @@ class MjxPixelEnv:
                 add_bulb_camera(spec, cam, name=f"pan{i}")
         self.mj_model = spec.compile()
         warp_graphs.install()  # keep every CUDA graph an epoch captures (GPU), see warp_graphs
-        self.mx = self._post_put(mjx.put_model(self.mj_model, impl="warp"))
-        self._data0 = mjx.make_data(self.mj_model, impl="warp", njmax=self.njmax,
+        # on this process's first device: MJX's default is the first device of all processes,
+        # which under jax.distributed is another process's (arrays this process cannot address)
+        device = jax.local_devices()[0]
+        self.mx = self._post_put(mjx.put_model(self.mj_model, device=device, impl="warp"))
+        self._data0 = mjx.make_data(self.mj_model, device=device, impl="warp", njmax=self.njmax,
                                     naconmax=self.naconmax_per_world * self.num_envs)
         self.renderer = None
         if config.render:

@@ -36,7 +36,7 @@ def warp_devices(devices: list[jax.Device] | None = None) -> list[str] | None:
     kernels run on, and Warp's own default is whichever CUDA context was current when Warp
     started: after JAX has opened every GPU of a machine, often not JAX's default (seen on two
     H200s: the context on cuda:1 while the env ran on cuda:0, a KeyError in the renderer)."""
-    devices = devices or jax.devices()[:1]
+    devices = devices or jax.local_devices()[:1]
     if devices[0].platform != "gpu":
         return None
     return [f"cuda:{d.local_hardware_id}" for d in devices]

@@ -68,7 +68,7 @@ class Devices:
                                  "(issue 3); the fig2-halfcheetah / fig2-ant presets run once they are "
                                  "registered (check with `bulbjax envs`)") from err
             raise
-        if self.sharded or warp_devices(list(self.mesh.devices.flat)) != warp_devices():
+        if self.sharded or warp_devices(self.local_mesh_devices()) != warp_devices():
             self._per_device_renderer()  # (also one GPU that is not JAX's default)
         self._rep = NamedSharding(self.mesh, P())
 
@@ -83,12 +83,16 @@ class Devices:
 
         r, env = self.env.renderer, self.env
         self._renderers: list[Renderer] = []
-        devs = warp_devices(list(self.mesh.devices.flat))
+        devs = warp_devices(self.local_mesh_devices())
         if devs is not None:
             env.renderer = Renderer(env.mj_model, env.num_envs, env.resolution, depth=r.depth, devices=devs)
         else:
             self._renderers = [Renderer(env.mj_model, env.num_envs, env.resolution, depth=r.depth)
                                for _ in range(self.mesh.size)]
+
+    def local_mesh_devices(self) -> list[jax.Device]:
+        """The mesh's devices of this process (all of them in a single-process run)."""
+        return [d for d in self.mesh.devices.flat if d.process_index == jax.process_index()]
 
     def _render_local(self, render_inputs: Any) -> jax.Array:
         """`env.render_sequence` of this device's worlds (inside `shard_map`), with this

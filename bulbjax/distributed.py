@@ -1,0 +1,116 @@
+"""Several processes (hosts, or one process per GPU) through JAX's multi-controller runtime.
+
+`initialize` starts `jax.distributed` from explicit settings, from the variables JAX itself reads
+(`JAX_COORDINATOR_ADDRESS`, `JAX_LOCAL_DEVICE_IDS`, plus `JAX_NUM_PROCESSES` / `JAX_PROCESS_ID`,
+which bulbjax reads for JAX), or from a cluster manager JAX detects (SLURM, Open MPI, ...: every
+process gets its count and id from there). Each process then runs the same program over the mesh
+of all processes' devices: its own devices compute their seeds, and only process 0 writes files
+(`is_writer`). Nothing here launches processes: SLURM's `srun`, `mpirun` or a shell loop over hosts
+start one `bulbjax run` per host (or per GPU), each with the same arguments.
+
+On the CPU (tests, the CI) the cross-process collectives need Gloo, which `initialize` switches
+on before JAX's backends start.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+
+import jax
+
+
+@dataclass(frozen=True)
+class DistributedConfig:
+    """How this process joins a multi-process run (all None and `auto` False: a single process).
+
+    `auto`: let JAX detect a cluster manager (SLURM, Open MPI, ...)."""
+
+    coordinator: str | None = None  # "host:port" of process 0's coordinator service
+    num_processes: int | None = None
+    process_id: int | None = None
+    local_device_ids: tuple[int, ...] | None = None  # this process's GPUs (default: all it sees)
+    auto: bool = False
+
+    @classmethod
+    def from_env(cls, **given: object) -> "DistributedConfig":
+        """Explicit settings (`given`, None where not set) completed from the environment."""
+        env = os.environ
+
+        def num(name: str) -> int | None:
+            v = env.get(name)
+            if v is None or v == "":
+                return None
+            try:
+                return int(v)
+            except ValueError as err:
+                raise ValueError(f"{name}={v!r} must be an integer") from err
+
+        coordinator = given.get("coordinator") or env.get("JAX_COORDINATOR_ADDRESS") or None
+        num_processes = given.get("num_processes")
+        process_id = given.get("process_id")
+        ids = given.get("local_device_ids")
+        return cls(coordinator=coordinator,
+                   num_processes=num_processes if num_processes is not None else num("JAX_NUM_PROCESSES"),
+                   process_id=process_id if process_id is not None else num("JAX_PROCESS_ID"),
+                   local_device_ids=tuple(ids) if ids is not None else None,
+                   auto=bool(given.get("auto", False)))
+
+    @property
+    def wanted(self) -> bool:
+        """Whether a multi-process run was asked for."""
+        return self.auto or any(v is not None for v in (self.coordinator, self.num_processes, self.process_id))
+
+    def check(self) -> None:
+        """Clear errors for settings JAX would reject later and less clearly."""
+        if self.auto:
+            return
+        missing = [flag for flag, v in (("--coordinator", self.coordinator), ("--num-processes", self.num_processes),
+                                        ("--process-id", self.process_id)) if v is None]
+        if missing:
+            raise ValueError("a multi-process run needs --coordinator HOST:PORT, --num-processes N and "
+                             f"--process-id I on every process (missing: {', '.join(missing)}); or "
+                             "--distributed to take them from SLURM / Open MPI")
+        if ":" not in self.coordinator:
+            raise ValueError(f"--coordinator {self.coordinator!r} must read HOST:PORT (process 0's host)")
+        if self.num_processes < 1 or not 0 <= self.process_id < self.num_processes:
+            raise ValueError(f"--process-id {self.process_id} must be in [0, --num-processes "
+                             f"{self.num_processes})")
+
+
+def initialize(cfg: DistributedConfig) -> bool:
+    """Join the multi-process run `cfg` asks for (before anything else touches JAX's devices).
+    Returns whether this is a multi-process run. A no-op for a single process."""
+    if not cfg.wanted:
+        return False
+    cfg.check()
+    # cross-process all-reduces and gathers of the CPU backend (the GPU's go through NCCL; the
+    # setting touches only the CPU client, which JAX also makes beside a GPU one)
+    jax.config.update("jax_cpu_collectives_implementation", "gloo")
+    kwargs = {} if cfg.auto else dict(coordinator_address=cfg.coordinator, num_processes=cfg.num_processes,
+                                      process_id=cfg.process_id)
+    if cfg.local_device_ids is not None:
+        kwargs["local_device_ids"] = list(cfg.local_device_ids)
+    jax.distributed.initialize(**kwargs)
+    return True
+
+
+def process_count() -> int:
+    return jax.process_count()
+
+
+def is_writer() -> bool:
+    """Whether this process writes the run's files (metrics, config, reports): process 0."""
+    return jax.process_index() == 0
+
+
+def broadcast_flag(value: bool) -> bool:
+    """Process 0's `value` on every process (a decision all must share, e.g. whether to stop
+    after this epoch: each process's own clock or signal could differ). Free for one process."""
+    if jax.process_count() == 1:
+        return value
+    from jax.experimental import multihost_utils
+
+    import numpy as np
+
+    return bool(multihost_utils.broadcast_one_to_all(np.int32(value)))
