@@ -4,7 +4,7 @@ For each seed count of `--seeds` (default 6 and 12) and each device count of `--
 (default 1 and all), builds `Experiment(preset, devices=first n)`, times `init`, the first epoch
 (compile included) and then `--epochs` epochs one by one (each `block_until_ready`), and reports
 the median epoch time, epochs/s, seed-epochs/s and the speedup over one device (goal on 2 GPUs:
->= 1.8x). The seed axis is sharded over the devices (`bulbjax.experiment.loop.make_mesh`; with
+>= 1.8x). The seed axis is sharded over the devices (`bulbjax.experiment.devices.make_mesh`; with
 fewer seeds than devices the worlds are split too).
 
 Written after every measurement (a run cut short keeps what it had) to
@@ -37,7 +37,7 @@ sys.path.insert(0, os.path.dirname(HERE))  # this working tree's bulbjax
 import jax  # noqa: E402
 
 from bulbjax.experiment import Experiment  # noqa: E402
-from bulbjax.experiment.config import preset, small_config  # noqa: E402
+from bulbjax.experiment.resolve import resolve  # noqa: E402
 from bulbjax.experiment.run import provenance  # noqa: E402
 
 
@@ -85,14 +85,10 @@ def main(argv: list[str] | None = None) -> int:
               else sorted({1, len(all_devs)}))
     if max(counts) > len(all_devs):
         raise SystemExit(f"--devices {args.devices}: only {len(all_devs)} local devices")
-    base = preset(args.preset)
-    if args.learners:
-        base = base.replace(learners=tuple(args.learners.split(",")))
-    if args.small:
-        base = small_config(base)
-    if args.bf16:
-        base = base.replace(learner=dataclasses.replace(base.learner, compute_dtype="bfloat16"))
-    base = base.replace(learner=dataclasses.replace(base.learner, rnn_unroll=args.rnn_unroll))
+    # the preset as `bulbjax run` resolves it (the domain's PPO settings, --small, the flags given)
+    learner = {"rnn_unroll": args.rnn_unroll, **({"compute_dtype": "bfloat16"} if args.bf16 else {})}
+    base = resolve(args.preset, overrides={"learners": args.learners} if args.learners else {},
+                   learner=learner, small=args.small)
     kind = all_devs[0].device_kind
     stamp = dt.datetime.now().strftime("%Y%m%d_%H%M%S")
     os.makedirs(args.out_dir, exist_ok=True)
