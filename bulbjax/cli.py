@@ -31,6 +31,16 @@ def _settings(args: argparse.Namespace) -> dict:
                 small=bool(getattr(args, "small", False)))
 
 
+def _parse_ids(text: str | None) -> tuple[int, ...] | None:
+    """`--local-devices 0,1` -> (0, 1)."""
+    if text is None:
+        return None
+    try:
+        return tuple(int(x) for x in text.split(",") if x.strip())
+    except ValueError as err:
+        raise ValueError(f"--local-devices {text!r} must be device numbers separated by commas, e.g. 0,1") from err
+
+
 def build_config(args: argparse.Namespace):
     """The ExperimentConfig of `bulbjax run`'s flags (`bulbjax.experiment.resolve.resolve`)."""
     from bulbjax.experiment.resolve import resolve
@@ -47,6 +57,12 @@ def cmd_run(args: argparse.Namespace) -> int:
     """Map the flags to (config, options, folder) (`bulbjax.experiment.resolve`; a resumed run
     starts from its own config.json, and `run.check_resume` refuses any flag that changes what it
     computes: only --epochs may grow it) and hand over to `bulbjax.experiment.run.run`."""
+    from bulbjax import distributed
+
+    # before anything else touches JAX's devices: a multi-process run joins its peers first
+    distributed.initialize(distributed.DistributedConfig.from_env(
+        coordinator=args.coordinator, num_processes=args.num_processes, process_id=args.process_id,
+        local_device_ids=_parse_ids(args.local_devices), auto=args.distributed))
     import jax
 
     from bulbjax.experiment.config import RunOptions
@@ -64,13 +80,14 @@ def cmd_run(args: argparse.Namespace) -> int:
         cfg = resolve(args.preset, **settings)
         opts = RunOptions(seed=args.seed or 0, probe_every=args.probe_every or 1, **_stretch_options(args))
         out = args.out or "runs/latest"
-    devices = jax.local_devices()
-    if args.devices is not None:
-        if not 1 <= args.devices <= len(devices):
-            raise ValueError(f"--devices {args.devices}: this machine has {len(devices)} local devices")
-        devices = devices[: args.devices]
+    local = jax.local_devices()
+    if args.devices is not None and not 1 <= args.devices <= len(local):
+        raise ValueError(f"--devices {args.devices}: this machine has {len(local)} local devices")
+    # every process's first D local devices (D: --devices, default all of them)
+    devices = [d for p in range(jax.process_count())
+               for d in [x for x in jax.devices() if x.process_index == p][: args.devices or None]]
     run(cfg, opts, out, resume=bool(args.resume), devices=devices, argv=["bulbjax", *getattr(args, "argv", [])],
-        compiler_options=parse_compiler_options(args.xla_option or []))
+        compiler_options=parse_compiler_options(args.xla_option or []), layout=args.layout)
     return 0
 
 
@@ -252,7 +269,26 @@ def main(argv: Sequence[str] | None = None) -> int:
     r.add_argument("--stop-after", type=int, default=0, metavar="E",
                    help="stop this stretch after E epochs and checkpoint (0: no limit)")
     r.add_argument("--devices", type=int, default=None,
-                   help="use the first D local devices (default all): seeds (then worlds) sharded over them")
+                   help="use the first D local devices of each process (default all): the seeds are split "
+                        "into one group per device (see --layout)")
+    r.add_argument("--layout", default="auto", choices=("auto", "groups", "sharded", "single"),
+                   help="how the seeds lie over several devices: groups (one program per device, each on "
+                        "its share of the seeds; auto's choice), sharded (one program over a mesh: CPU host "
+                        "devices only, refused on GPUs, where it does not compile with MJX-Warp) or single "
+                        "(the first device)")
+    r.add_argument("--coordinator", default=None, metavar="HOST:PORT",
+                   help="multi-process run (jax.distributed): process 0's address, the same on every process "
+                        "(or JAX_COORDINATOR_ADDRESS); with --num-processes and --process-id")
+    r.add_argument("--num-processes", type=int, default=None, metavar="P",
+                   help="processes of a multi-process run (or JAX_NUM_PROCESSES)")
+    r.add_argument("--process-id", type=int, default=None, metavar="I",
+                   help="this process's index in [0, P) (or JAX_PROCESS_ID); process 0 writes the run's files")
+    r.add_argument("--local-devices", default=None, metavar="IDS",
+                   help="a multi-process run's GPUs for this process, e.g. 0 or 0,1 (or JAX_LOCAL_DEVICE_IDS; "
+                        "default all it sees): one process per GPU of a host is the fastest layout")
+    r.add_argument("--distributed", action="store_true",
+                   help="multi-process run with the process count and index taken from SLURM / Open MPI "
+                        "(jax.distributed's cluster detection)")
     r.add_argument("--xla-option", action="append", metavar="KEY=VALUE",
                    help="an XLA compile option for the jitted init and epoch (repeatable; how the program "
                         "runs, not what it computes), e.g. xla_gpu_enable_command_buffer=FUSION,CUBLAS,WHILE")

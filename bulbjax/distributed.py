@@ -114,3 +114,11 @@ def broadcast_flag(value: bool) -> bool:
     import numpy as np
 
     return bool(multihost_utils.broadcast_one_to_all(np.int32(value)))
+
+
+def barrier(name: str) -> None:
+    """Wait until every process got here (no-op for one process)."""
+    if jax.process_count() > 1:
+        from jax.experimental import multihost_utils
+
+        multihost_utils.sync_global_devices(name)

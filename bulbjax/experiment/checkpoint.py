@@ -34,13 +34,20 @@ class Checkpointer:
     """Saves and restores `{"run": RunState, "key": host key}` under `run_dir/checkpoints/<epoch>`,
     keeping the newest `keep`. Steps are the number of epochs done."""
 
-    def __init__(self, run_dir: str, keep: int = 2):
+    def __init__(self, run_dir: str, keep: int = 2, process: int | None = None):
         if keep < 1:
             raise ValueError(f"--keep must be >= 1 (checkpoints kept), got {keep}")
         self.directory = os.path.abspath(os.path.join(run_dir, CHECKPOINT_DIR))
+        mp = ocp.options.MultiprocessingOptions()
+        if process is not None:
+            # one process of a multi-process run: it saves the states of its own devices' seed
+            # groups (single-device arrays) in a folder of its own, coordinating with no other
+            self.directory = os.path.join(self.directory, f"process_{process}")
+            mp = ocp.options.MultiprocessingOptions(primary_host=process, active_processes={process},
+                                                    barrier_sync_key_prefix=f"bulbjax_p{process}")
         self.keep = keep
         opts = ocp.CheckpointManagerOptions(max_to_keep=keep, create=True,
-                                            enable_async_checkpointing=False)
+                                            enable_async_checkpointing=False, multiprocessing_options=mp)
         self._mngr = ocp.CheckpointManager(self.directory, options=opts)
 
     def steps(self) -> list[int]:

@@ -23,6 +23,7 @@ import bulbjax
 from bulbjax.envs.base import EnvState, MjxPixelEnv
 from bulbjax.envs.render import warp_devices
 from bulbjax.experiment.config import ExperimentConfig
+from bulbjax.experiment.seeds import SeedGroup
 from bulbjax.experiment.state import RunState
 
 SEED_AXIS, WORLD_AXIS = "seeds", "worlds"
@@ -50,11 +51,14 @@ class Devices:
     sharded over the seed axis, the worlds of the simulators over both axes. With fewer seeds
     than devices the world axis takes the other devices: physics and rendering split, PPO and
     learner updates of a seed replicated on its devices. Worlds are laid out flat, `[S*N, ...]`,
-    seed-major (`per_seed`, `flat`)."""
+    seed-major (`per_seed`, `flat`); `group`: the run's seeds these are (default all; reset keys
+    are theirs of the whole run, `SeedGroup.world_keys`)."""
 
-    def __init__(self, config: ExperimentConfig, devices: Sequence[jax.Device] | None = None):
+    def __init__(self, config: ExperimentConfig, devices: Sequence[jax.Device] | None = None,
+                 group: SeedGroup | None = None):
         c = config
         self.seeds, self.worlds = c.seeds, c.num_envs
+        self.group = group or SeedGroup(c.seeds, c.num_envs)
         self.mesh = make_mesh(devices or jax.devices()[:1], c.seeds, c.num_envs)
         self.sharded = self.mesh.size > 1
         try:
@@ -158,12 +162,13 @@ class Devices:
         return jax.shard_map(f, mesh=self.mesh, in_specs=in_specs, out_specs=out_specs, check_vma=False)
 
     def env_reset(self, key: jax.Array) -> EnvState:
-        """`env.reset(key)` of all S*N worlds; sharded, each device resets its own worlds from
-        the same per-world keys as one device would."""
+        """`env.reset(key)` of all S*N worlds (`env.reset_keys` of `split(key, S*N)`, the group's
+        share of the run's); sharded, each device resets its own worlds from the same per-world
+        keys as one device would."""
+        keys = self.group.world_keys(key)
         if not self.sharded:
-            return self.env.reset(key)
+            return self.env.reset_keys(keys)
         w = P((SEED_AXIS, WORLD_AXIS))
-        keys = jax.random.split(key, self.S * self.N)
         return self.on_worlds(self.env.reset_keys, (w,), w)(keys)
 
     def env_step(self, es: EnvState, action: jax.Array) -> EnvState:

@@ -47,7 +47,7 @@ class Learning:
     def init_learner(self, name: str, key: jax.Array) -> Any:
         """Learner `name`'s state for every seed `[S]`, from the run's init key."""
         k_learn = jax.random.split(key, 5)[1]
-        keys = jax.random.split(jax.random.fold_in(k_learn, list(self.team.learners).index(name)), self.team.seeds)
+        keys = self.team.seed_keys(jax.random.fold_in(k_learn, list(self.team.learners).index(name)))
         learner = self.team.learners[name]
         # one seed at a time: the same parameters as a vmap, and on the GPU a much cheaper
         # compile for DSA (its init over 6 seeds: 23 s under lax.map, 40 s vmapped; H100)
@@ -92,7 +92,7 @@ class Learning:
                 sample = lambda kk: replay.sample(b, kk, learner.batch_size)[0]  # noqa: E731
             return train_learner(learner, state, sample, k, self.batches)
 
-        keys = jax.random.split(jax.random.fold_in(key, i), t.seeds)
+        keys = t.seed_keys(jax.random.fold_in(key, i))
         buf = t.buffer_of(name, buffers, windows)
         state, m = t.over_seeds(train_seed, learners[name], buf, keys, learner=name)
         return {name: state}, {name: jax.tree.map(lambda x: x.mean(-1), m)}

@@ -28,7 +28,7 @@ from bulbjax.experiment.devices import Devices
 from bulbjax.experiment.learning import Learning
 from bulbjax.experiment.policy import Policy
 from bulbjax.experiment.probing import Probing, object_pixels
-from bulbjax.experiment.seeds import Team, resolve_seed_loop, with_seed_loop
+from bulbjax.experiment.seeds import SeedGroup, Team, resolve_seed_loop, with_seed_loop
 from bulbjax.experiment.state import EnvStage, PolicyHistory, RunState
 from bulbjax.experiment.streams import Streams
 from bulbjax.learners import make_learner
@@ -43,13 +43,20 @@ class Experiment:
     and the seed loop), `policy` (PPO: observations, rollouts, its training phase), `streams`
     (replay, windows, held-out windows), `learning` and `probing`. Here: how they make `init`
     and an epoch, and the jitted forms of both (`compiler_options`: XLA options for compiling
-    them, how the program runs, not what it computes)."""
+    them, how the program runs, not what it computes).
+
+    `seed_group=(offset, total)`: this experiment runs seeds offset..offset+S-1 of a run of `total`
+    seeds (`bulbjax.experiment.groups`): every random draw is the one those seeds get in the whole
+    run (`seeds.SeedGroup`), so a run's seeds spread over several experiments (devices, processes)
+    compute what one experiment of all seeds computes."""
 
     def __init__(self, config: ExperimentConfig, devices: Sequence[jax.Device] | None = None,
-                 compiler_options: Mapping[str, Any] | None = None):
+                 compiler_options: Mapping[str, Any] | None = None, seed_group: tuple[int, int] | None = None):
         self.config = c = config
         self.compiler_options = dict(compiler_options or {})
-        self.devices = dev = Devices(c, devices)
+        offset, total = seed_group or (0, c.seeds)
+        self.group = group = SeedGroup(c.seeds, c.num_envs, offset, total)
+        self.devices = dev = Devices(c, devices, group)
         self.env, self.mesh, self.sharded = dev.env, dev.mesh, dev.sharded
         self.spec = self.env.state_spec
         self.seed_loop = resolve_seed_loop(c.learner_seed_loop, self.mesh)
@@ -57,7 +64,7 @@ class Experiment:
         action_dim = self.env.num_actions if self.env.discrete else self.env.action_size
         self.learners = {n: with_seed_loop(make_learner(n, latent, c.learner, action_dim), self.seed_loop)
                          for n in c.learners}
-        self.team = Team(self.learners, self.seed_loop, c.seeds, c.shared_updates)
+        self.team = Team(self.learners, self.seed_loop, group, c.shared_updates)
         self.policy = Policy(c, dev, self.team)
         self.ppo, self.action_dim = self.policy.ppo, self.policy.action_dim
         self.streams = Streams(c, dev, self.team, self.policy)
@@ -128,7 +135,7 @@ class Experiment:
         spread."""
         c, dev, policy = self.config, self.devices, self.policy
         k_ppo, _, k_env, k_fill, k_keep = jax.random.split(key, 5)
-        ppo_state = jax.vmap(self.ppo.init)(jax.random.split(k_ppo, self.S))
+        ppo_state = jax.vmap(self.ppo.init)(self.team.seed_keys(k_ppo))
         ke = jax.random.split(k_env, 4)
         train_env, curr_env, rand_env = (dev.env_reset(k) for k in ke[:3])
         # The reference spread of every state entry, once per run: the random policy's held-out
@@ -146,6 +153,17 @@ class Experiment:
         return RunState(ppo=ppo_state, learners={}, buffers=buffers, windows=windows,
                         train_env=train_env, curr_env=curr_env, rand_env=rand_env, policy_history=history,
                         ref_spread=ref_spread, epoch=jnp.zeros((), jnp.int32))
+
+    def reference_states(self, key: jax.Array) -> jax.Array:
+        """The states `[reference_steps, S*N, D]` that init's reference spread is taken over (the
+        random policy's held-out worlds, `init_env`), recomputed from the init key: a run of seed
+        groups pools them over all its groups (`bulbjax.experiment.groups`)."""
+        k_ppo, _, k_env, _, _ = jax.random.split(key, 5)
+        ppo_state = jax.vmap(self.ppo.init)(self.team.seed_keys(k_ppo))
+        ke = jax.random.split(k_env, 4)
+        _, (_, ref_states, _, _) = self.policy.rollout(ppo_state, self.devices.env_reset(ke[2]), ke[3],
+                                                       self.config.reference_steps, random=True)
+        return ref_states
 
     # ------------------------------------------------------------------ the epoch
     def env_stage(self, ppo_state: PPOState, train_env: EnvState, buffers: dict, windows: dict,

@@ -39,7 +39,7 @@ from bulbjax.experiment.learning import train_learner
 from bulbjax.experiment.policy import Policy
 from bulbjax.experiment.probing import fit_and_score, probe_latents, probe_over_seeds
 from bulbjax.experiment.records import read_jsonl, write_jsonl, write_jsonl_atomic
-from bulbjax.experiment.seeds import Team, learner_loop, over_seeds, resolve_seed_loop, with_seed_loop
+from bulbjax.experiment.seeds import SeedGroup, Team, learner_loop, over_seeds, resolve_seed_loop, with_seed_loop
 from bulbjax.learners import check_finite, is_sequential, make_learner
 
 
@@ -69,7 +69,7 @@ def make_source(config: OfflineConfig) -> Source:
     cfg = b.replace(seeds=1, num_envs=w, frames_per_epoch=w, eval_frames=w,
                     replay_capacity=max(b.replay_capacity, w), rl_input="state")
     dev = Devices(cfg)
-    policy = Policy(cfg, dev, Team({}, "vmap", 1))
+    policy = Policy(cfg, dev, Team({}, "vmap", SeedGroup(1, w)))
 
     def _steps(key: jax.Array, steps: int) -> Trajectories:
         k_reset, k_roll = jax.random.split(key)

@@ -207,7 +207,7 @@ class Policy:
         Returns `(next env state, obs, action, logp, value, view, stored)`: the `PolicyView`
         moved on to the next env state (its frames rendered here, once per step) and the step
         as rollouts store it (`_stored`)."""
-        keys = jax.random.split(key, self.S)
+        keys = self.team.seed_keys(key)
         if random:  # the random policy observes nothing: no frame is rendered for it
             obs = self.dev.per_seed(es.obs)
             action = jax.vmap(lambda k: self.ppo.random_act(k, self.N))(keys)
@@ -283,7 +283,7 @@ class Policy:
                                                           jax.random.split(k_roll, c.ppo.num_steps))
             traj = jax.tree.map(lambda x: x.swapaxes(0, 1), traj)  # [S, T, N, ...]
             ppo_state, m = jax.vmap(self.ppo.update)(ppo_state, traj, self.obs(es, learners, view),
-                                                    jax.random.split(k_upd, self.S))
+                                                    self.team.seed_keys(k_upd))
             return (ppo_state, es, view), (m, ep, stored)
 
         (ppo_state, env_state, view), (m, ep, stored) = jax.lax.scan(

@@ -202,7 +202,7 @@ class Probing:
         def fit_seed(lat, k_f, k_s, lstate, b, held):
             return fit_and_score(lat, held, k_f, cfg, self.object_scorer(learner))
 
-        keys = jax.random.split(jax.random.fold_in(key, i), t.seeds)
+        keys = t.seed_keys(jax.random.fold_in(key, i))
         k_s, k_p = jax.vmap(jax.random.split)(keys).swapaxes(0, 1)
         buf = t.buffer_of(name, buffers, windows)
         return {name: probe_over_seeds(t.loop_of(name), latents_seed, fit_seed, k_p,

@@ -33,11 +33,12 @@ from typing import Any, Callable, Sequence
 
 import jax
 
+from bulbjax import distributed
 from bulbjax.experiment import report
 from bulbjax.experiment.checkpoint import CHECKPOINT_DIR, Checkpointer
 from bulbjax.experiment.config import IDENTITY, ExperimentConfig, RunOptions, read_run_config, run_options_of
+from bulbjax.experiment.groups import SeedGroups
 from bulbjax.experiment.loop import Experiment
-from bulbjax.experiment.programs import Programs
 from bulbjax.experiment.records import (epoch_records, last_returns, nanmean, read_jsonl, scalars, write_jsonl,
                                         write_jsonl_atomic)
 
@@ -55,7 +56,8 @@ class RunResult:
 
 
 # ---------------------------------------------------------------------------- provenance
-def provenance(argv: Sequence[str] | None = None, experiment: Experiment | None = None) -> dict[str, Any]:
+def provenance(argv: Sequence[str] | None = None, experiment: Experiment | SeedGroups | None = None
+               ) -> dict[str, Any]:
     """Where and how a stretch of the run was made: command line, package versions, git commit
     of the bulbjax checkout (and whether it had uncommitted changes), devices, host, time."""
     versions = {}
@@ -78,7 +80,10 @@ def provenance(argv: Sequence[str] | None = None, experiment: Experiment | None 
         **git_state(),
         "source_sha256": source_hash(),
     }
-    if experiment is not None:
+    if isinstance(experiment, SeedGroups):
+        out.update(experiment.provenance())
+        out["compiler_options"] = dict(experiment.exp.compiler_options)
+    elif experiment is not None:
         out["mesh"] = dict(experiment.mesh.shape)
         out["compiler_options"] = dict(experiment.compiler_options)
     return out
@@ -152,6 +157,21 @@ def check_resume(run_dir: str, cfg: ExperimentConfig, opts: RunOptions) -> None:
         raise ValueError(f"--resume {run_dir}: the given settings differ from the run's config.json: "
                          + "; ".join(diff) + ". Resume without those flags (the run keeps its own "
                          "settings; only --epochs may grow), or start a new run with another --out")
+
+
+def saved_processes(raw: dict[str, Any]) -> int:
+    """The process count a run was made with (its first stretch's provenance; 1 before it was recorded)."""
+    return int(raw.get("provenance", {}).get("processes", 1))
+
+
+def check_processes(run_dir: str, raw: dict[str, Any]) -> None:
+    """Raise ValueError when this resume runs with another process count than the run: each
+    process's checkpoints hold its own seed groups."""
+    saved, now = saved_processes(raw), jax.process_count()
+    if saved != now:
+        raise ValueError(f"--resume {run_dir}: the run was made by {saved} process(es) and this resume has {now}; "
+                         f"each process checkpoints its own seeds, so resume with {saved} process(es) "
+                         "(the same --num-processes, or the same SLURM/MPI task count)")
 
 
 # ---------------------------------------------------------------------------- signals
@@ -247,9 +267,14 @@ def run(cfg: ExperimentConfig, opts: RunOptions, run_dir: str, *, resume: bool =
         experiment: Experiment | None = None, argv: Sequence[str] | None = None,
         log: Callable[[str], None] = print, progress: bool = True,
         on_epoch: Callable[[int], None] | None = None,
-        compiler_options: dict[str, Any] | None = None) -> RunResult:
+        compiler_options: dict[str, Any] | None = None, layout: str = "auto") -> RunResult:
     """Run (or, with `resume`, continue) the experiment `cfg` in `run_dir`; see the module doc.
-    `devices` (default: all local devices) are the mesh of `Experiment`; `experiment` reuses a built `Experiment(cfg)` (tests: one compile for several runs);
+    `devices` (default: every device of every process) carry the seeds as `SeedGroups` lays them
+    out (`layout`: "auto", "groups", "sharded", "single"); `experiment` reuses a built
+    `Experiment(cfg)` (tests: one compile for several runs). With several processes
+    (`bulbjax.distributed`) every process calls this with the same arguments: each runs its
+    devices' seed groups and writes its own checkpoints (`checkpoints/process_<i>`), process 0
+    alone writes config.json, metrics.jsonl and the reports;
     `on_epoch(epochs_done)` is called after each epoch's metrics are written (tests);
     `compiler_options`: XLA options for the jitted init and epoch (recorded in the provenance)."""
     from tqdm import tqdm
@@ -257,52 +282,61 @@ def run(cfg: ExperimentConfig, opts: RunOptions, run_dir: str, *, resume: bool =
     from bulbjax.learners import check_finite
 
     t0 = time.time()
+    writer = distributed.is_writer()
+    if not writer:
+        progress = False
     os.makedirs(run_dir, exist_ok=True)
     metrics_path = os.path.join(run_dir, "metrics.jsonl")
     config_path = os.path.join(run_dir, "config.json")
     if resume:
         check_resume(run_dir, cfg, opts)
         _, raw = read_run_config(run_dir)
+        check_processes(run_dir, raw)
     else:
-        _start_fresh(run_dir, log)
+        if writer:
+            _start_fresh(run_dir, log)
         raw = {"experiment": dataclasses.asdict(cfg),
                "run": {k: getattr(opts, k) for k in IDENTITY}}
+    distributed.barrier("bulbjax-run-folder")  # process 0 cleared the folder before anyone writes
     if experiment is not None and experiment.config != cfg:
         raise ValueError("run(experiment=...) was built for another config")
-    exp = experiment or Experiment(cfg, devices=jax.local_devices() if devices is None else devices,
-                                   compiler_options=compiler_options)
-    stretch = provenance(argv, exp)
+    groups = (SeedGroups.of(experiment) if experiment is not None else
+              SeedGroups(cfg, devices=devices, compiler_options=compiler_options, form=layout, log=log))
+    exp = groups.exp
+    log(f"devices: {groups.describe()}")
+    stretch = provenance(argv, groups)
     if resume:
         raw.setdefault("resumes", []).append(stretch)
         raw["experiment"]["epochs"] = cfg.epochs
     else:
         raw["provenance"] = stretch
-    ckpt = Checkpointer(run_dir, keep=opts.keep)
+    ckpt = Checkpointer(run_dir, keep=opts.keep, process=jax.process_index() if groups.processes > 1 else None)
     # init and the epochs this run uses, traced before anything else in this process so that a
     # resumed stretch compiles the same programs as the fresh one (and hits the compile cache);
     # probe_every is part of a run's identity, so fresh and resumed stretches trace the same ones
-    programs = Programs.of(exp, (True,) if opts.probe_every == 1 else (True, False))
+    programs = groups.programs((True,) if opts.probe_every == 1 else (True, False))
     # compiles (or compile-cache loads) in background threads: init's and the epoch's overlap,
     # and a resume's restore overlaps the epoch's
     programs.prepare(*(("epoch",) if resume else ("init", "epoch")))
     if resume:
-        like = {"run": exp.abstract_state(), "key": exp.abstract_key()}
+        like = {"run": groups.abstract_state(), "key": groups.abstract_key()}
         state, host, start = ckpt.restore(like)
         rs, key = state["run"], state["key"]
-        if int(rs.epoch) != start or host.get("epoch") != start:
+        if int(groups.group_state(rs).epoch) != start or host.get("epoch") != start:
             raise ValueError(f"checkpoint {start} holds epoch {int(rs.epoch)}: the checkpoint folder is inconsistent")
         records = _metrics_up_to(metrics_path, start, cfg.seeds)
         raw["resumes"][-1]["from_epoch"] = start
         log(f"resuming {run_dir} at epoch {start} (checkpoints: {ckpt.steps()})")
     else:
         rs = programs.init(jax.random.PRNGKey(opts.seed))
-        key, start, records = exp.put_key(jax.random.PRNGKey(opts.seed + 1)), 0, []
-    _write_json_atomic(config_path, raw)
+        key, start, records = groups.put_key(jax.random.PRNGKey(opts.seed + 1)), 0, []
+    if writer:
+        _write_json_atomic(config_path, raw)
     jax.block_until_ready(rs)
     t_init = time.time() - t0
-    tb = _TensorBoard(run_dir, purge_step=start if resume else None) if opts.tensorboard else None
+    tb = _TensorBoard(run_dir, purge_step=start if resume else None) if opts.tensorboard and writer else None
     figs, drawn = None, None
-    if opts.recon_every:
+    if opts.recon_every and writer:
         from bulbjax.experiment.recon import RunFigures
 
         figs = RunFigures(exp, run_seed=opts.seed)
@@ -313,7 +347,8 @@ def run(cfg: ExperimentConfig, opts: RunOptions, run_dir: str, *, resume: bool =
     try:
         with StopSignal(bar.write) as stop:
             while epoch < cfg.epochs:
-                if opts.max_minutes and time.time() - t0 > 60 * opts.max_minutes:
+                # every process takes process 0's decision: their clocks differ
+                if distributed.broadcast_flag(bool(opts.max_minutes) and time.time() - t0 > 60 * opts.max_minutes):
                     stopped = "max-minutes"
                     break
                 if opts.stop_after and epoch - start >= opts.stop_after:
@@ -321,13 +356,13 @@ def run(cfg: ExperimentConfig, opts: RunOptions, run_dir: str, *, resume: bool =
                     break
                 key, k = jax.random.split(key)
                 rs, m = programs.epoch(rs, k, probe=_probe_now(epoch, cfg, opts))
-                m = jax.device_get(m)
                 if t_first is None:
                     t_first = time.time() - t0 - t_init
                 for name, lm in m["learners"].items():
                     check_finite(lm, where=f"learner {name} at epoch {epoch}")
                 recs = epoch_records(epoch, m, exp.spec)
-                write_jsonl(metrics_path, recs)  # metrics first: a checkpoint never runs ahead
+                if writer:
+                    write_jsonl(metrics_path, recs)  # metrics first: a checkpoint never runs ahead
                 if tb:
                     tb.write(recs)
                 records += recs
@@ -339,12 +374,12 @@ def run(cfg: ExperimentConfig, opts: RunOptions, run_dir: str, *, resume: bool =
                     ckpt.save(epoch, {"run": rs, "key": key}, {"epoch": epoch})
                     saved = epoch
                 if figs is not None and epoch % opts.recon_every == 0:
-                    figs.draw(rs, run_dir, epoch)
+                    figs.draw(groups.group_state(rs), run_dir, epoch)
                     drawn = epoch
                 if on_epoch is not None:
                     on_epoch(epoch)
-                if stop.signum is not None:
-                    stopped = f"signal {signal.Signals(stop.signum).name}"
+                if distributed.broadcast_flag(stop.signum is not None):
+                    stopped = f"signal {signal.Signals(stop.signum).name}" if stop.signum else "signal (process 0)"
                     break
             if saved != epoch:
                 ckpt.save(epoch, {"run": rs, "key": key}, {"epoch": epoch})
@@ -355,14 +390,14 @@ def run(cfg: ExperimentConfig, opts: RunOptions, run_dir: str, *, resume: bool =
         if tb:
             tb.close()
     if figs is not None and epoch > start and drawn != epoch:  # and at the end
-        figs.draw(rs, run_dir, epoch)
+        figs.draw(groups.group_state(rs), run_dir, epoch)
     if stopped != "done":
         log(f"stopped after epoch {epoch} ({stopped}); continue with: bulbjax run --resume {run_dir}")
     wall = time.time() - t0
     first = f", first epoch incl. compile {t_first:.1f} s" if t_first is not None else ""
     timing = (f"wall time of the last stretch {wall:.1f} s (build+init/restore {t_init:.1f} s{first}) "
-              f"on {exp.mesh.size} x {jax.devices()[0].device_kind}")
-    if records:
+              f"on {groups.describe()}")
+    if records and writer:
         tab = report.write_reports(run_dir, records, cfg, exp.spec, exp.env.solved_return, footer=timing)
         log(f"\n{tab}\n\n{timing}\nplot: {os.path.join(run_dir, 'fig2.png')}\nmetrics: {metrics_path}")
     return RunResult(epochs_done=epoch, stopped=stopped, records=records, checkpoint=saved)

@@ -5,8 +5,9 @@ work (updates, probe encodings, latents for PPO) runs over that axis with the ru
 (`resolve_seed_loop`: vmapped, mapped one seed at a time, or a hybrid); learners that share one
 program (`update_groups`: the VAEs that differ only in beta and replay retention) are stacked
 as members after the seed axis (`stack_members`), each reading its own buffer (`switch_buffer`).
-`Team` holds a run's learners with its seed loop: what the policy, learning and probing modules
-ask about them.
+`Team` holds a run's learners with its seed loop and the seeds it computes (`SeedGroup`: all of
+the run's, or a share of them with the draws they get in the whole run): what the policy, the
+data side, learning and probing ask about them.
 """
 
 from __future__ import annotations
@@ -109,17 +110,67 @@ def switch_buffer(which: jax.Array, buffers: Sequence[Any], fn: Callable[[Any, j
     return jax.lax.switch(which, [lambda k, b=b: fn(b, k) for b in buffers], key)
 
 
+@dataclass(frozen=True)
+class SeedGroup:
+    """The seeds an experiment computes: seeds `offset .. offset + seeds - 1` of a run of `total`
+    seeds (default: all of them, `offset` 0), each with `worlds` worlds. A run's seeds spread over
+    several experiments (`bulbjax.experiment.groups`: one per device or process) each hold a share;
+    every random draw is the one those seeds get in the whole run (`seed_keys`, `world_keys`,
+    `seed_columns`), so together they compute what one experiment of all seeds computes."""
+
+    seeds: int
+    worlds: int
+    offset: int = 0
+    total: int = 0  # 0: `seeds` (the whole run)
+
+    def __post_init__(self) -> None:
+        if not self.total:
+            object.__setattr__(self, "total", self.seeds)
+        if not 0 <= self.offset <= self.total - self.seeds:
+            raise ValueError(f"seed_group {(self.offset, self.total)} does not hold the config's {self.seeds} seeds")
+
+    @property
+    def whole(self) -> bool:
+        """Whether this is all of the run's seeds."""
+        return self.total == self.seeds
+
+    def seed_keys(self, key: jax.Array) -> jax.Array:
+        """`[S]` keys, one per seed of this group: `split(key, total)` of the whole run's seeds,
+        this group's slice of them."""
+        keys = jax.random.split(key, self.total)
+        return keys if self.whole else keys[self.offset:self.offset + self.seeds]
+
+    def world_keys(self, key: jax.Array) -> jax.Array:
+        """`[S*N]` keys, one per world of this group's seeds, as `seed_keys` slices them."""
+        n = self.worlds
+        keys = jax.random.split(key, self.total * n)
+        return keys if self.whole else keys[self.offset * n:(self.offset + self.seeds) * n]
+
+    def seed_columns(self, x: jax.Array) -> jax.Array:
+        """This group's worlds `[..., S*N]` of a draw made for the whole run's `[..., total*N]`."""
+        n = self.worlds
+        return x if self.whole else x[..., self.offset * n:(self.offset + self.seeds) * n]
+
+
 @dataclass(frozen=True, eq=False)
 class Team:
     """A run's learners (name -> learner, in the config's order, each as `with_seed_loop` makes
-    it) and how their work runs over the `seeds` axis: `seed_loop` as `resolve_seed_loop` gives
-    it, `shared_updates` as `ExperimentConfig.shared_updates`. A variant (other learners, another
-    seed loop) is `dataclasses.replace(team, ...)`."""
+    it) and how their work runs over the seed axis of `group`'s seeds: `seed_loop` as
+    `resolve_seed_loop` gives it, `shared_updates` as `ExperimentConfig.shared_updates`. A variant
+    (other learners, another seed loop) is `dataclasses.replace(team, ...)`."""
 
     learners: dict[str, Any]
     seed_loop: str
-    seeds: int
+    group: SeedGroup
     shared_updates: bool = True
+
+    @property
+    def seeds(self) -> int:
+        return self.group.seeds
+
+    def seed_keys(self, key: jax.Array) -> jax.Array:
+        """`[S]` keys, one per seed (`SeedGroup.seed_keys`)."""
+        return self.group.seed_keys(key)
 
     @property
     def retention(self) -> dict[str, float]:
@@ -162,5 +213,5 @@ class Team:
         index = {n: i for i, n in enumerate(self.learners)}
         bkeys = list(dict.fromkeys(buffer_key(self.retention[n]) for n in group))
         which = jnp.array([bkeys.index(buffer_key(self.retention[n])) for n in group], jnp.int32)
-        keys = jnp.stack([jax.random.split(jax.random.fold_in(key, index[n]), self.seeds) for n in group], 1)
+        keys = jnp.stack([self.seed_keys(jax.random.fold_in(key, index[n])) for n in group], 1)
         return self.learners[group[0]].update_key, tuple(buffers[k] for k in bkeys), which, keys

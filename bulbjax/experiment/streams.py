@@ -111,7 +111,7 @@ class Streams:
                                   extras={"world": jax.ShapeDtypeStruct((), jnp.int32)})
                 buf = replay.insert(buf, k, f, s, {"world": self._world_ids(f.shape[0])})
                 return replay.retain_initial(buf, k, frac) if frac > 0 else buf
-            buffers[buffer_key(frac)] = jax.vmap(fill)(frames, states, jax.random.split(k_keep, self.S))
+            buffers[buffer_key(frac)] = jax.vmap(fill)(frames, states, self.team.seed_keys(k_keep))
         return buffers
 
     def init_windows(self, ppo_state: PPOState, key: jax.Array) -> dict[str, sequence.WindowBuffer]:
@@ -132,7 +132,7 @@ class Streams:
                 buf = sequence.init(cap, lw, env.frame_shape, env.state_dim, self.policy.action_dim)
                 buf = sequence.insert(buf, k, w)
                 return sequence.retain_initial(buf, k, frac) if frac > 0 else buf
-            out[buffer_key(frac)] = jax.vmap(fill)(w, jax.random.split(k_keep, self.S))
+            out[buffer_key(frac)] = jax.vmap(fill)(w, self.team.seed_keys(k_keep))
         return out
 
     # ------------------------------------------------------------------ epoch phases
@@ -145,7 +145,7 @@ class Streams:
         k_pick, k_ins = jax.random.split(key)
         pick = jax.random.choice(k_pick, low.shape[0], (c.frames_per_epoch // self.N,), replace=False)
         frames, states = self.frames_of_steps(jax.tree.map(lambda x: x[pick], ri), low[pick])
-        keys = jax.random.split(k_ins, self.S)
+        keys = self.team.seed_keys(k_ins)
         world = {"world": jnp.broadcast_to(self._world_ids(frames.shape[1]), frames.shape[:2])}
         return {k: jax.vmap(replay.insert)(b, keys, frames, states, world) for k, b in buffers.items()}
 
@@ -160,12 +160,14 @@ class Streams:
         rounds = -(-per_epoch // self.N)
         k_start, k_pick, k_ins = jax.random.split(key, 3)
         total = steps[1].shape[0]
-        starts = jax.random.randint(k_start, (rounds, self.S * self.N), 0, total - lw + 1)
+        group = self.team.group
+        # starts drawn for all of the run's worlds, this group's share kept (`SeedGroup`)
+        starts = group.seed_columns(jax.random.randint(k_start, (rounds, group.total * self.N), 0, total - lw + 1))
         w = self.windows(steps, starts, lw)
         picks = jax.vmap(lambda k: jax.random.permutation(k, rounds * self.N)[:per_epoch])(
-            jax.random.split(k_pick, self.S))
+            group.seed_keys(k_pick))
         w = jax.vmap(lambda ws, p: jax.tree.map(lambda x: x[p], ws))(w, picks)
-        keys = jax.random.split(k_ins, self.S)
+        keys = group.seed_keys(k_ins)
         return {k: jax.vmap(sequence.insert)(b, keys, w) for k, b in windows.items()}
 
     def eval_phase(self, ppo_state: PPOState, curr_env: EnvState, rand_env: EnvState, key: jax.Array,
