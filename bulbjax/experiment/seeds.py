@@ -1,4 +1,5 @@
-"""How the learners' work runs over the seed axis, and the run's learners as one team.
+"""The seed axis: which of a run's seeds an experiment computes, how the learners' work runs over
+them, and the run's learners as one team.
 
 Every seed has its own learners, PPO and buffers (a leading seed axis `[S, ...]`). The learners'
 work (updates, probe encodings, latents for PPO) runs over that axis with the run's seed loop
