@@ -38,7 +38,7 @@ import jax  # noqa: E402
 
 from bulbjax import compile_cache  # noqa: E402
 from bulbjax.experiment.groups import SeedGroups  # noqa: E402
-from bulbjax.experiment.config import preset, small_config  # noqa: E402
+from bulbjax.experiment.resolve import resolve  # noqa: E402
 from bulbjax.experiment.run import provenance  # noqa: E402
 
 
@@ -89,14 +89,10 @@ def main(argv: list[str] | None = None) -> int:
               else sorted({1, len(all_devs)}, reverse=True))
     if max(counts) > len(all_devs):
         raise SystemExit(f"--devices {args.devices}: only {len(all_devs)} local devices")
-    base = preset(args.preset)
-    if args.learners:
-        base = base.replace(learners=tuple(args.learners.split(",")))
-    if args.small:
-        base = small_config(base)
-    if args.bf16:
-        base = base.replace(learner=dataclasses.replace(base.learner, compute_dtype="bfloat16"))
-    base = base.replace(learner=dataclasses.replace(base.learner, rnn_unroll=args.rnn_unroll))
+    # the preset as `bulbjax run` resolves it (the domain's PPO settings, --small, the flags given)
+    learner = {"rnn_unroll": args.rnn_unroll, **({"compute_dtype": "bfloat16"} if args.bf16 else {})}
+    base = resolve(args.preset, overrides={"learners": args.learners} if args.learners else {},
+                   learner=learner, small=args.small)
     kind = all_devs[0].device_kind
     stamp = dt.datetime.now().strftime("%Y%m%d_%H%M%S")
     os.makedirs(args.out_dir, exist_ok=True)

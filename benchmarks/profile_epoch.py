@@ -3,12 +3,13 @@
 For a preset (`--preset fig2-invpend`, ...) it builds the experiment, times the build and the
 init, then jits every phase of `Experiment._epoch` on its own and times it on the run state of
 a warmed-up run (median of `--repeats` calls, each ended by `block_until_ready`):
-PPO rollout and update (`rl_phase`), rendering and writing replay frames (`replay_phase`),
-cutting and rendering windows (`window_phase`), each learner's `learner_batches` updates
-(`learn_phase` restricted to that learner), the held-out rollouts (`eval_phase`), each
-learner's probe fit and evaluation (`probe_phase` for that learner). Then the whole jitted
+PPO rollout and update (`Policy.rl_phase`), rendering and writing replay frames
+(`Streams.replay_phase`), cutting and rendering windows (`Streams.window_phase`), each learner's
+`learner_batches` updates (`Learning.learn_phase` restricted to that learner), the held-out
+rollouts (`Streams.eval_phase`), each learner's probe fit and evaluation (`Probing.probe_phase`
+for that learner). Then the whole jitted
 epoch with and without probing (compile time, then the median call), the host transfer of
-its metrics (`jax.device_get`) and the host-side record building (`report.epoch_records`).
+its metrics (`jax.device_get`) and the host-side record building (`records.epoch_records`).
 The phases timed one by one add up to more than the fused epoch (no overlap between them,
 one dispatch each): their shares say what to make cheaper, the fused numbers what a run costs.
 
@@ -24,7 +25,6 @@ CPU smoke run:  python benchmarks/profile_epoch.py --preset fig2-invpend --small
 from __future__ import annotations
 
 import argparse
-import contextlib
 import dataclasses
 import datetime as dt
 import functools
@@ -33,7 +33,7 @@ import os
 import statistics
 import sys
 import time
-from typing import Any, Callable, Iterator
+from typing import Any, Callable
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 REPO = os.path.dirname(HERE)
@@ -44,17 +44,16 @@ import jax  # noqa: E402
 import warp_ffi_stats  # noqa: E402
 from timing import time_fn  # noqa: E402
 
-from bulbjax.envs import registry  # noqa: E402
-from bulbjax.experiment import report, small_config  # noqa: E402
-from bulbjax.experiment.config import ExperimentConfig, preset  # noqa: E402
+from bulbjax.experiment.records import epoch_records  # noqa: E402
+from bulbjax.experiment.config import ExperimentConfig  # noqa: E402
 from bulbjax.experiment.loop import Experiment  # noqa: E402
-from bulbjax.experiment.programs import without_probes  # noqa: E402
-from bulbjax.learners import parse_learner_options  # noqa: E402
+from bulbjax.experiment.programs import Programs, without_probes  # noqa: E402
+from bulbjax.experiment.resolve import parse_compiler_options, resolve  # noqa: E402
 
 
 def add_config_args(p: argparse.ArgumentParser) -> None:
     """The options `build_config` reads (preset and its overrides), for every script that builds
-    an experiment from a preset (profile_epoch, profile_compile, diag_init_compile)."""
+    an experiment from a preset (profile_epoch, diagnostics/profile_compile.py, diagnostics/diag_init_compile.py)."""
     p.add_argument("--preset", default="fig2-invpend")
     p.add_argument("--small", action="store_true", help="CPU sizes (small_config)")
     p.add_argument("--seeds", type=int, default=0, help="override the preset's seeds")
@@ -75,44 +74,34 @@ def add_config_args(p: argparse.ArgumentParser) -> None:
 
 
 def build_config(a: argparse.Namespace) -> ExperimentConfig:
-    """The preset with the domain's PPO settings, then --small, --seeds, --learners, --bf16,
-    --deconv-impl, --rnn-unroll, --learner-option, --seed-loop, --no-shared-updates, --programs."""
-    cfg = preset(a.preset)
-    cfg = cfg.replace(ppo=registry.ppo_config_for(cfg.env, cfg.ppo))
-    if a.small:
-        cfg = small_config(cfg)
+    """The preset resolved as `bulbjax run` resolves it (`bulbjax.experiment.resolve`: the
+    domain's PPO settings, --small, then the flags given)."""
+    overrides: dict[str, Any] = {}
     if a.seeds:
-        cfg = cfg.replace(seeds=a.seeds)
+        overrides["seeds"] = a.seeds
     if a.learners:
-        cfg = cfg.replace(learners=tuple(x for x in a.learners.split(",") if x))
-    lc = cfg.learner
-    if a.bf16:
-        lc = dataclasses.replace(lc, compute_dtype="bfloat16")
-    if a.deconv_impl:
-        lc = dataclasses.replace(lc, deconv_impl=a.deconv_impl)
-    if a.rnn_unroll:
-        lc = dataclasses.replace(lc, rnn_unroll=a.rnn_unroll)
-    if a.learner_option:
-        lc = dataclasses.replace(lc, **parse_learner_options(a.learner_option))
-    cfg = cfg.replace(learner=lc)
+        overrides["learners"] = a.learners
     if a.seed_loop:
-        cfg = cfg.replace(learner_seed_loop=a.seed_loop)
+        overrides["learner_seed_loop"] = a.seed_loop
     if a.no_shared_updates:
-        cfg = cfg.replace(shared_updates=False)
+        overrides["shared_updates"] = False
     if getattr(a, "programs", ""):
-        cfg = cfg.replace(programs=a.programs)
-    return cfg
+        overrides["programs"] = a.programs
+    learner: dict[str, Any] = {}
+    if a.bf16:
+        learner["compute_dtype"] = "bfloat16"
+    if a.deconv_impl:
+        learner["deconv_impl"] = a.deconv_impl
+    if a.rnn_unroll:
+        learner["rnn_unroll"] = a.rnn_unroll
+    return resolve(a.preset, overrides=overrides, learner=learner, learner_options=a.learner_option,
+                   small=a.small)
 
 
-@contextlib.contextmanager
-def only_learner(exp: Experiment, name: str) -> Iterator[None]:
-    """Let the experiment's phases see one learner only (for timing it on its own)."""
-    saved = exp.learners
-    exp.learners = {name: saved[name]}
-    try:
-        yield
-    finally:
-        exp.learners = saved
+def only_learner(exp: Experiment, name: str) -> tuple[Any, Any]:
+    """The experiment's learning and probing with one learner only (for timing it on its own)."""
+    team = dataclasses.replace(exp.team, learners={name: exp.learners[name]})
+    return dataclasses.replace(exp.learning, team=team), dataclasses.replace(exp.probing, team=team)
 
 
 def profile(cfg: ExperimentConfig, repeats: int, warm_epochs: int, trace_dir: str | None,
@@ -141,7 +130,7 @@ def profile(cfg: ExperimentConfig, repeats: int, warm_epochs: int, trace_dir: st
         # start-up as `bulbjax run` does it (fresh run, probing every k): init and the one epoch
         # program traced in order, lowered, compiled side by side in threads, init run
         t0 = time.perf_counter()
-        progs = exp.programs((True, False))
+        progs = Programs.of(exp, (True, False))
         out["trace_s"] = time.perf_counter() - t0
         out["split_programs"] = progs.split
         out["programs"] = progs.names
@@ -225,7 +214,7 @@ def profile(cfg: ExperimentConfig, repeats: int, warm_epochs: int, trace_dir: st
                 t1 = time.perf_counter()
                 m = jax.device_get(m)
                 t2 = time.perf_counter()
-                report.epoch_records(i, m, exp.spec)
+                epoch_records(i, m, exp.spec)
                 t3 = time.perf_counter()
                 if warp_stats:
                     ffi.append(warp_ffi_stats.delta(warp_ffi_stats.snapshot(), snap))
@@ -274,25 +263,25 @@ def profile(cfg: ExperimentConfig, repeats: int, warm_epochs: int, trace_dir: st
     # phases one by one, on the warmed-up state (inputs made once, outside the timings)
     keys = jax.random.split(jax.random.fold_in(key, 300), 6)
     ph = out["phases"]
-    rl = jax.jit(exp.rl_phase)
+    rl = jax.jit(exp.policy.rl_phase)
     ph["rl (ppo rollout + update)"] = time_fn(lambda: rl(rs.ppo, rs.train_env, keys[0]), repeats)
     ppo_state, _, _, _, _, steps, _ = rl(rs.ppo, rs.train_env, keys[0])
-    rep = jax.jit(exp.replay_phase)
+    rep = jax.jit(exp.streams.replay_phase)
     ph["replay (render + insert)"] = time_fn(lambda: rep(rs.buffers, steps, keys[1]), repeats)
     if rs.windows:
-        win = jax.jit(exp.window_phase)
+        win = jax.jit(exp.streams.window_phase)
         ph["windows (cut + render + insert)"] = time_fn(lambda: win(rs.windows, steps, keys[2]), repeats)
-    ev = jax.jit(exp.eval_phase)
+    ev = jax.jit(exp.streams.eval_phase)
     ph["eval (held-out rollouts + render)"] = time_fn(lambda: ev(ppo_state, rs.curr_env, rs.rand_env, keys[3]),
                                                       repeats)
     _, _, held, _ = ev(ppo_state, rs.curr_env, rs.rand_env, keys[3])
     for name in list(exp.learners):
-        with only_learner(exp, name):
-            learn = jax.jit(exp.learn_phase)
-            sub = {name: rs.learners[name]}
-            ph[f"learn {name}"] = time_fn(lambda: learn(sub, rs.buffers, keys[4], rs.windows), repeats)
-            pr = jax.jit(exp.probe_phase)
-            ph[f"probe {name}"] = time_fn(lambda: pr(sub, rs.buffers, held, keys[5], rs.windows), repeats)
+        learning, probing = only_learner(exp, name)
+        learn = jax.jit(learning.learn_phase)
+        sub = {name: rs.learners[name]}
+        ph[f"learn {name}"] = time_fn(lambda: learn(sub, rs.buffers, keys[4], rs.windows), repeats)
+        pr = jax.jit(probing.probe_phase)
+        ph[f"probe {name}"] = time_fn(lambda: pr(sub, rs.buffers, held, keys[5], rs.windows), repeats)
         log(f"  learn {name} {ph[f'learn {name}']['median_s']:.3f} s, probe {ph[f'probe {name}']['median_s']:.3f} s")
         save(out)
     total = sum(v["median_s"] for v in ph.values())
@@ -322,8 +311,6 @@ def _with_flag(compiled: Callable, flag: jax.Array, probe: bool) -> Callable:
 
 def parse_variant(text: str) -> tuple[str, dict[str, Any]]:
     """`NAME=KEY:VALUE;KEY:VALUE` (or a bare `NAME`, no options) -> (name, compile options)."""
-    from bulbjax.experiment.loop import parse_compiler_options
-
     name, _, rest = text.partition("=")
     items = [kv.replace(":", "=", 1) for kv in rest.split(";") if kv]
     return name, parse_compiler_options(items)

@@ -1,31 +1,34 @@
-"""Command line: `bulbjax run | report | fit | envs | render` (parsing only: the run loop is
+"""Command line: `bulbjax run | report | fit | recon | envs | render` (parsing only: the flags map
+to `bulbjax.experiment.resolve`, which resolves the settings; the run loop is
 `bulbjax.experiment.run`, the offline fit `bulbjax.experiment.offline`)."""
 
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import os
 import sys
 from typing import Sequence
 
 
-def _parse_learners(text: str) -> tuple[str, ...]:
-    return tuple(x.strip() for x in text.split(",") if x.strip())
-
-
-def _domain_ppo(cfg):
-    """Apply the domain's PPO settings (the locomotion envs ask for longer rollouts) when the
-    env registry offers them; an unknown env is left for `Experiment` to report."""
-    from bulbjax.envs import registry
-
-    hook = getattr(registry, "ppo_config_for", None)
-    if hook is None:
-        return cfg
-    try:
-        return cfg.replace(ppo=hook(cfg.env, cfg.ppo))
-    except ValueError:
-        return cfg
+def _settings(args: argparse.Namespace) -> dict:
+    """The flags of `run` and `fit` as `bulbjax.experiment.resolve`'s arguments (the flags given;
+    text values are parsed and checked there)."""
+    flags = (("env", "env"), ("seeds", "seeds"), ("epochs", "epochs"), ("sequence_length", "sequence_length"),
+             ("learners", "learners"), ("version", "version"), ("rl_input", "rl_input"),
+             ("seed_loop", "learner_seed_loop"), ("programs", "programs"), ("ppo_updates", "ppo_updates_per_epoch"),
+             ("resolution", "resolution"))
+    overrides = {field: getattr(args, flag) for flag, field in flags if getattr(args, flag, None) is not None}
+    if getattr(args, "multicolour", False):
+        overrides["multicolour"] = True
+    learner = {}
+    if getattr(args, "lr", None) is not None:
+        learner["lr"] = args.lr
+    if getattr(args, "bf16", False):
+        learner["compute_dtype"] = "bfloat16"
+    if getattr(args, "rnn_unroll", None) is not None:
+        learner["rnn_unroll"] = args.rnn_unroll
+    return dict(overrides=overrides, learner=learner, learner_options=getattr(args, "learner_option", None) or (),
+                small=bool(getattr(args, "small", False)))
 
 
 def _parse_ids(text: str | None) -> tuple[int, ...] | None:
@@ -38,84 +41,11 @@ def _parse_ids(text: str | None) -> tuple[int, ...] | None:
         raise ValueError(f"--local-devices {text!r} must be device numbers separated by commas, e.g. 0,1") from err
 
 
-def _parse_version(text: str) -> int | str:
-    """An object version from the command line: "random" or a non-negative int."""
-    if text == "random":
-        return text
-    try:
-        v = int(text)
-    except ValueError:
-        v = -1
-    if v < 0:
-        raise ValueError(f"--version must be a non-negative int or 'random', got {text!r}")
-    return v
+def build_config(args: argparse.Namespace):
+    """The ExperimentConfig of `bulbjax run`'s flags (`bulbjax.experiment.resolve.resolve`)."""
+    from bulbjax.experiment.resolve import resolve
 
-
-def build_config(args: argparse.Namespace, base=None, domain_ppo: bool = True):
-    """The run's ExperimentConfig: `base` (default a preset, or the defaults) with the flags that
-    were given, the domain's PPO settings (unless `domain_ppo` is False), then --small, --lr and
-    --bf16 on top."""
-    from bulbjax.experiment import ExperimentConfig, small_config
-    from bulbjax.experiment.config import preset
-
-    if base is None:
-        base = preset(args.preset) if args.preset else ExperimentConfig()
-    given = {k: v for k, v in (("env", args.env), ("seeds", args.seeds), ("epochs", args.epochs),
-                               ("sequence_length", args.sequence_length)) if v is not None}
-    if args.learners is not None:
-        given["learners"] = _parse_learners(args.learners)
-    if args.multicolour:
-        given["multicolour"] = True
-    if getattr(args, "version", None) is not None:
-        given["version"] = _parse_version(args.version)
-    if getattr(args, "rl_input", None) is not None:
-        given["rl_input"] = args.rl_input
-    if getattr(args, "seed_loop", None) is not None:
-        given["learner_seed_loop"] = args.seed_loop
-    if getattr(args, "programs", None) is not None:
-        given["programs"] = args.programs
-    cfg = base.replace(**given)
-    if domain_ppo:
-        cfg = _domain_ppo(cfg)
-    if args.small:
-        cfg = small_config(cfg)
-    if args.ppo_updates:
-        cfg = cfg.replace(ppo_updates_per_epoch=args.ppo_updates)
-    if args.lr is not None:
-        cfg = cfg.replace(learner=dataclasses.replace(cfg.learner, lr=args.lr))
-    if args.bf16:
-        cfg = cfg.replace(learner=dataclasses.replace(cfg.learner, compute_dtype="bfloat16"))
-    if getattr(args, "rnn_unroll", None) is not None:
-        cfg = cfg.replace(learner=dataclasses.replace(cfg.learner, rnn_unroll=args.rnn_unroll))
-    if getattr(args, "learner_option", None):
-        from bulbjax.learners import parse_learner_options
-
-        cfg = cfg.replace(learner=dataclasses.replace(cfg.learner, **parse_learner_options(args.learner_option)))
-    return cfg
-
-
-def resume_settings(args: argparse.Namespace):
-    """Config and options of `run --resume RUN_DIR`: the run's own config.json, with the flags
-    given on top (applied as a fresh run would apply them to the saved settings; `--preset`
-    builds the whole config anew). `bulbjax.experiment.run.check_resume` then refuses any flag
-    that changes what the run computes; only --epochs may grow the run."""
-    from bulbjax.experiment.config import read_run_config
-    from bulbjax.experiment.run import RunOptions, run_options_of
-
-    if args.out is not None and os.path.abspath(args.out) != os.path.abspath(args.resume):
-        raise ValueError(f"--resume {args.resume} continues that run in its own folder; leave out --out {args.out}")
-    saved, raw = read_run_config(args.resume)
-    if args.preset:
-        cfg = build_config(args)
-    else:
-        cfg = build_config(args, base=saved, domain_ppo=args.env is not None)
-    if args.epochs is None:
-        cfg = cfg.replace(epochs=saved.epochs)
-    ident = run_options_of(raw)
-    opts = RunOptions(seed=ident["seed"] if args.seed is None else args.seed,
-                      probe_every=ident["probe_every"] if args.probe_every is None else args.probe_every,
-                      **_stretch_options(args))
-    return cfg, opts
+    return resolve(args.preset, **_settings(args))
 
 
 def _stretch_options(args: argparse.Namespace) -> dict:
@@ -124,7 +54,9 @@ def _stretch_options(args: argparse.Namespace) -> dict:
 
 
 def cmd_run(args: argparse.Namespace) -> int:
-    """Parse into (config, options, folder) and hand over to `bulbjax.experiment.run.run`."""
+    """Map the flags to (config, options, folder) (`bulbjax.experiment.resolve`; a resumed run
+    starts from its own config.json, and `run.check_resume` refuses any flag that changes what it
+    computes: only --epochs may grow it) and hand over to `bulbjax.experiment.run.run`."""
     from bulbjax import distributed
 
     # before anything else touches JAX's devices: a multi-process run joins its peers first
@@ -133,17 +65,23 @@ def cmd_run(args: argparse.Namespace) -> int:
         local_device_ids=_parse_ids(args.local_devices), auto=args.distributed))
     import jax
 
+    from bulbjax.experiment.config import RunOptions
     from bulbjax.experiment.console import log_to_file
-    from bulbjax.experiment.run import RunOptions, run
+    from bulbjax.experiment.resolve import parse_compiler_options, resolve, resolve_resume
+    from bulbjax.experiment.run import run
     from bulbjax.experiment.rundir import check_out_dir, log_name
 
     if args.resume and args.overwrite:
         raise ValueError("--resume continues the run in its folder and --overwrite deletes it: give one of them")
+    settings = _settings(args)
     if args.resume:
-        cfg, opts = resume_settings(args)
+        if args.out is not None and os.path.abspath(args.out) != os.path.abspath(args.resume):
+            raise ValueError(f"--resume {args.resume} continues that run in its own folder; leave out --out {args.out}")
+        cfg, opts = resolve_resume(args.resume, args.preset, seed=args.seed, probe_every=args.probe_every,
+                                   **settings, **_stretch_options(args))
         out = args.resume
     else:
-        cfg = build_config(args)
+        cfg = resolve(args.preset, **settings)
         opts = RunOptions(seed=args.seed or 0, probe_every=args.probe_every or 1, **_stretch_options(args))
         out = args.out or "runs/latest"
     local = jax.local_devices()
@@ -152,8 +90,6 @@ def cmd_run(args: argparse.Namespace) -> int:
     # every process's first D local devices (D: --devices, default all of them)
     devices = [d for p in range(jax.process_count())
                for d in [x for x in jax.devices() if x.process_index == p][: args.devices or None]]
-    from bulbjax.experiment.loop import parse_compiler_options
-
     compiler_options = parse_compiler_options(args.xla_option or [])
     # before anything is built: a run in the way or an unwritable folder is a one-line error
     check_out_dir(out, resume=bool(args.resume), overwrite=args.overwrite)
@@ -200,32 +136,13 @@ def cmd_report(args: argparse.Namespace) -> int:
 
 
 def build_offline_config(args: argparse.Namespace):
-    """The OfflineConfig of `bulbjax fit`: the run's settings (a preset or the defaults, with
-    the flags given, --small, --lr, --bf16; SyntheticMovers at 32x32 by default), the schedule,
-    and the dataset's size (CPU sizes with --small)."""
-    from bulbjax.data import synthetic
-    from bulbjax.experiment.offline import OfflineConfig
+    """The OfflineConfig of `bulbjax fit`'s flags (`bulbjax.experiment.resolve.resolve_offline`)."""
+    from bulbjax.experiment.resolve import resolve_offline
 
-    if args.env is None and args.preset is None:
-        raise ValueError("fit needs --env (an environment of `bulbjax envs`, or SyntheticMovers) or --preset")
-    ns = argparse.Namespace(**{**vars(args), "epochs": None, "ppo_updates": None,
-                               "multicolour": getattr(args, "multicolour", False)})
-    synth = args.env == synthetic.NAME
-    if synth:  # not an MJX env: build the run settings on a stand-in, then swap the name back
-        ns.env = "CartPole"
-    base = build_config(ns)
-    if synth:
-        base = base.replace(env=synthetic.NAME, resolution=args.resolution or 32, multicolour=False,
-                            sequence_length=args.sequence_length or 8)
-    elif args.resolution:
-        base = base.replace(resolution=args.resolution)
-    kw = dict(updates=args.updates, probe_every=args.probe_every, data_seed=args.data_seed)
-    if args.small:
-        kw.update(data_worlds=32, data_steps=128, heldout_steps=32)
-    for name in ("data_worlds", "data_steps", "heldout_steps"):
-        if getattr(args, name) is not None:
-            kw[name] = getattr(args, name)
-    return OfflineConfig(base=base, **kw)
+    dataset = {n: getattr(args, n) for n in ("data_worlds", "data_steps", "heldout_steps")
+               if getattr(args, n) is not None}
+    return resolve_offline(args.preset, **_settings(args), dataset=dataset, updates=args.updates,
+                           probe_every=args.probe_every, data_seed=args.data_seed)
 
 
 def cmd_fit(args: argparse.Namespace) -> int:
@@ -277,12 +194,12 @@ def cmd_envs(args: argparse.Namespace) -> int:
 
 def cmd_render(args: argparse.Namespace) -> int:
     import jax
-    import jax.numpy as jnp
     import numpy as np
 
     import bulbjax
+    from bulbjax.experiment.resolve import parse_version
 
-    version = _parse_version(args.version)
+    version = parse_version(args.version)
     env = bulbjax.make(args.env, num_envs=args.frames, resolution=args.resolution, version=version,
                        show_targets=args.show_targets)
     state = jax.jit(env.reset)(jax.random.PRNGKey(args.seed))

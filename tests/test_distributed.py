@@ -5,7 +5,7 @@ Two `bulbjax run` processes on localhost (a local coordinator, one CPU device ea
 collectives) run a 2-seed CartPole experiment as two seed groups; process 0 writes metrics.jsonl.
 Its records must equal those of one process running both seeds on one device, within the float
 tolerance of tests/test_sharding.py: every draw of a group is its seeds' share of the whole run's
-(`Experiment.seed_keys`), and the reference spread is pooled over the processes, but XLA compiles
+(`seeds.SeedGroup.seed_keys`), and the reference spread is pooled over the processes, but XLA compiles
 the updates for one seed instead of two, so sums run in another order.
 """
 

@@ -13,8 +13,8 @@ import pytest
 
 from bulbjax.eval.probe import ProbeConfig
 from bulbjax.experiment import Experiment, ExperimentConfig
-from bulbjax.experiment import report
-from bulbjax.experiment.loop import buffer_key, learner_loop, update_groups, with_seed_loop
+from bulbjax.experiment import records, report
+from bulbjax.experiment.seeds import buffer_key, learner_loop, update_groups, with_seed_loop
 from bulbjax.learners import LearnerConfig, make_learner
 from bulbjax.rl.ppo import PPOConfig
 
@@ -97,19 +97,17 @@ def test_seed_loop_map_equals_vmap(run):
     default before "hybrid"), `vmap` (the default on the CPU) or "hybrid" (the default on one
     GPU: DSA vmapped with its convolutions one seed at a time): the same numbers every way."""
     exp, *_, rs1 = run
-    saved, saved_loop = exp.learners, exp.seed_loop
+    saved = exp.learners
     names = ("vae_rpl", "svae", "dsa")  # a frame learner, a mapped and a vmapped sequential one
-    try:
-        out = {}
-        for loop in ("vmap", "map", "hybrid"):
-            exp.learners = {n: with_seed_loop(saved[n], loop) for n in names}  # as the loop makes them
-            exp.seed_loop = loop
-            assert exp.learners["dsa"].per_seed_frames == ("remat" if loop == "hybrid" else "")
-            learners = {n: rs1.learners[n] for n in exp.learners}
-            out[loop] = jax.device_get(jax.jit(exp.learn_phase)(learners, rs1.buffers, jax.random.PRNGKey(7),
-                                                                rs1.windows))
-    finally:
-        exp.learners, exp.seed_loop = saved, saved_loop
+    out = {}
+    for loop in ("vmap", "map", "hybrid"):
+        team = dataclasses.replace(exp.team, learners={n: with_seed_loop(saved[n], loop) for n in names},
+                                   seed_loop=loop)  # as the loop makes them
+        assert team.learners["dsa"].per_seed_frames == ("remat" if loop == "hybrid" else "")
+        learning = dataclasses.replace(exp.learning, team=team)
+        learners = {n: rs1.learners[n] for n in team.learners}
+        out[loop] = jax.device_get(jax.jit(learning.learn_phase)(learners, rs1.buffers, jax.random.PRNGKey(7),
+                                                                 rs1.windows))
     for name in names:
         a = out["vmap"][0][name].params
         before = jax.tree.leaves(rs1.learners[name].params)[0]
@@ -124,23 +122,21 @@ def test_seed_loop_map_equals_vmap(run):
 def held(run):
     """Held-out windows of one `eval_phase` (compiled once for the probe-phase tests)."""
     exp, *_, rs1 = run
-    return jax.jit(exp.eval_phase)(rs1.ppo, rs1.curr_env, rs1.rand_env, jax.random.PRNGKey(3))[2]
+    return jax.jit(exp.streams.eval_phase)(rs1.ppo, rs1.curr_env, rs1.rand_env, jax.random.PRNGKey(3))[2]
 
 
 def test_probe_phase_same_under_either_seed_loop(run, held):
     """Probes: the learners' encodings follow the seed loop, the probe MLPs are vmapped over
     seeds either way (`probe_over_seeds`); the scores agree, and differ between seeds."""
     exp, *_, rs1 = run
-    saved, saved_loop = exp.learners, exp.seed_loop
-    try:
-        out = {}
-        for loop in ("vmap", "map", "hybrid"):
-            exp.learners = {n: with_seed_loop(saved[n], loop) for n in ("vae_rpl", "dsa")}
-            exp.seed_loop = loop
-            out[loop] = jax.device_get(jax.jit(exp.probe_phase)(rs1.learners, rs1.buffers, held,
+    saved = exp.learners
+    out = {}
+    for loop in ("vmap", "map", "hybrid"):
+        team = dataclasses.replace(exp.team, learners={n: with_seed_loop(saved[n], loop) for n in ("vae_rpl", "dsa")},
+                                   seed_loop=loop)
+        probing = dataclasses.replace(exp.probing, team=team)
+        out[loop] = jax.device_get(jax.jit(probing.probe_phase)(rs1.learners, rs1.buffers, held,
                                                                 jax.random.PRNGKey(4), rs1.windows))
-    finally:
-        exp.learners, exp.seed_loop = saved, saved_loop
     for name in ("vae_rpl", "dsa"):
         for stream in ("curr", "rand"):
             a = out["vmap"][name][stream]["mae"]
@@ -156,21 +152,19 @@ def test_shared_updates_equal_separate_ones(run, held):
     losses and probe scores as three separate programs, under either seed loop."""
     exp, *_, rs1 = run
     names = ("vae", "vae_rpl", "beta_vae")
-    saved, saved_loop, saved_cfg = exp.learners, exp.seed_loop, exp.config
-    exp.learners = {n: saved[n] for n in names}
-    assert update_groups(exp.learners) == [names]
-    assert update_groups(exp.learners, share=False) == [(n,) for n in names]
+    saved = exp.learners
+    three = {n: saved[n] for n in names}
+    assert update_groups(three) == [names]
+    assert update_groups(three, share=False) == [(n,) for n in names]
     learners = {n: rs1.learners[n] for n in names}
-    try:
-        out = {}
-        for share, loop in ((False, "vmap"), (True, "vmap"), (True, "map")):
-            exp.config = dataclasses.replace(saved_cfg, shared_updates=share)
-            exp.seed_loop = loop
-            learnt = jax.jit(exp.learn_phase)(learners, rs1.buffers, jax.random.PRNGKey(7))
-            probes = jax.jit(exp.probe_phase)(learners, rs1.buffers, held, jax.random.PRNGKey(4))
-            out[share, loop] = jax.device_get((learnt, probes))
-    finally:
-        exp.learners, exp.seed_loop, exp.config = saved, saved_loop, saved_cfg
+    out = {}
+    for share, loop in ((False, "vmap"), (True, "vmap"), (True, "map")):
+        team = dataclasses.replace(exp.team, learners=three, shared_updates=share, seed_loop=loop)
+        learning = dataclasses.replace(exp.learning, team=team)
+        probing = dataclasses.replace(exp.probing, team=team)
+        learnt = jax.jit(learning.learn_phase)(learners, rs1.buffers, jax.random.PRNGKey(7))
+        probes = jax.jit(probing.probe_phase)(learners, rs1.buffers, held, jax.random.PRNGKey(4))
+        out[share, loop] = jax.device_get((learnt, probes))
     (ref_states, ref_m), ref_p = out[False, "vmap"]
     assert set(ref_states) == set(names) and saved["beta_vae"].config.beta == 5.0
     for n in names:  # the updates did move the weights, so agreeing with them is not trivial
@@ -190,7 +184,8 @@ def test_shared_updates_equal_separate_ones(run, held):
 
 
 def test_seed_loop_choice():
-    from bulbjax.experiment.loop import make_mesh, resolve_seed_loop
+    from bulbjax.experiment.devices import make_mesh
+    from bulbjax.experiment.seeds import resolve_seed_loop
 
     mesh = make_mesh(jax.devices()[:1], 2, 4)
     assert resolve_seed_loop("auto", mesh) == ("vmap" if jax.default_backend() == "cpu" else "hybrid")
@@ -250,7 +245,8 @@ def test_split_programs_give_the_fused_epoch(run):
 def test_program_form_choice():
     from types import SimpleNamespace
 
-    from bulbjax.experiment.loop import make_mesh, resolve_programs
+    from bulbjax.experiment.devices import make_mesh
+    from bulbjax.experiment.programs import resolve_programs
 
     mesh = make_mesh(jax.devices()[:1], 2, 4)
     assert tiny_config().programs == "fused"
@@ -274,10 +270,10 @@ def test_config_rejects_bad_settings():
 
 def test_reports(run, tmp_path):
     exp, _, _, m1, m2, *_ = run
-    recs = report.epoch_records(0, m1, exp.spec) + report.epoch_records(1, m2, exp.spec)
+    recs = records.epoch_records(0, m1, exp.spec) + records.epoch_records(1, m2, exp.spec)
     path = tmp_path / "metrics.jsonl"
-    report.write_jsonl(str(path), recs)
-    back = report.read_jsonl(str(path))
+    records.write_jsonl(str(path), recs)
+    back = records.read_jsonl(str(path))
     assert len(back) == 2 * SEEDS
     g = back[0]["probes"]["vae"]["curr"]["groups"]
     assert set(g) == {"position", "velocity"}
@@ -292,8 +288,8 @@ def test_reports(run, tmp_path):
         assert e["mae_norm"] == pytest.approx(e["mae"] / e["ref_spread"])
     # an epoch without a probe (--probe-every) is recorded, plotted and tabled around
     m_np = {k: v for k, v in m2.items() if k != "probes"}
-    recs += report.epoch_records(2, m_np, exp.spec)
-    assert recs[-1]["probes"] == {} and len(report.probed(recs)) == 2 * SEEDS
+    recs += records.epoch_records(2, m_np, exp.spec)
+    assert recs[-1]["probes"] == {} and len(records.probed(recs)) == 2 * SEEDS
     report.plot(recs, exp.spec, str(tmp_path / "fig.png"), "test", solved_return=190)
     assert os.path.getsize(tmp_path / "fig.png") > 10_000
     tab = report.table(recs, exp.spec)
@@ -303,7 +299,7 @@ def test_reports(run, tmp_path):
 
 def test_ci90_matches_student_t():
     v = np.array([[1.0], [2.0], [3.0]])
-    mean, half = report.ci90(v)
+    mean, half = records.ci90(v)
     assert mean[0] == pytest.approx(2.0)
     assert half[0] == pytest.approx(2.920 * 1.0 / np.sqrt(3))
 
@@ -316,27 +312,27 @@ def test_return_of_epochs_without_a_finished_episode():
     recs = [{"epoch": e, "seed": s, "rl_return": r}
             for e, rets in enumerate([(10.0, 20.0), (float("nan"), 40.0), (float("nan"), float("nan"))])
             for s, r in enumerate(rets)]
-    ret, fell_back = report.last_returns(recs, [1])
+    ret, fell_back = records.last_returns(recs, [1])
     assert ret.tolist() == [10.0, 40.0] and fell_back  # seed 0 falls back to epoch 0
-    ret, fell_back = report.last_returns(recs, [0, 1])
+    ret, fell_back = records.last_returns(recs, [0, 1])
     assert ret.tolist() == [10.0, 30.0] and not fell_back
     with warnings.catch_warnings():
         warnings.simplefilter("error")
-        ret, fell_back = report.last_returns(recs, [2])
+        ret, fell_back = records.last_returns(recs, [2])
         assert ret.tolist() == [10.0, 40.0] and fell_back
-        assert np.isnan(report.ci90(np.full((3, 2), np.nan))[0]).all()
+        assert np.isnan(records.ci90(np.full((3, 2), np.nan))[0]).all()
     later = recs + [{"epoch": 3, "seed": s, "rl_return": 99.0} for s in (0, 1)]
-    ret, fell_back = report.last_returns(later, [2])  # an episode after them is not 'latest'
+    ret, fell_back = records.last_returns(later, [2])  # an episode after them is not 'latest'
     assert ret.tolist() == [10.0, 40.0] and fell_back
-    ret, fell_back = report.last_returns(later, [0])
+    ret, fell_back = records.last_returns(later, [0])
     assert ret.tolist() == [10.0, 20.0] and not fell_back
-    ret, fell_back = report.last_returns(later, [])
+    ret, fell_back = records.last_returns(later, [])
     assert ret.tolist() == [99.0, 99.0] and fell_back
     # an episode that ended between two asked epochs counts (HalfCheetah: epochs 0 and 10 probed,
     # episodes ending at epoch 7)
-    ret, fell_back = report.last_returns(later, [2, 5])
+    ret, fell_back = records.last_returns(later, [2, 5])
     assert ret.tolist() == [99.0, 99.0] and fell_back
-    ret, fell_back = report.last_returns([{"epoch": 0, "seed": 0, "rl_return": float("nan")}], [0])
+    ret, fell_back = records.last_returns([{"epoch": 0, "seed": 0, "rl_return": float("nan")}], [0])
     assert np.isnan(ret).all() and not fell_back  # no finished episode at all: NaN, not 0
 
 

@@ -10,7 +10,7 @@ import os
 import numpy as np
 import pytest
 
-from bulbjax.experiment import report
+from bulbjax.experiment import records, report
 from bulbjax.experiment.config import preset, read_run_config
 
 
@@ -30,7 +30,7 @@ def _run_dir(path: str, seeds: int, base_seed: int, level: float, epochs: int = 
                                  "velocity": {"mae_norm": x, "baseline_norm": 1.2}}}
             recs.append({"epoch": e, "seed": s, "rl_return": 100.0 * (e + 1),
                          "probes": {n: {"curr": stream, "rand": stream} for n in cfg.learners}})
-    report.write_jsonl(os.path.join(path, "metrics.jsonl"), recs)
+    records.write_jsonl(os.path.join(path, "metrics.jsonl"), recs)
     return path
 
 
@@ -41,12 +41,12 @@ def test_merge_pools_seeds(tmp_path) -> None:
     report.merge_seeds([a, b], out)
     cfg, raw = read_run_config(out)
     assert cfg.seeds == 5 and [s["merged_seeds"] for s in raw["merged_from"]] == [[0, 1], [2, 4]]
-    recs = report.read_jsonl(os.path.join(out, "metrics.jsonl"))
+    recs = records.read_jsonl(os.path.join(out, "metrics.jsonl"))
     assert sorted({r["seed"] for r in recs}) == [0, 1, 2, 3, 4]
     # seed 3 of the merge is seed 1 of run b
     r = next(r for r in recs if r["seed"] == 3 and r["epoch"] == 0)
     assert r["probes"]["vae"]["curr"]["overall"]["mae_norm"] == pytest.approx(0.91)
-    per_seed = report.per_seed_error(recs, "vae", "curr", None, [1])
+    per_seed = records.per_seed_error(recs, "vae", "curr", None, [1])
     np.testing.assert_allclose(per_seed, [0.5, 0.51, 0.9, 0.91, 0.92])
     table = open(os.path.join(out, "table.md")).read()
     assert "5 seeds, 2 epochs" in table and "epoch 0, 1;" in table  # epoch 2 lacks run b's seeds

@@ -22,7 +22,7 @@ from bulbjax.eval.objects import (
     summary_of,
 )
 from bulbjax.eval.probe import ProbeConfig
-from bulbjax.experiment import Experiment, ExperimentConfig, report
+from bulbjax.experiment import Experiment, ExperimentConfig, records, report
 from bulbjax.learners import LearnerConfig, make_learner
 from bulbjax.rl.ppo import PPOConfig
 
@@ -59,8 +59,8 @@ def rearrange():
 
 def test_rearrange_run_has_the_object_probe(rearrange, tmp_path) -> None:
     exp, m = rearrange
-    names, _ = exp.objects
-    assert names == ["obj0", "obj1", "obj2", "obj3"] and exp.object_radius == pytest.approx(3.2)
+    names, _ = exp.probing.objects
+    assert names == ["obj0", "obj1", "obj2", "obj3"] and exp.probing.object_radius == pytest.approx(3.2)
     mcount = len(names)
     for stream in ("curr", "rand"):
         o = m["probes"]["spair"][stream]["objects"]
@@ -76,7 +76,7 @@ def test_rearrange_run_has_the_object_probe(rearrange, tmp_path) -> None:
         assert np.all(np.isinf(o["error"][1])) and np.all(o["found"][1] == 0) and o["missing"][1] == 1
         np.testing.assert_allclose(o["radius"], 3.2)
         assert "objects" not in m["probes"]["vae_rpl"][stream]  # no boxes: the MLP probe only
-    recs = report.epoch_records(0, m, exp.spec)
+    recs = records.epoch_records(0, m, exp.spec)
     assert len(recs) == SEEDS
     for s, r in enumerate(recs):
         assert set(r["objects"]) == {"spair"} and set(r["objects"]["spair"]) == {"curr", "rand"}
@@ -87,8 +87,8 @@ def test_rearrange_run_has_the_object_probe(rearrange, tmp_path) -> None:
             float(m["probes"]["spair"]["rand"]["objects"]["found"][s, 2]))
     assert np.isinf(recs[1]["objects"]["spair"]["curr"]["error_mean"])
     path = tmp_path / "metrics.jsonl"
-    report.write_jsonl(str(path), recs)
-    assert report.read_jsonl(str(path))[0]["objects"] == recs[0]["objects"]
+    records.write_jsonl(str(path), recs)
+    assert records.read_jsonl(str(path))[0]["objects"] == recs[0]["objects"]
     tab = report.write_reports(str(tmp_path), recs, exp.config, exp.spec)
     text = (tmp_path / "table.md").read_text()
     assert "## Objects" in tab and "## Objects" in text
@@ -123,11 +123,11 @@ def test_spair_boxes_of_latents_match_boxes() -> None:
 def test_cartpole_run_has_no_object_section(tmp_path) -> None:
     cfg = dataclasses.replace(tiny("CartPole", ("vae_rpl",)), learner_batches=1)
     exp = Experiment(cfg)
-    assert exp.objects is None
+    assert exp.probing.objects is None
     _, m = exp.epoch(exp.init(jax.random.PRNGKey(0)), jax.random.PRNGKey(1))
     m = jax.device_get(m)
     assert all("objects" not in d for d in m["probes"]["vae_rpl"].values())
-    recs = report.epoch_records(0, m, exp.spec)
+    recs = records.epoch_records(0, m, exp.spec)
     assert all("objects" not in r for r in recs)
     tab = report.write_reports(str(tmp_path), recs, cfg, exp.spec)
     assert "Objects" not in tab and "Objects" not in (tmp_path / "table.md").read_text()

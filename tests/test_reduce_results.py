@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 from bulbjax.envs.registry import env_class
-from bulbjax.experiment import report
+from bulbjax.experiment import records, report
 from bulbjax.experiment.config import preset
 
 HERE = os.path.dirname(os.path.abspath(__file__))
@@ -32,7 +32,7 @@ def _module():
 
 def _fake_run(path: str) -> str:
     """A run folder as `bulbjax run --probe-every 4` leaves it (config.json, metrics.jsonl.gz as
-    committed), records made by `report.epoch_records` from float32 metrics as on a GPU."""
+    committed), records made by `records.epoch_records` from float32 metrics as on a GPU."""
     cfg = preset("fig2-invpend").replace(seeds=SEEDS, epochs=EPOCHS)
     spec = env_class(cfg.env).state_spec
     d = len(spec)
@@ -54,7 +54,7 @@ def _fake_run(path: str) -> str:
             m["probes"] = {n: {s: {"mae": f32(SEEDS, d) * ref, "baseline": f32(SEEDS, d) * ref,
                                    "spread": f32(SEEDS, d)} for s in ("curr", "rand")}
                            for n in cfg.learners}
-        recs += report.epoch_records(e, m, spec)
+        recs += records.epoch_records(e, m, spec)
     with gzip.open(os.path.join(path, "metrics.jsonl.gz"), "wt") as f:
         for r in recs:
             f.write(json.dumps(r, allow_nan=True) + "\n")
@@ -77,7 +77,7 @@ def test_reduced_metrics_keep_probed_epochs_and_reports(tmp_path) -> None:
     shutil.copytree(full, small)
     path = os.path.join(small, "metrics.jsonl.gz")
     assert rr.main([small, "--no-png"]) == 0
-    before, after = report.read_jsonl(os.path.join(full, "metrics.jsonl.gz")), report.read_jsonl(path)
+    before, after = records.read_jsonl(os.path.join(full, "metrics.jsonl.gz")), records.read_jsonl(path)
     assert os.path.getsize(path) < 0.6 * os.path.getsize(os.path.join(full, "metrics.jsonl.gz"))
     assert [(r["epoch"], r["seed"]) for r in after] == [(r["epoch"], r["seed"]) for r in before]
     for b, a in zip(before, after):
@@ -107,7 +107,7 @@ def test_reduced_metrics_keep_probed_epochs_and_reports(tmp_path) -> None:
     assert rr.main([small, "--no-png"]) == 0 and open(path, "rb").read() == data
     # minimal: epoch, seed, return and episodes between the probes; the reports still the same
     assert rr.main([full, "--no-png", "--unprobed", "minimal"]) == 0
-    mini = report.read_jsonl(os.path.join(full, "metrics.jsonl.gz"))
+    mini = records.read_jsonl(os.path.join(full, "metrics.jsonl.gz"))
     assert {k for r in mini if not r["probes"] for k in r} == {"epoch", "seed", "rl_return", "rl_episodes", "probes"}
     report.redraw(full)
     assert open(os.path.join(small, "table.md")).read() == open(os.path.join(full, "table.md")).read()

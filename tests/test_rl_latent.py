@@ -12,7 +12,8 @@ import numpy as np
 import pytest
 
 from bulbjax.experiment import ExperimentConfig, small_config
-from bulbjax.experiment.loop import Experiment, Rendered
+from bulbjax.experiment.loop import Experiment
+from bulbjax.experiment.state import Rendered
 
 
 def test_latent_fed_to_ppo_is_the_learners_encoding(tmp_path) -> None:
@@ -23,9 +24,9 @@ def test_latent_fed_to_ppo_is_the_learners_encoding(tmp_path) -> None:
     exp = Experiment(cfg)
     rs = exp.init(jax.random.PRNGKey(0))
     learner = exp.learners["vae_rpl"]
-    assert exp.rl_learner == "vae_rpl"
+    assert exp.policy.rl_learner == "vae_rpl"
     assert exp.ppo.obs_size == learner.latent_dim == 2 * exp.env.state_dim
-    obs = jax.jit(exp._policy_obs)(rs.train_env, rs.learners)
+    obs = jax.jit(exp.policy.obs)(rs.train_env, rs.learners)
     S, N = cfg.seeds, cfg.num_envs
     assert obs.shape == (S, N, learner.latent_dim) and obs.dtype == np.float32
     frames = exp.env.render_frames(rs.train_env.render_input)  # this step's frames, [S*N, H, W, 3]
@@ -36,7 +37,7 @@ def test_latent_fed_to_ppo_is_the_learners_encoding(tmp_path) -> None:
     # the two seeds' learners differ, so their latents differ
     assert not np.allclose(np.asarray(obs[0]), np.asarray(obs[1]))
     # the policy's rollouts keep the frames it rendered for replay and windows: those of each step
-    (es, _), stored = jax.jit(lambda k: exp._rollout(rs.ppo, rs.train_env, k, 3, False, rs.learners))(
+    (es, _), stored = jax.jit(lambda k: exp.policy.rollout(rs.ppo, rs.train_env, k, 3, False, rs.learners))(
         jax.random.PRNGKey(2))
     assert isinstance(stored[0], Rendered) and stored[0].frames.shape == (3,) + frames.shape
     np.testing.assert_array_equal(np.asarray(stored[0].frames[-1]),
@@ -72,12 +73,12 @@ def test_pixels_policy_sees_the_frame_and_trains_its_torso() -> None:
     exp = Experiment(cfg)
     assert exp.ppo.pixels and exp.ppo.frame_shape == exp.env.frame_shape
     rs = exp.init(jax.random.PRNGKey(0))
-    obs = jax.jit(exp._policy_obs)(rs.train_env, rs.learners)
+    obs = jax.jit(exp.policy.obs)(rs.train_env, rs.learners)
     S, N = cfg.seeds, cfg.num_envs
     assert obs.shape == (S, N) + exp.env.frame_shape and obs.dtype == np.uint8
     frames = np.asarray(exp.env.render_frames(rs.train_env.render_input))
     np.testing.assert_array_equal(np.asarray(obs).reshape(frames.shape), frames)
-    ppo, _, m, _, _, _, _ = jax.jit(exp.rl_phase)(rs.ppo, rs.train_env, jax.random.PRNGKey(1), rs.learners)
+    ppo, _, m, _, _, _, _ = jax.jit(exp.policy.rl_phase)(rs.ppo, rs.train_env, jax.random.PRNGKey(1), rs.learners)
     conv0 = lambda p: p.params["params"]["PixelTorso_0"]["Conv_0"]["kernel"]
     assert np.all(np.isfinite(np.asarray(m["total_loss"])))
     for s in range(S):  # every seed's conv torso moved under the PPO loss
@@ -100,10 +101,10 @@ def test_rl_compare_plot_and_epochs_to_solve(tmp_path) -> None:
     import dataclasses
 
     from bulbjax.cli import main
-    from bulbjax.experiment import report
+    from bulbjax.experiment import records
 
     ep = np.arange(5)
-    np.testing.assert_equal(report.epochs_to_reach(np.array([[1., 5, 9, 9, 9], [1., 2, 3, np.nan, 4]]), ep, 8.0),
+    np.testing.assert_equal(records.epochs_to_reach(np.array([[1., 5, 9, 9, 9], [1., 2, 3, np.nan, 4]]), ep, 8.0),
                             [2, None])
     runs = []
     for kind, seed_returns in (("state", [[100, 960, 1000], [200, 500, 990]]),
@@ -115,7 +116,7 @@ def test_rl_compare_plot_and_epochs_to_solve(tmp_path) -> None:
             json.dump({"experiment": dataclasses.asdict(cfg)}, f)
         recs = [{"epoch": e, "seed": s, "rl_return": float(v)}
                 for s, row in enumerate(seed_returns) for e, v in enumerate(row)]
-        report.write_jsonl(str(d / "metrics.jsonl"), recs)
+        records.write_jsonl(str(d / "metrics.jsonl"), recs)
         runs.append(str(d))
     assert main(["report", "--compare-rl", *runs, "--out", str(tmp_path / "cmp")]) == 0
     md = (tmp_path / "cmp" / "rl_compare.md").read_text()

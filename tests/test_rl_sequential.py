@@ -20,7 +20,7 @@ import pytest
 from bulbjax.data import sequence
 from bulbjax.eval.probe import ProbeConfig
 from bulbjax.experiment import Experiment, ExperimentConfig
-from bulbjax.experiment.loop import push_window
+from bulbjax.experiment.policy import push_window
 from bulbjax.learners import LearnerConfig
 from bulbjax.rl.ppo import PPOConfig
 
@@ -64,11 +64,11 @@ def test_latent_is_encode_of_the_window_ending_at_the_step(exp: Experiment) -> N
     the step."""
     cfg = exp.config
     learner = exp.learners["dsa"]
-    assert exp.rl_sequential and exp.ppo.obs_size == learner.latent_dim
+    assert exp.policy.rl_sequential and exp.ppo.obs_size == learner.latent_dim
     rs = exp.init(jax.random.PRNGKey(0))
     S, N, T = cfg.seeds, cfg.num_envs, 30
-    step = jax.jit(lambda es, w, k: exp._policy_step(rs.ppo, es, k, False, rs.learners, w))
-    window = jax.jit(exp.policy_window)(rs.learners, rs.policy_history["train"])
+    step = jax.jit(lambda es, w, k: exp.policy.step(rs.ppo, es, k, False, rs.learners, w))
+    window = jax.jit(exp.policy.window)(rs.learners, rs.policy_history["train"])
     es = rs.train_env
     render = jax.jit(exp.env.render_frames)
     frames = [np.asarray(render(es.render_input))]  # frame t, [S*N, H, W, 3]
@@ -80,7 +80,7 @@ def test_latent_is_encode_of_the_window_ending_at_the_step(exp: Experiment) -> N
         es, o, action, _, _, window, _ = step(es, window, k)
         obs.append(np.asarray(o).reshape(S * N, -1))
         frames.append(np.asarray(render(es.render_input)))
-        actions.append(np.asarray(exp._action_features(action)))
+        actions.append(np.asarray(exp.policy.action_features(action)))
         starts.append(np.asarray(es.done) > 0)
     frames, actions, starts = np.stack(frames[:T]), np.stack(actions[:T]), np.stack(starts[:T])
     resets = [(t, n) for t in range(1, T) for n in range(S * N) if starts[t, n]]

@@ -15,9 +15,10 @@ import numpy as np
 import pytest
 
 from bulbjax.eval.probe import ProbeConfig
-from bulbjax.experiment import Experiment, ExperimentConfig, report
+from bulbjax.experiment import Experiment, ExperimentConfig, records, report
 from bulbjax.experiment.checkpoint import Checkpointer
 from bulbjax.experiment.config import PRESETS, config_from_dict, small_config
+from bulbjax.experiment.programs import Programs
 from bulbjax.experiment.run import RunOptions, check_resume, run, source_hash
 from bulbjax.learners import LearnerConfig
 from bulbjax.rl.ppo import PPOConfig
@@ -84,7 +85,7 @@ def test_probe_every_k_runs_one_program_with_a_flag(exp, straight, tmp_path):
     d = str(tmp_path / "every2")
     res = run(exp.config, RunOptions(probe_every=2), d, experiment=exp, progress=False, log=lambda s: None)
     assert res.epochs_done == 4
-    assert exp.programs((True, False)).flag and not exp.programs((True,)).flag
+    assert Programs.of(exp, (True, False)).flag and not Programs.of(exp, (True,)).flag
     a, b = [json.loads(x) for x in _lines(d0)], [json.loads(x) for x in _lines(d)]
     assert [bool(r["probes"]) for r in b] == [True, True, False, False, True, True, True, True]
     for ra, rb in zip(a, b):
@@ -187,12 +188,12 @@ def _tb_scalars(folder: str) -> dict[tuple[str, int], float]:
 def test_tensorboard_has_the_metrics(straight):
     d, res = straight
     tb = _tb_scalars(os.path.join(d, "tb"))
-    recs = report.read_jsonl(os.path.join(d, "metrics.jsonl"))
+    recs = records.read_jsonl(os.path.join(d, "metrics.jsonl"))
     r = recs[-1]
     assert tb[("seed1/rl_return", 3)] == pytest.approx(r["rl_return"], rel=1e-6)
     mae = r["probes"]["svae"]["rand"]["overall"]["mae_norm"]
     assert tb[("seed1/probes/svae/rand/overall/mae_norm", 3)] == pytest.approx(mae, rel=1e-6)
-    assert len(report.scalars(r)) == len([k for k in tb if k[1] == 3 and k[0].startswith("seed1/")])
+    assert len(records.scalars(r)) == len([k for k in tb if k[1] == 3 and k[0].startswith("seed1/")])
 
 
 def test_report_redraws_a_run_in_progress(straight, tmp_path):
@@ -221,14 +222,14 @@ def test_report_reads_gzipped_metrics(straight, tmp_path):
     shutil.copy(os.path.join(d, "config.json"), tmp_path / "config.json")
     with open(os.path.join(d, "metrics.jsonl"), "rb") as f, gzip.open(tmp_path / "metrics.jsonl.gz", "wb") as g:
         g.write(f.read())
-    assert report.metrics_path(str(tmp_path)).endswith(".gz")
-    assert report.read_jsonl(str(tmp_path / "metrics.jsonl.gz")) == report.read_jsonl(os.path.join(d, "metrics.jsonl"))
+    assert records.metrics_path(str(tmp_path)).endswith(".gz")
+    assert records.read_jsonl(str(tmp_path / "metrics.jsonl.gz")) == records.read_jsonl(os.path.join(d, "metrics.jsonl"))
     report.redraw(str(tmp_path))
     tab = (tmp_path / "table.md").read_text()
     assert "4 epochs" in tab and "epoch 1, 2, 3;" in tab and os.path.getsize(tmp_path / "fig2.png") > 10_000
     os.remove(tmp_path / "metrics.jsonl.gz")
     with pytest.raises(ValueError, match="does not exist"):
-        report.metrics_path(str(tmp_path))
+        records.metrics_path(str(tmp_path))
 
 
 def test_report_reads_old_run_folders(tmp_path):
@@ -275,7 +276,7 @@ def test_source_hash_names_the_code(tmp_path):
 def test_compiler_options_parse_and_reach_the_jits():
     """`--xla-option KEY=VALUE` values are typed; a malformed one says the form; the options
     reach the jitted init and epoch (XLA refuses an unknown key there, so a bogus one fails)."""
-    from bulbjax.experiment.loop import parse_compiler_options
+    from bulbjax.experiment.resolve import parse_compiler_options
 
     opts = parse_compiler_options(["xla_gpu_enable_command_buffer=FUSION,WHILE",
                                    "xla_gpu_graph_min_graph_size=1", "a=0.5", "b=true"])
@@ -295,6 +296,7 @@ sys.path.insert(0, {tests!r})
 import jax
 from warp._src.jax.ffi import _FFI_CALLABLE_REGISTRY
 from bulbjax.experiment import Experiment
+from bulbjax.experiment.programs import Programs
 from test_run import tiny
 exp = Experiment(tiny())
 mode = sys.argv[1]
@@ -302,7 +304,7 @@ if mode == "epoch_first":  # an epoch traced before init: other FFI target names
     exp.epoch.trace(exp.abstract_state(), exp.abstract_key(), probe=False)
 if mode == "init_traced_twice":  # what a retrace of init does (a fresh GPU run's init call did)
     exp.init.trace(jax.ShapeDtypeStruct((2,), jax.numpy.uint32))
-progs = exp.programs()
+progs = Programs.of(exp)
 text = progs.lowered("epoch").as_text()
 calls = lambda: {{c.name: c.call_id for c in _FFI_CALLABLE_REGISTRY.values()}}
 before, traced_after = calls(), None
@@ -317,7 +319,7 @@ print(json.dumps({{"hash": hashlib.sha256(text.encode()).hexdigest(), "traced_af
 
 def test_resumed_process_compiles_the_same_epoch_program():
     """MuJoCo Warp numbers its FFI targets and call sites by per-process trace order, and the
-    numbers are in the program (so in the compilation cache key). `Experiment.programs` traces
+    numbers are in the program (so in the compilation cache key). `Programs.of` traces
     init and the epoch in one order and then only calls what it compiled: the epoch of a
     fresh run (which runs init and an epoch, tracing nothing more) and of a resume (no init)
     lower to the same text; an epoch traced first, or init traced one more time (what a fresh GPU run's init call did), give another text: what made resumed GPU

@@ -213,7 +213,8 @@ def test_sequence_model_lstm_is_flax_lstm(kind: str) -> None:
     and the input-kernel gradients match flax's own modules."""
     import flax.linen as nn
 
-    from bulbjax.learners.networks import SequenceModel, lecun_normal_flat
+    from bulbjax.learners.networks import lecun_normal_flat
+    from bulbjax.learners.temporal import SequenceModel
 
     class FlaxReference(nn.Module):
         @nn.compact
@@ -247,7 +248,7 @@ def test_written_lstm_gradient_is_autodiffs(directions: int) -> None:
     """`lstm_scan`'s written-out backward pass (W_h's gradient as one matmul after the loop)
     gives autodiff's gradients for the projected inputs and the recurrent kernel, under vmap over
     seeds and with the scan unrolled, for a cotangent on every step's output."""
-    from bulbjax.learners.networks import lstm_scan, lstm_scan_autodiff
+    from bulbjax.learners.temporal import lstm_scan, lstm_scan_autodiff
 
     seeds, b, t, h = 2, 3, 7, 5
     k = jax.random.split(jax.random.key(4), 3)

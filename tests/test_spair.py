@@ -17,13 +17,13 @@ import pytest
 
 from bulbjax.eval.objects import object_scores, summarise
 from bulbjax.learners import SPAIR, FrameLearner, LearnerConfig, check_finite, make_learner
-from bulbjax.learners.spair import (
+from bulbjax.learners.spair import synthetic_scene
+from bulbjax.learners.spair_parts import (
     composite,
     count_prior_kl,
     count_prior_log_odds,
     extract_glimpses,
     render_glimpses,
-    synthetic_scene,
 )
 
 RES = 32

@@ -167,32 +167,6 @@ def world_camera(mj_model, camera: str = "bulb") -> tuple[np.ndarray, np.ndarray
             float(mj_model.cam_fovy[cid]))
 
 
-def object_pixels(env) -> tuple[list[str], "callable"] | None:
-    """For domains whose true state holds object positions (the Rearrange domains: entries
-    `obj<i>_x/y/z` of group `object_position`, each in [-1, 1] of the tray's box): the object
-    names and a jittable map states [..., D] -> image positions [..., M, 2] (px, (x, y)) through
-    the domain's world-fixed camera. None for other domains (no objects in the state)."""
-    spec = list(env.state_spec)
-    names = [e.name for e in spec]
-    objs = object_names(spec)
-    if not objs:
-        return None
-    from bulbjax.envs import rearrange
-
-    if not isinstance(env, rearrange.Rearrange):
-        return None  # other scalings of object positions are not known here
-    idx = np.array([[names.index(f"{o}_{a}") for a in "xyz"] for o in objs])  # [M, 3]
-    lo, hi = np.asarray(rearrange.OBJ_XYZ_MIN, np.float32), np.asarray(rearrange.OBJ_XYZ_MAX, np.float32)
-    pos, mat, fovy = world_camera(env.mj_model)
-    res = env.resolution
-
-    def pixels(states: jax.Array) -> jax.Array:
-        world = (states[..., idx] + 1.0) / 2.0 * (hi - lo) + lo  # [..., M, 3] metres
-        return project_points(world, pos, mat, fovy, res)
-
-    return objs, pixels
-
-
 # ---------------------------------------------------------------------------- in the experiment
 def default_radius(resolution: int) -> float:
     """The radius (px) within which a present box counts as finding an object: a tenth of the

@@ -1,10 +1,15 @@
-"""Experiment configuration: one frozen dataclass for a whole run, plus named presets."""
+"""Configuration of a run: `ExperimentConfig` (what it computes), `RunOptions` (how it is driven),
+`OfflineConfig` (an offline fit), the CPU-sized variant (`small_config`), the named presets, and
+configs read back from a run's config.json. Frozen dataclasses that check their own values;
+`resolve` builds them from a preset, overrides and flags."""
 
 from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass, field
+from typing import Any
 
+from bulbjax.data import synthetic
 from bulbjax.eval.probe import ProbeConfig
 from bulbjax.learners import LEARNER_NAMES, SEQUENCE_LEARNER_NAMES, LearnerConfig
 from bulbjax.rl.ppo import PPOConfig
@@ -65,21 +70,21 @@ class ExperimentConfig:
     # "latent:<learner>": that learner's latent of the current frame, computed in the jitted
     # epoch with its current parameters (no gradient into the learner from RL); for a sequential
     # learner (svae, pred, dsa) its latent of the current step in the window of the last
-    # `seq_len` steps ending at it, cut at the episode's start (`loop.PolicyHistory`), or
+    # `seq_len` steps ending at it, cut at the episode's start (`state.PolicyHistory`), or
     # "pixels": the current frame through a small conv encoder trained end to end by PPO.
     rl_input: str = "state"
-    # How learner work runs over the seed axis (`loop.resolve_seed_loop`): "vmap", "map" (one
+    # How learner work runs over the seed axis (`seeds.resolve_seed_loop`): "vmap", "map" (one
     # seed at a time; ~1.9x faster VAE updates on the H100), "hybrid" (map, but DSA, whose three
     # LSTMs dominate its update, vmapped with its frame networks one seed at a time) or "auto"
     # (hybrid on one GPU, else vmap). The same numbers either way, up to floating-point
     # reassociation.
     learner_seed_loop: str = "auto"
     # Frame learners that differ only in beta and replay retention (vae, vae_rpl, beta_vae) run
-    # their updates and probe encodings as one program over the group (`loop.update_groups`):
+    # their updates and probe encodings as one program over the group (`seeds.update_groups`):
     # traced and compiled once instead of once per learner, the probe MLPs of all of them fitted
     # side by side. The same numbers either way, up to floating-point reassociation.
     shared_updates: bool = True
-    # How init and the epoch are compiled (`loop.resolve_programs`): "fused" (one program each)
+    # How init and the epoch are compiled (`programs.resolve_programs`): "fused" (one program each)
     # or "split" (`programs.Stages`: the environment work, each learner unit's updates, the
     # held-out rollouts and each unit's probes as programs of their own, compiled side by side;
     # one device only). The same numbers either way, up to floating-point reassociation. Split
@@ -176,6 +181,91 @@ def small_config(base: ExperimentConfig) -> ExperimentConfig:
         probe=dataclasses.replace(base.probe, steps=300, hidden=(128, 128)),
         reference_steps=64,
     )
+
+
+# ---------------------------------------------------------------------------- how a run is driven
+@dataclass(frozen=True)
+class RunOptions:
+    """How a run is driven. `seed` and `probe_every` change what it computes and are fixed at its
+    start (a resume must keep them); the others may change from one stretch to the next."""
+
+    seed: int = 0
+    probe_every: int = 1  # probe every k epochs, and at the first and the last
+    checkpoint_every: int = 0  # also checkpoint every N epochs (0: only when the run stops)
+    keep: int = 2  # checkpoints kept
+    max_minutes: float = 0.0  # stop this stretch after this wall time (0: no limit)
+    stop_after: int = 0  # stop this stretch after this many epochs (0: no limit)
+    tensorboard: bool = False  # TensorBoard event files under RUN_DIR/tb
+    recon_every: int = 0  # recon_<epoch>.png (+ boxes_<epoch>.png with SPAIR) every N epochs and at the end (0: none)
+
+    def __post_init__(self) -> None:
+        for name in ("probe_every", "keep"):
+            if getattr(self, name) < 1:
+                raise ValueError(f"--{name.replace('_', '-')} must be >= 1, got {getattr(self, name)}")
+        for name in ("checkpoint_every", "stop_after", "max_minutes", "recon_every"):
+            if getattr(self, name) < 0:
+                raise ValueError(f"--{name.replace('_', '-')} must be >= 0, got {getattr(self, name)}")
+
+
+IDENTITY = ("seed", "probe_every")  # RunOptions fields a resume must keep
+
+
+def run_options_of(raw: dict[str, Any]) -> dict[str, Any]:
+    """The identity options saved in a config.json (defaults for runs that predate them)."""
+    base = dataclasses.asdict(RunOptions())
+    return {k: raw.get("run", {}).get(k, base[k]) for k in IDENTITY}
+
+
+# ---------------------------------------------------------------------------- offline fits
+@dataclass(frozen=True)
+class OfflineConfig:
+    """An offline fit. `base` gives the env, learners, seeds, resolution, learner and probe
+    settings (as for `bulbjax run`); the rest sizes the dataset and the schedule.
+
+    The dataset is `data_steps` steps of `data_worlds` random-policy worlds; the held-out set
+    `heldout_steps` steps of another `data_worlds` worlds (a different reset key), cut into
+    consecutive windows of L steps. `updates_per_call` updates run in one jitted `lax.scan`
+    (0: the whole chunk between two probes on an accelerator, 1 on the CPU, where XLA runs the
+    conv nets ~10x slower inside a rolled loop)."""
+
+    base: ExperimentConfig = field(default_factory=ExperimentConfig)
+    updates: int = 5000
+    probe_every: int = 250
+    data_worlds: int = 256
+    data_steps: int = 200
+    heldout_steps: int = 48
+    data_seed: int = 0
+    updates_per_call: int = 0
+    movers: synthetic.MoversConfig | None = None  # SyntheticMovers settings (resolution from base)
+
+    def __post_init__(self) -> None:
+        for name in ("updates", "probe_every", "data_worlds", "data_steps", "heldout_steps"):
+            if getattr(self, name) < 1:
+                raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
+        lw = max(self.base.window_length, 1)
+        if self.data_steps < lw:
+            raise ValueError(f"data_steps={self.data_steps} is shorter than a training window ({lw} steps)")
+        if self.heldout_steps < self.eval_length:
+            raise ValueError(f"heldout_steps={self.heldout_steps} is shorter than a held-out window "
+                             f"({self.eval_length} steps)")
+        if self.updates_per_call < 0:
+            raise ValueError(f"updates_per_call must be >= 0, got {self.updates_per_call}")
+
+    @property
+    def synthetic(self) -> bool:
+        return self.base.env == synthetic.NAME
+
+    @property
+    def eval_length(self) -> int:
+        """Held-out window length: L with sequential learners, else 1."""
+        return self.base.seq_len if self.base.window_length else 1
+
+    def replace(self, **kw) -> "OfflineConfig":
+        return dataclasses.replace(self, **kw)
+
+    def movers_config(self) -> synthetic.MoversConfig:
+        m = self.movers or synthetic.MoversConfig(resolution=self.base.resolution)
+        return m if m.resolution == self.base.resolution else m.replace(resolution=self.base.resolution)
 
 
 # ---------------------------------------------------------------------------- presets

@@ -15,7 +15,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from bulbjax.eval.spec import StateEntry
-from bulbjax.experiment.report import STREAMS, ci90, groups_of, per_seed_error, probed
+from bulbjax.experiment.records import STREAMS, ci90, groups_of, per_seed_error, probed
 
 PENDULUMS = ("CartPole", "InvertedPendulum")
 LOCOMOTION = ("HalfCheetah", "Ant")

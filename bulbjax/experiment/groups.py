@@ -4,13 +4,13 @@ The seeds of a run are independent but for one number, the reference spread pool
 their random-policy worlds (`Experiment.init_env`). So a run over D devices is D experiments of
 S/D seeds each (a *seed group*), one per device, each compiled as a one-device program and
 dispatched side by side (JAX runs them asynchronously, one stream per GPU). Every random draw of
-a group is its seeds' share of the whole run's draw (`Experiment(seed_group=...)`: `seed_keys`,
-`world_keys`), and the reference spread is pooled over all groups, so the metrics are the ones
+a group is its seeds' share of the whole run's draw (`Experiment(seed_group=...)`,
+`seeds.SeedGroup`), and the reference spread is pooled over all groups, so the metrics are the ones
 a single device computes for all S seeds, up to floating-point reassociation (tested on the CPU).
 
 Why not one program sharded over a mesh (`shard_map` for the simulators, XLA's partitioner for the
 rest, the form `Experiment` still has): on GPUs XLA segfaults while compiling any multi-device
-program that holds an MJX-Warp FFI call. `benchmarks/diag_multigpu.py` (two H200s, jax 0.11.2,
+program that holds an MJX-Warp FFI call. `benchmarks/diagnostics/diag_multigpu.py` (two H200s, jax 0.11.2,
 mujoco-warp 4.0.0, warp-lang 1.19.0) shows it for a lone env reset under `shard_map` in every Warp
 graph mode (WARP, NONE, WARP_STAGED_EX), under `jax.pmap` (in this JAX a shard_map), and with
 one GPU per process under `jax.distributed`; the same reset, render and six-learner init run on
@@ -36,7 +36,9 @@ import numpy as np
 
 from bulbjax.eval import probe
 from bulbjax.experiment.config import ExperimentConfig
-from bulbjax.experiment.loop import Experiment, RunState
+from bulbjax.experiment.loop import Experiment
+from bulbjax.experiment.programs import Programs
+from bulbjax.experiment.state import RunState
 
 FORMS = ("auto", "groups", "sharded", "single")
 
@@ -71,7 +73,7 @@ class SeedGroups:
             raise ValueError(f"form {form!r} runs in one process; a run over {processes} processes uses seed groups")
         if form == "sharded" and local[0].platform == "gpu" and len(local) > 1:
             log("one program sharded over several GPUs does not compile with MJX-Warp (XLA segfaults; "
-                "benchmarks/diag_multigpu.py): running one seed group per GPU instead")
+                "benchmarks/diagnostics/diag_multigpu.py): running one seed group per GPU instead")
             form = "groups"
         if form == "auto":
             form = "groups" if len(devices) > 1 else "single"
@@ -113,11 +115,11 @@ class SeedGroups:
     @property
     def devices(self) -> list[jax.Device]:
         """This process's devices that compute (one per local group, or the sharded mesh's)."""
-        return [d for e in self.exps for d in e.local_mesh_devices()]
+        return [d for e in self.exps for d in e.devices.local_mesh_devices()]
 
     def describe(self) -> str:
         """One line: how the seeds lie over devices and processes."""
-        kind = self.exp.local_mesh_devices()[0].device_kind
+        kind = self.exp.devices.local_mesh_devices()[0].device_kind
         if self.form == "groups" and self.groups > 1:
             where = f"{self.groups} seed groups of {self.config.seeds // self.groups} seeds, one per {kind}"
             if self.processes > 1:
@@ -134,7 +136,7 @@ class SeedGroups:
     # ------------------------------------------------------------------ programs
     def programs(self, probes: Sequence[bool]) -> "SeedGroups":
         """Trace every group's init and epoch (group by group, in one fixed order: see `Programs`)."""
-        self._programs = [e.programs(probes) for e in self.exps]
+        self._programs = [Programs.of(e, probes) for e in self.exps]
         return self
 
     def prepare(self, *which: str) -> "SeedGroups":
@@ -172,7 +174,8 @@ class SeedGroups:
             if self.processes > 1:
                 ref = _allgather(np.ascontiguousarray(ref.swapaxes(0, 1))).swapaxes(0, 1)
             spread = jax.jit(probe.spread)(jnp.asarray(ref.reshape((-1, ref.shape[-1]))))
-            states = [rs.replace(ref_spread=jax.device_put(spread, e._rep)) for rs, e in zip(states, self.exps)]
+            states = [rs.replace(ref_spread=jax.device_put(spread, e.devices.replicated))
+                      for rs, e in zip(states, self.exps)]
         return self._wrap(states)
 
     def epoch(self, state: Any, key: jax.Array, probe: bool = True) -> tuple[Any, dict[str, Any]]:

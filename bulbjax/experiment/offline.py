@@ -20,7 +20,7 @@ import dataclasses
 import json
 import os
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any, Callable
 
 import jax
@@ -32,61 +32,14 @@ from bulbjax.data.sequence import Trajectories, Windows
 from bulbjax.eval import probe
 from bulbjax.eval.spec import StateEntry
 from bulbjax.experiment import report
-from bulbjax.experiment.config import ExperimentConfig
-from bulbjax.experiment.loop import (fit_and_score, learner_loop, make_mesh, over_seeds, probe_latents,
-                                     probe_over_seeds, resolve_seed_loop, train_learner, with_seed_loop)
+from bulbjax.experiment.config import OfflineConfig
+from bulbjax.experiment.devices import Devices, make_mesh
+from bulbjax.experiment.learning import train_learner
+from bulbjax.experiment.policy import Policy
+from bulbjax.experiment.probing import fit_and_score, probe_latents, probe_over_seeds
+from bulbjax.experiment.records import read_jsonl, write_jsonl, write_jsonl_atomic
+from bulbjax.experiment.seeds import SeedGroup, Team, learner_loop, over_seeds, resolve_seed_loop, with_seed_loop
 from bulbjax.learners import check_finite, is_sequential, make_learner
-
-
-@dataclass(frozen=True)
-class OfflineConfig:
-    """An offline fit. `base` gives the env, learners, seeds, resolution, learner and probe
-    settings (as for `bulbjax run`); the rest sizes the dataset and the schedule.
-
-    The dataset is `data_steps` steps of `data_worlds` random-policy worlds; the held-out set
-    `heldout_steps` steps of another `data_worlds` worlds (a different reset key), cut into
-    consecutive windows of L steps. `updates_per_call` updates run in one jitted `lax.scan`
-    (0: the whole chunk between two probes on an accelerator, 1 on the CPU, where XLA runs the
-    conv nets ~10x slower inside a rolled loop)."""
-
-    base: ExperimentConfig = field(default_factory=ExperimentConfig)
-    updates: int = 5000
-    probe_every: int = 250
-    data_worlds: int = 256
-    data_steps: int = 200
-    heldout_steps: int = 48
-    data_seed: int = 0
-    updates_per_call: int = 0
-    movers: synthetic.MoversConfig | None = None  # SyntheticMovers settings (resolution from base)
-
-    def __post_init__(self) -> None:
-        for name in ("updates", "probe_every", "data_worlds", "data_steps", "heldout_steps"):
-            if getattr(self, name) < 1:
-                raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
-        lw = max(self.base.window_length, 1)
-        if self.data_steps < lw:
-            raise ValueError(f"data_steps={self.data_steps} is shorter than a training window ({lw} steps)")
-        if self.heldout_steps < self.eval_length:
-            raise ValueError(f"heldout_steps={self.heldout_steps} is shorter than a held-out window "
-                             f"({self.eval_length} steps)")
-        if self.updates_per_call < 0:
-            raise ValueError(f"updates_per_call must be >= 0, got {self.updates_per_call}")
-
-    @property
-    def synthetic(self) -> bool:
-        return self.base.env == synthetic.NAME
-
-    @property
-    def eval_length(self) -> int:
-        """Held-out window length: L with sequential learners, else 1."""
-        return self.base.seq_len if self.base.window_length else 1
-
-    def replace(self, **kw) -> "OfflineConfig":
-        return dataclasses.replace(self, **kw)
-
-    def movers_config(self) -> synthetic.MoversConfig:
-        m = self.movers or synthetic.MoversConfig(resolution=self.base.resolution)
-        return m if m.resolution == self.base.resolution else m.replace(resolution=self.base.resolution)
 
 
 @dataclass(frozen=True)
@@ -108,21 +61,23 @@ def make_source(config: OfflineConfig) -> Source:
         m = c.movers_config()
         gen = jax.jit(lambda k, steps: synthetic.generate(k, m, steps, c.data_worlds), static_argnums=1)
         return Source(synthetic.NAME, m.state_spec, m.frame_shape, m.action_dim, gen)
-    from bulbjax.experiment.loop import Experiment  # builds the env; its rollout collects
-
     b = c.base
     w = c.data_worlds
-    exp = Experiment(b.replace(seeds=1, num_envs=w, frames_per_epoch=w, eval_frames=w,
-                               replay_capacity=max(b.replay_capacity, w)))
+    # the experiment's env and random-policy rollout (one seed of `data_worlds` worlds); the
+    # random policy observes nothing, so no learner is built
+    cfg = b.replace(seeds=1, num_envs=w, frames_per_epoch=w, eval_frames=w,
+                    replay_capacity=max(b.replay_capacity, w), rl_input="state")
+    dev = Devices(cfg)
+    policy = Policy(cfg, dev, Team({}, "vmap", SeedGroup(1, w)))
 
     def _steps(key: jax.Array, steps: int) -> Trajectories:
         k_reset, k_roll = jax.random.split(key)
-        _, (ri, low, act, done) = exp._rollout(None, exp.env.reset(k_reset), k_roll, steps, random=True)
-        return Trajectories(frames=exp.env.render_sequence(ri), actions=act, states=low, dones=done)
+        _, (ri, low, act, done) = policy.rollout(None, dev.env.reset(k_reset), k_roll, steps, random=True)
+        return Trajectories(frames=dev.env.render_sequence(ri), actions=act, states=low, dones=done)
 
     collect = jax.jit(_steps, static_argnums=1)
     name = b.env + ("Multicolour" if b.multicolour and not b.env.endswith("Multicolour") else "")
-    return Source(name, exp.spec, exp.env.frame_shape, exp.action_dim, collect)
+    return Source(name, dev.env.state_spec, dev.env.frame_shape, policy.action_dim, collect)
 
 
 def dataset_path(config: OfflineConfig, source: Source, cache_dir: str, kind: str, steps: int) -> str:
@@ -327,15 +282,15 @@ def run(config: OfflineConfig, out_dir: str, cache_dir: str | None = None, max_m
     if resume:
         states, host, done = ckpt.restore(states)
         key = jnp.asarray(host["key"], jnp.uint32)
-        records = [r for r in report.read_jsonl(path, tolerate_partial=True) if r["update"] <= done]
-        report.write_jsonl_atomic(path, records)  # drop probes written after the checkpoint
+        records = [r for r in read_jsonl(path, tolerate_partial=True) if r["update"] <= done]
+        write_jsonl_atomic(path, records)  # drop probes written after the checkpoint
         log(f"resuming at update {done} of {c.updates} ({len(records)} records)")
 
     def do_probe(update: int) -> None:
         nonlocal key
         key, k = jax.random.split(key)
         recs = records_of(update, fit.probe(states, data, held, k), losses, ref_spread, fit.spec, fit.S)
-        report.write_jsonl(path, recs)
+        write_jsonl(path, recs)
         records.extend(recs)
         log(f"update {update:>6} ({time.time() - t0:6.1f} s): " + _summary(recs))
 

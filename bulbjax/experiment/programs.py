@@ -11,7 +11,23 @@ from typing import Any, Callable, Sequence
 
 import jax
 
-from bulbjax.experiment.loop import Experiment, RunState
+from jax.sharding import Mesh
+
+from bulbjax.experiment.config import PROGRAM_FORMS
+from bulbjax.experiment.loop import Experiment
+from bulbjax.experiment.state import RunState
+
+
+def resolve_programs(choice: str, mesh: Mesh) -> str:
+    """How init and the epoch are compiled (`ExperimentConfig.programs`), checked against the
+    mesh: split programs run on one device (a sharded run's layouts are set on the fused
+    programs' outputs)."""
+    if choice not in PROGRAM_FORMS:
+        raise ValueError(f"programs must be one of {PROGRAM_FORMS}, got {choice!r}")
+    if choice == "split" and mesh.size > 1:
+        raise ValueError("programs='split' runs on one device; this run's mesh has "
+                         f"{mesh.size} devices: use 'fused'")
+    return choice
 
 
 class Stages:
@@ -22,34 +38,35 @@ class Stages:
     Why: XLA runs one program's HLO passes on one thread, so the parts as programs of their own
     might compile side by side (`Programs.prepare` starts each in a thread). The parts: init's
     environment half and each learner's init; the epoch's environment work
-    (`Experiment.env_stage`), one update program per unit (`Experiment.units`: the VAE group,
-    each other learner), the held-out rollouts (`eval_stage`) and one probe program per unit,
+    (`Experiment.env_stage`), one update program per unit (`Team.units`: the VAE group, each
+    other learner; `Learning.learn_unit`), the held-out rollouts (`Experiment.eval_stage`) and
+    one probe program per unit (`Probing.probe_unit`),
     the last two only in epochs that probe (a Python choice: no `lax.cond`). Measured on an H100
     (fig2-invpend, 6 learners x 6 seeds, 2026-11-25) it does not start sooner: on one machine
     the first epoch came after 223 s against the fused programs' 205 s (195 s on another).
     XLA's autotuning does not run side by side on one GPU: two VAE updates compiled in threads
-    took 58.8 s, one after the other 20.0 s (`benchmarks/diag_parallel_compile.py`). Kept as an option
-    (`ExperimentConfig.programs="split"`). One device only: the sharded run's layouts are set on
-    the fused programs' outputs."""
+    took 58.8 s, one after the other 20.0 s (`benchmarks/diagnostics/diag_parallel_compile.py`).
+    Kept as an option (`ExperimentConfig.programs="split"`). One device only: the sharded run's
+    layouts are set on the fused programs' outputs."""
 
     def __init__(self, exp: Experiment) -> None:
         if exp.sharded:
             raise ValueError("split programs run on one device; a run over several devices uses "
                              "the fused programs (programs='fused')")
         self.exp = exp
-        self.units = exp.units()
+        self.units = exp.team.units()
         opts = exp.compiler_options or None
         jit = functools.partial(jax.jit, compiler_options=opts)
         self.jits: dict[str, Any] = {"init/env": jit(exp.init_env)}
         for n in exp.learners:
-            self.jits[f"init/learner/{n}"] = jit(functools.partial(exp.init_learner, n))
+            self.jits[f"init/learner/{n}"] = jit(functools.partial(exp.learning.init_learner, n))
         # donated: what the stage replaces (its outputs take their buffers)
         self.jits["epoch/env"] = jit(exp.env_stage, donate_argnums=(0, 1, 2, 3, 4))
         for u in self.units:
-            self.jits[self.learn_name(u)] = jit(functools.partial(exp.learn_unit, u), donate_argnums=0)
+            self.jits[self.learn_name(u)] = jit(functools.partial(exp.learning.learn_unit, u), donate_argnums=0)
         self.jits["epoch/eval"] = jit(exp.eval_stage, donate_argnums=(1, 2, 4))
         for u in self.units:
-            self.jits[self.probe_name(u)] = jit(functools.partial(exp.probe_unit, u))
+            self.jits[self.probe_name(u)] = jit(functools.partial(exp.probing.probe_unit, u))
 
     @staticmethod
     def learn_name(unit: Sequence[str]) -> str:
@@ -62,21 +79,21 @@ class Stages:
     def trace(self, probes: bool) -> dict[str, Any]:
         """Every program traced on abstract arguments, in one fixed order (see `Programs`); the
         eval and probe programs only if some epoch `probes`."""
-        exp = self.exp
+        exp, rl_learners = self.exp, self.exp.policy.rl_learners
         rs, key = exp.abstract_state(), exp.abstract_key()
         hist = rs.policy_history
         t: dict[str, Any] = {"init/env": self.jits["init/env"].trace(key)}
         for n in exp.learners:
             t[f"init/learner/{n}"] = self.jits[f"init/learner/{n}"].trace(key)
         t["epoch/env"] = self.jits["epoch/env"].trace(rs.ppo, rs.train_env, rs.buffers, rs.windows,
-                                                      hist.get("train"), exp._rl_learners(rs.learners),
+                                                      hist.get("train"), rl_learners(rs.learners),
                                                       rs.ref_spread, rs.epoch, key)
         for u in self.units:
             t[self.learn_name(u)] = self.jits[self.learn_name(u)].trace(_members(rs.learners, u), rs.buffers,
                                                                         key, rs.windows)
         if probes:
             t["epoch/eval"] = self.jits["epoch/eval"].trace(rs.ppo, rs.curr_env, rs.rand_env,
-                                                            exp._rl_learners(rs.learners), hist.get("curr"), key)
+                                                            rl_learners(rs.learners), hist.get("curr"), key)
             held = t["epoch/eval"].out_info[2]
             for u in self.units:
                 t[self.probe_name(u)] = self.jits[self.probe_name(u)].trace(_members(rs.learners, u), rs.buffers,
@@ -92,10 +109,10 @@ class Stages:
               ) -> tuple[RunState, dict[str, Any]]:
         """`Experiment.epoch` from the programs (`rs` donated); metrics without `probes` when
         not probing."""
-        exp = self.exp
+        exp, rl_learners = self.exp, self.exp.policy.rl_learners
         hist = dict(rs.policy_history)
         env = run("epoch/env")(rs.ppo, rs.train_env, rs.buffers, rs.windows, hist.get("train"),
-                               exp._rl_learners(rs.learners), rs.ref_spread, rs.epoch, key)
+                               rl_learners(rs.learners), rs.ref_spread, rs.epoch, key)
         if env.train_hist is not None:
             hist["train"] = env.train_hist
         learners, learn_m = {}, {}
@@ -108,7 +125,7 @@ class Stages:
         curr_env, rand_env = rs.curr_env, rs.rand_env
         if probe:
             curr_env, rand_env, held, curr_hist = run("epoch/eval")(env.ppo, curr_env, rand_env,
-                                                                    exp._rl_learners(learners), hist.get("curr"),
+                                                                    rl_learners(learners), hist.get("curr"),
                                                                     env.k_eval)
             if curr_hist is not None:
                 hist["curr"] = curr_hist
@@ -142,10 +159,11 @@ class Programs:
     and later calls go to executables compiled from exactly those traces, so nothing is traced
     again.
 
-    Fused (`Experiment.split_programs` false): one init and one epoch program. A run that
-    probes every epoch (`probes=(True,)`) gets the probing epoch, one that probes some epochs
-    (`(True, False)`) gets `Experiment.epoch_flag`, whose flag switches the probes on. Split:
-    the programs of `Stages`, named `init/...` and `epoch/...`, traced in their fixed order.
+    Fused (`ExperimentConfig.programs` "fused", `resolve_programs`; or `split=False`): one init
+    and one epoch program. A run that probes every epoch (`probes=(True,)`) gets the probing
+    epoch, one that probes some epochs (`(True, False)`) gets `Experiment.epoch_flag`, whose
+    flag switches the probes on. Split: the programs of `Stages`, named `init/...` and
+    `epoch/...`, traced in their fixed order.
     `prepare(names)` compiles (or loads from the compile cache) in background threads, so that
     the programs' compiles overlap each other and a resume's checkpoint restore; a program not
     prepared compiles on first use. A name is a program's or a group's (`"init"`, `"epoch"`:
@@ -158,7 +176,7 @@ class Programs:
         if not self.probes:
             raise ValueError("Programs needs at least one probe value (True, False or both)")
         self.flag = len(self.probes) == 2
-        self.split = exp.split_programs if split is None else bool(split)
+        self.split = resolve_programs(exp.config.programs, exp.mesh) == "split" if split is None else bool(split)
         self._stages: Stages | None = None
         if self.split:
             self._stages = Stages(exp)
@@ -175,6 +193,17 @@ class Programs:
         # per program: (start, end) of its compile (or cache load), seconds after the programs were
         # traced (lowering, then compiling, begins then: `prepare`)
         self.compile_spans: dict[str, tuple[float, float]] = {}
+
+    @classmethod
+    def of(cls, exp: Experiment, probes: Sequence[bool] = (True, False)) -> "Programs":
+        """The init and epoch executables of a run of `exp` (`probes`: which epochs it runs),
+        traced in one fixed order before anything runs. Kept per `probes` on the experiment
+        (`Experiment.programs_cache`), so that several runs of one experiment in a process
+        (tests) compile once."""
+        probes = tuple(bool(p) for p in probes)
+        if probes not in exp.programs_cache:
+            exp.programs_cache[probes] = cls(exp, probes)
+        return exp.programs_cache[probes]
 
     @property
     def names(self) -> list[str]:
@@ -234,7 +263,7 @@ class Programs:
         probe = bool(probe)
         if probe not in self.probes:
             raise KeyError(f"this run's epoch was traced for probe in {sorted(self.probes)}, not {probe!r}: "
-                           "pass every probe value the run uses to Experiment.programs")
+                           "pass every probe value the run uses to Programs.of")
         if self._stages is not None:
             self.prepare("epoch")
             return self._stages.epoch(self.compiled, rs, self._exp.put_key(key), probe)

@@ -24,7 +24,8 @@ from bulbjax.data.sequence import Windows
 from bulbjax.experiment import figures
 from bulbjax.experiment.checkpoint import CHECKPOINT_DIR, Checkpointer
 from bulbjax.experiment.config import read_run_config
-from bulbjax.experiment.loop import Experiment, RunState
+from bulbjax.experiment.loop import Experiment
+from bulbjax.experiment.state import RunState
 
 RECON = "recon_{epoch}.png"
 BOXES = "boxes_{epoch}.png"
@@ -58,12 +59,12 @@ class RunFigures:
         `rs.curr_env`, which is not updated), the figure seed's first few windows."""
         exp, le = self.exp, self.exp.eval_length
         # Experiment's own rollout and window cutting (as its eval phase), one round only.
-        extra = {"learners": rs.learners} if getattr(exp, "rl_learner", None) else {}  # PPO on a latent
+        extra = {"learners": rs.learners} if exp.policy.rl_learner else {}  # PPO on a latent
         if rs.policy_history:  # ... of a sequential learner: the worlds' windows go on from the run's
             extra["history"] = rs.policy_history["curr"]
-        _, steps = exp._rollout(rs.ppo, rs.curr_env, key, le, random=False, **extra)
+        _, steps = exp.policy.rollout(rs.ppo, rs.curr_env, key, le, random=False, **extra)
         starts = jnp.zeros((1, exp.S * exp.N), jnp.int32)
-        w = exp._windows(steps, starts, le)  # [S, N, L, ...]
+        w = exp.streams.windows(steps, starts, le)  # [S, N, L, ...]
         k = min(exp.N, math.ceil(self.config.frames / le))
         return jax.tree.map(lambda x: x[self.config.seed, :k], w)
 

@@ -1,177 +1,23 @@
-"""Host-side reporting: per-epoch JSON lines, the Fig. 2-style plot and the final table."""
+"""Host-side reports of a run: the Fig. 2-style plot, the object-probe plot, the final table, and
+the report files of a run folder (`fig2.png`, `table.md`, `findings.md`, `objects.png`), written
+during a run, redrawn (`bulbjax report`), over the merged seeds of several runs, or comparing the
+PPO returns of runs. The records they read: `records`."""
 
 from __future__ import annotations
 
-import gzip
 import json
-import math
 import os
-import warnings
 from typing import Any, Sequence
 
 import numpy as np
 
 from bulbjax.eval import objects
-from bulbjax.eval.probe import summarise
 from bulbjax.eval.spec import StateEntry
-
-STREAMS = (("curr", "π_curr"), ("rand", "π_rand"))
-# Student-t 95th percentiles (two-sided 90% band) for n-1 degrees of freedom.
-_T95 = {1: 6.314, 2: 2.920, 3: 2.353, 4: 2.132, 5: 2.015, 6: 1.943, 7: 1.895, 8: 1.860, 9: 1.833}
-
-
-# What the normalised errors of these reports divide by (written into tables and plots).
-NORM_NOTE = ("normalised error = MAE / reference spread of each state entry (mean absolute deviation "
-             "around the median under the random policy, measured once per run at init); 1.0 = "
-             "predicting the random-policy median on π_rand frames")
-
-
-def epoch_records(epoch: int, metrics: Any, spec: Sequence[StateEntry]) -> list[dict[str, Any]]:
-    """One JSON-able record per seed from the epoch's metrics (arrays with a leading seed axis).
-    Epochs without a probe (`--probe-every`) have an empty `probes`. Learners with an object-level
-    probe (SPAIR in multi-object domains) also get `objects[learner][stream]`
-    (`bulbjax.eval.objects.summary_of`: per object and averaged); other records have no `objects`."""
-    m = _to_numpy(metrics)
-    seeds = len(m["rl_return"])
-    names = objects.object_names(spec)
-    out = []
-    for s in range(seeds):
-        rec: dict[str, Any] = {
-            "epoch": epoch, "seed": s,
-            "rl_return": _f(m["rl_return"][s]), "rl_episodes": _f(m["rl_episodes"][s]),
-            "ppo": {k: _f(v[s]) for k, v in m["ppo"].items()},
-            "learners": {n: {k: _f(v[s]) for k, v in lm.items()} for n, lm in m["learners"].items()},
-            "replay_dropped": {k: int(v[s]) for k, v in m["replay_dropped"].items()},
-            "probes": {},
-        }
-        rec["ref_spread"] = [float(x) for x in m["ref_spread"][s]]
-        for name, streams in m.get("probes", {}).items():
-            rec["probes"][name] = {
-                stream: summarise(d["mae"][s], d["baseline"][s], m["ref_spread"][s], spec,
-                                  spread_D=d["spread"][s])
-                for stream, d in streams.items()}
-            for stream, d in streams.items():
-                if "objects" in d:
-                    one = {k: v[s] for k, v in d["objects"].items()}
-                    rec.setdefault("objects", {}).setdefault(name, {})[stream] = objects.summary_of(one, names)
-        out.append(rec)
-    return out
-
-
-def write_jsonl(path: str, records: Sequence[dict[str, Any]]) -> None:
-    """Append `records` as JSON lines, all of them or none (`rundir.append_whole`: one write, cut
-    back if it fails), so a killed or failing run never leaves half a record."""
-    from bulbjax.experiment import rundir
-
-    rundir.append_whole(path, "".join(json.dumps(r, allow_nan=True) + "\n" for r in records).encode())
-
-
-def read_jsonl(path: str, tolerate_partial: bool = False) -> list[dict[str, Any]]:
-    """The records of a JSON-lines file (gzip-compressed if `path` ends in .gz); with
-    `tolerate_partial`, a last line still being written (no newline yet, not valid JSON) is
-    skipped."""
-    with (gzip.open(path, "rt") if path.endswith(".gz") else open(path)) as f:
-        lines = f.read().split("\n")
-    out = []
-    for i, line in enumerate(lines):
-        if not line.strip():
-            continue
-        try:
-            out.append(json.loads(line))
-        except json.JSONDecodeError:
-            if tolerate_partial and i == len(lines) - 1:
-                break
-            raise
-    return out
-
-
-def write_jsonl_atomic(path: str, records: Sequence[dict[str, Any]]) -> None:
-    """Replace `path` with `records` (a temporary file renamed over it)."""
-    tmp = f"{path}.tmp{os.getpid()}"
-    with open(tmp, "w") as f:
-        for r in records:
-            f.write(json.dumps(r, allow_nan=True) + "\n")
-    os.replace(tmp, path)
-
-
-def nanmean(values: Any, axis: int | None = None) -> Any:
-    """`np.nanmean` that gives NaN for an all-NaN slice without a warning: epochs in which no PPO
-    episode ended have no return (InvertedPendulum's 1,000-step episodes end every ~8 epochs)."""
-    with warnings.catch_warnings():
-        warnings.filterwarnings("ignore", "Mean of empty slice", RuntimeWarning)
-        return np.nanmean(values, axis=axis)
-
-
-def ci90(values: np.ndarray, axis: int = 0) -> tuple[np.ndarray, np.ndarray]:
-    """Mean and half-width of a 90% Student-t confidence interval over `axis` (seeds)."""
-    n = values.shape[axis]
-    mean = nanmean(values, axis=axis)
-    if n < 2:
-        return mean, np.zeros_like(mean)
-    t = _T95.get(n - 1, 1.645)
-    with warnings.catch_warnings():
-        warnings.filterwarnings("ignore", "Degrees of freedom <= 0", RuntimeWarning)
-        return mean, t * np.nanstd(values, axis=axis, ddof=1) / math.sqrt(n)
-
-
-def last_returns(records: Sequence[dict[str, Any]], epochs: Sequence[int],
-                 x_key: str = "epoch") -> tuple[np.ndarray, bool]:
-    """Each seed's PPO return: the mean over its records at `epochs` in which an episode ended,
-    else (no episode ended there) its latest finished episode's up to the last of them (one that
-    ended between two asked epochs counts; a later one does not). Returns `[seeds]` and whether
-    any seed needed the fallback (NaN for a seed with no finished episode at all)."""
-    seeds = sorted({r["seed"] for r in records})
-    out, fell_back = np.full(len(seeds), np.nan), False
-    for i, s in enumerate(seeds):
-        mine = sorted((r for r in records if r["seed"] == s and np.isfinite(r.get("rl_return", np.nan))),
-                      key=lambda r: r[x_key])
-        now = [r["rl_return"] for r in mine if r[x_key] in epochs]
-        before = [r for r in mine if r[x_key] <= max(epochs, default=np.inf)]  # no epochs: any
-        if now:
-            out[i] = float(np.mean(now))
-        elif before:
-            out[i], fell_back = before[-1]["rl_return"], True
-    return out, fell_back
-
-
-def _seed_epoch_matrix(records: Sequence[dict[str, Any]], value: Any,
-                       x_key: str = "epoch") -> tuple[np.ndarray, np.ndarray]:
-    """Epochs (or `x_key` values, e.g. updates) and a `[seeds, epochs]` matrix of
-    `value(record)` (NaN where it gives None)."""
-    epochs = sorted({r[x_key] for r in records})
-    seeds = sorted({r["seed"] for r in records})
-    v = np.full((len(seeds), len(epochs)), np.nan)
-    for r in records:
-        x = value(r)
-        if x is not None:
-            v[seeds.index(r["seed"]), epochs.index(r[x_key])] = x
-    return np.array(epochs), v
-
-
-def probed(records: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
-    """The records of epochs with a probe evaluation."""
-    return [r for r in records if r.get("probes")]
-
-
-def curves(records: Sequence[dict[str, Any]], learner: str, stream: str, group: str | None,
-           key: str = "mae_norm", x_key: str = "epoch") -> tuple[np.ndarray, np.ndarray]:
-    """Probed epochs and `[seeds, epochs]` values of a group's error (or `baseline_norm`);
-    `group=None`: the overall error (as in `per_seed_error`)."""
-    def value(r: dict[str, Any]) -> Any:
-        x = r["probes"][learner][stream]
-        g = x["overall"] if group is None else x["groups"].get(group)
-        return None if g is None else g[key]
-    return _seed_epoch_matrix(probed(records), value, x_key)
-
-
-def rl_curve(records: Sequence[dict[str, Any]]) -> tuple[np.ndarray, np.ndarray]:
-    """Epochs and `[seeds, epochs]` PPO returns."""
-    return _seed_epoch_matrix(records, lambda r: r["rl_return"])
-
-
-def groups_of(spec: Sequence[StateEntry]) -> list[str]:
-    return list(dict.fromkeys(e.group for e in spec))
-
+from bulbjax.experiment import findings
+from bulbjax.experiment.config import read_run_config, run_options_of
+from bulbjax.experiment.records import (NORM_NOTE, STREAMS, ci90, curves, epochs_to_reach, groups_of, has_objects,
+                                        last_returns, metrics_path, object_curves, per_seed_error, probed, read_jsonl,
+                                        rl_curve, write_jsonl)
 
 def plot(records: Sequence[dict[str, Any]], spec: Sequence[StateEntry], path: str, title: str,
          solved_return: float | None = None, x_key: str = "epoch",
@@ -215,21 +61,6 @@ def plot(records: Sequence[dict[str, Any]], spec: Sequence[StateEntry], path: st
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
-
-
-def object_curves(records: Sequence[dict[str, Any]], learner: str, stream: str,
-                  key: str) -> tuple[np.ndarray, np.ndarray]:
-    """Probed epochs and `[seeds, epochs]` of an object-probe summary value (`error_mean`,
-    `found_share`, ...; `bulbjax.eval.objects.summary_of`) of a learner with boxes; an infinite
-    error (no present box in any frame) is NaN."""
-    def value(r: dict[str, Any]) -> Any:
-        v = r.get("objects", {}).get(learner, {}).get(stream, {}).get(key)
-        return None if v is None or not np.isfinite(v) else v
-    return _seed_epoch_matrix([r for r in records if r.get("objects")], value)
-
-
-def has_objects(records: Sequence[dict[str, Any]]) -> bool:
-    return any(r.get("objects") for r in records)
 
 
 def plot_objects(records: Sequence[dict[str, Any]], path: str, title: str,
@@ -303,27 +134,6 @@ def _plot_rl(axes: Any, records: Sequence[dict[str, Any]], solved_return: float 
     axes[0].legend(fontsize=8)
 
 
-def per_seed_error(records: Sequence[dict[str, Any]], learner: str, stream: str, group: str | None,
-                   at: Sequence[int], x_key: str = "epoch") -> np.ndarray:
-    """`[seeds]` normalised error of `learner` on `stream` (`group`, or overall when None), each
-    seed's mean over its probed records whose `x_key` is in `at` (NaN for a seed without any);
-    `learner="constant"` gives the constant predictor's (`baseline_norm`)."""
-    seeds = sorted({r["seed"] for r in records})
-    out = np.full(len(seeds), np.nan)
-    for i, s in enumerate(seeds):
-        vals = []
-        for r in records:
-            if r["seed"] != s or r[x_key] not in at or not r.get("probes"):
-                continue
-            name = next(iter(r["probes"])) if learner == "constant" else learner
-            x = r["probes"][name][stream]
-            x = x["overall"] if group is None else x["groups"][group]
-            vals.append(x["baseline_norm" if learner == "constant" else "mae_norm"])
-        if vals:
-            out[i] = float(np.nanmean(vals))
-    return out
-
-
 def table(records: Sequence[dict[str, Any]], spec: Sequence[StateEntry], last: int = 1,
           x_key: str = "epoch", streams: Sequence[tuple[str, str]] = STREAMS) -> str:
     """Markdown table of the final normalised group errors (mean +- 90% CI over seeds, averaged
@@ -360,28 +170,6 @@ def table(records: Sequence[dict[str, Any]], spec: Sequence[StateEntry], last: i
     return "\n".join(lines)
 
 
-def scalars(record: dict[str, Any]) -> dict[str, float]:
-    """Every number of one metrics.jsonl record as `seed<s>/<path>` tags (TensorBoard): RL
-    return, PPO and learner metrics, replay drops, the reference spread and every probe error
-    (per entry, group and overall; units and group names, being text, left out)."""
-    out: dict[str, float] = {}
-
-    def walk(prefix: str, v: Any) -> None:
-        if isinstance(v, dict):
-            for k, x in v.items():
-                walk(f"{prefix}/{k}", x)
-        elif isinstance(v, (list, tuple)):
-            for i, x in enumerate(v):
-                walk(f"{prefix}/{i}", x)
-        elif isinstance(v, (bool, int, float, np.integer, np.floating)) and v is not None:
-            out[prefix] = float(v)
-
-    for k, v in record.items():
-        if k not in ("epoch", "seed"):
-            walk(f"seed{record['seed']}/{k}", v)
-    return out
-
-
 def title_of(cfg: Any, epochs_done: int) -> str:
     return (f"{cfg.env}{' (multicolour)' if cfg.multicolour else ''}: {cfg.seeds} seeds, "
             f"{epochs_done} epochs")
@@ -411,8 +199,6 @@ def write_reports(run_dir: str, records: Sequence[dict[str, Any]], cfg: Any,
         plot_objects(records, os.path.join(run_dir, "objects.png"), title)
     with open(os.path.join(run_dir, "table.md"), "w") as f:
         f.write(f"# {title}\n\n{tab}\n" + (f"\n{footer}\n" if footer else ""))
-    from bulbjax.experiment import findings  # it builds on this module
-
     verdicts, epochs = findings.check(records, spec, cfg.env, last=last)
     with open(os.path.join(run_dir, "findings.md"), "w") as f:
         f.write(f"# {title}: the paper's Fig. 2 findings\n\n"
@@ -420,21 +206,10 @@ def write_reports(run_dir: str, records: Sequence[dict[str, Any]], cfg: Any,
     return tab
 
 
-def metrics_path(run_dir: str) -> str:
-    """A run's metrics file: `metrics.jsonl`, else `metrics.jsonl.gz` (committed results keep
-    long runs' metrics compressed); a clear error if neither is there."""
-    path = os.path.join(run_dir, "metrics.jsonl")
-    for p in (path, path + ".gz"):
-        if os.path.exists(p):
-            return p
-    raise ValueError(f"{path} (or .gz) does not exist: is {run_dir} the --out folder of a `bulbjax run`?")
-
-
 def redraw(run_dir: str) -> str:
     """`bulbjax report RUN_DIR`: fig2.png and table.md again from config.json and metrics.jsonl
     (also while the run is still writing them: incomplete epochs are left out)."""
     from bulbjax.envs.registry import env_class
-    from bulbjax.experiment.config import read_run_config
 
     cfg, _ = read_run_config(run_dir)
     records = read_jsonl(metrics_path(run_dir), tolerate_partial=True)
@@ -454,8 +229,6 @@ def merge_seeds(run_dirs: Sequence[str], out_dir: str) -> str:
     import dataclasses
 
     from bulbjax.envs.registry import env_class
-    from bulbjax.experiment.config import read_run_config
-    from bulbjax.experiment.run import run_options_of
 
     if len(run_dirs) < 2:
         raise ValueError("--merge-seeds needs two or more RUN_DIRs")
@@ -501,26 +274,6 @@ def merge_seeds(run_dirs: Sequence[str], out_dir: str) -> str:
                          footer=f"seeds of {len(runs)} runs merged by `bulbjax report --merge-seeds`: {names}")
 
 
-def _to_numpy(tree: Any) -> Any:
-    if isinstance(tree, dict):
-        return {k: _to_numpy(v) for k, v in tree.items()}
-    return np.asarray(tree)
-
-
-def _f(x: Any) -> float:
-    return float(np.asarray(x))
-
-
-def epochs_to_reach(returns: np.ndarray, epochs: np.ndarray, target: float) -> list[int | None]:
-    """Per seed (rows of `[seeds, epochs]`), the first epoch whose PPO return is >= `target`
-    (None if never)."""
-    out: list[int | None] = []
-    for row in returns:
-        hit = np.nonzero(np.nan_to_num(row, nan=-np.inf) >= target)[0]
-        out.append(int(epochs[hit[0]]) if hit.size else None)
-    return out
-
-
 def rl_compare(run_dirs: Sequence[str], out_dir: str, solved_return: float | None = None) -> str:
     """PPO return curves of several runs in one plot, labelled by what PPO observed
     (`rl_input`: state, pixels, latent:<learner>), and a table with the final return and, with
@@ -532,7 +285,6 @@ def rl_compare(run_dirs: Sequence[str], out_dir: str, solved_return: float | Non
     import matplotlib.pyplot as plt
 
     from bulbjax.envs.registry import env_class
-    from bulbjax.experiment.config import read_run_config
 
     if not run_dirs:
         raise ValueError("rl_compare needs at least one run folder")

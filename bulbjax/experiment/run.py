@@ -39,39 +39,15 @@ from bulbjax import distributed
 from bulbjax.experiment import report, rundir
 from bulbjax.experiment.checkpoint import CHECKPOINT_DIR, Checkpointer
 from bulbjax.experiment.console import StageLog
-from bulbjax.experiment.config import ExperimentConfig, read_run_config
+from bulbjax.experiment.config import IDENTITY, ExperimentConfig, RunOptions, read_run_config, run_options_of
 from bulbjax.experiment.groups import SeedGroups
 from bulbjax.experiment.loop import Experiment
+from bulbjax.experiment.records import (epoch_records, last_returns, nanmean, read_jsonl, scalars, write_jsonl,
+                                        write_jsonl_atomic)
 
 VERSIONED = ("jax", "jaxlib", "flax", "optax", "orbax-checkpoint", "mujoco", "mujoco-mjx",
              "mujoco-warp", "warp-lang", "numpy", "bulbjax")
 TB_DIR = "tb"
-
-
-@dataclass(frozen=True)
-class RunOptions:
-    """How a run is driven. `seed` and `probe_every` change what it computes and are fixed at its
-    start (a resume must keep them); the others may change from one stretch to the next."""
-
-    seed: int = 0
-    probe_every: int = 1  # probe every k epochs, and at the first and the last
-    checkpoint_every: int = 0  # also checkpoint every N epochs (0: only when the run stops)
-    keep: int = 2  # checkpoints kept
-    max_minutes: float = 0.0  # stop this stretch after this wall time (0: no limit)
-    stop_after: int = 0  # stop this stretch after this many epochs (0: no limit)
-    tensorboard: bool = False  # TensorBoard event files under RUN_DIR/tb
-    recon_every: int = 0  # recon_<epoch>.png (+ boxes_<epoch>.png with SPAIR) every N epochs and at the end (0: none)
-
-    def __post_init__(self) -> None:
-        for name in ("probe_every", "keep"):
-            if getattr(self, name) < 1:
-                raise ValueError(f"--{name.replace('_', '-')} must be >= 1, got {getattr(self, name)}")
-        for name in ("checkpoint_every", "stop_after", "max_minutes", "recon_every"):
-            if getattr(self, name) < 0:
-                raise ValueError(f"--{name.replace('_', '-')} must be >= 0, got {getattr(self, name)}")
-
-
-IDENTITY = ("seed", "probe_every")  # RunOptions fields a resume must keep
 
 
 @dataclass
@@ -154,12 +130,6 @@ def _write_json_atomic(path: str, obj: Any) -> None:
     with open(tmp, "w") as f:
         json.dump(obj, f, indent=1)
     os.replace(tmp, path)
-
-
-def run_options_of(raw: dict[str, Any]) -> dict[str, Any]:
-    """The identity options saved in a config.json (defaults for runs that predate them)."""
-    base = dataclasses.asdict(RunOptions())
-    return {k: raw.get("run", {}).get(k, base[k]) for k in IDENTITY}
 
 
 def config_differences(saved: ExperimentConfig, saved_run: dict[str, Any], cfg: ExperimentConfig,
@@ -262,7 +232,7 @@ def _start_fresh(run_dir: str, log: Callable[[str], None]) -> None:
 def _metrics_up_to(path: str, epoch: int, seeds: int) -> list[dict[str, Any]]:
     """The records of epochs < `epoch` (later ones, written after the checkpoint, and a
     half-written last line are cut off and the file rewritten); an error if any is missing."""
-    records = report.read_jsonl(path, tolerate_partial=True) if os.path.exists(path) else []
+    records = read_jsonl(path, tolerate_partial=True) if os.path.exists(path) else []
     keep = [r for r in records if r["epoch"] < epoch]
     have = {(r["epoch"], r["seed"]) for r in keep}
     missing = sorted({e for e in range(epoch) for s in range(seeds) if (e, s) not in have})
@@ -271,7 +241,7 @@ def _metrics_up_to(path: str, epoch: int, seeds: int) -> list[dict[str, Any]]:
                          f"that the checkpoint of epoch {epoch} has passed; the metrics cannot be continued "
                          "without a gap. Start a new run")
     if len(keep) != len(records) or rundir.ends_mid_line(path):  # later epochs, or half a record
-        report.write_jsonl_atomic(path, keep)
+        write_jsonl_atomic(path, keep)
     return keep
 
 
@@ -287,7 +257,7 @@ class _TensorBoard:
 
     def write(self, records: Sequence[dict[str, Any]]) -> None:
         for r in records:
-            for tag, v in report.scalars(r).items():
+            for tag, v in scalars(r).items():
                 self.writer.add_scalar(tag, v, global_step=r["epoch"])
         self.writer.flush()
 
@@ -415,10 +385,10 @@ def run(cfg: ExperimentConfig, opts: RunOptions, run_dir: str, *, resume: bool =
                     t_first = time.time() - t0 - t_init
                 for name, lm in m["learners"].items():
                     check_finite(lm, where=f"learner {name} at epoch {epoch}")
-                recs = report.epoch_records(epoch, m, exp.spec)
+                recs = epoch_records(epoch, m, exp.spec)
                 if writer:
                     try:  # metrics first: a checkpoint never runs ahead; whole records or none
-                        report.write_jsonl(metrics_path, recs)
+                        write_jsonl(metrics_path, recs)
                     except OSError as err:
                         raise _write_failed(run_dir, f"metrics.jsonl (epoch {epoch})", err) from err
                 if tb:
@@ -486,10 +456,10 @@ def _write_failed(run_dir: str, what: str, err: BaseException) -> ValueError:
 def _postfix(recs: list[dict], records: list[dict]) -> dict[str, str]:
     """The progress bar's figures at a probed epoch (`recs`, one per seed): the PPO return of the
     latest finished episodes (`records`: the run's so far) and each learner's overall errors."""
-    ret, _ = report.last_returns(records, [recs[0]["epoch"]])
-    out = {"return": f"{report.nanmean(ret):.1f}"}
+    ret, _ = last_returns(records, [recs[0]["epoch"]])
+    out = {"return": f"{nanmean(ret):.1f}"}
     for name in recs[0]["probes"]:
         for stream in ("curr", "rand"):
-            v = report.nanmean([r["probes"][name][stream]["overall"]["mae_norm"] for r in recs])
+            v = nanmean([r["probes"][name][stream]["overall"]["mae_norm"] for r in recs])
             out[f"{name}/{stream}"] = f"{v:.2f}"
     return out

@@ -16,10 +16,11 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from bulbjax.learners.networks import BIAS_GRADS, DECONV_IMPLS, EDGE_LAYERS, LSTM_GRADS
+from bulbjax.learners.networks import BIAS_GRADS, DECONV_IMPLS, EDGE_LAYERS
+from bulbjax.learners.temporal import LSTM_GRADS
 
 COMPUTE_DTYPES: tuple[str, ...] = ("float32", "bfloat16")
-# DSA's encoder variants (the paper tried all of them); see networks.SequenceModel.
+# DSA's encoder variants (the paper tried all of them); see temporal.SequenceModel.
 DSA_ENCODERS: tuple[str, ...] = ("lstm", "bilstm", "gru", "rnn", "conv", "fc")
 
 
@@ -66,8 +67,8 @@ class LearnerConfig:
     sequence_length: int = 24  # steps per window (paper: 24 pendulums, 16 locomotion)
     pred_horizon: int = 4  # PRED reconstructs sequence_length + pred_horizon frames
     dsa_encoder: str = "bilstm"  # DSA's static/dynamic encoders: one of DSA_ENCODERS
-    rnn_unroll: int = 1  # recurrent steps per scan iteration (networks.SequenceModel.unroll; same numbers)
-    # The LSTMs' backward pass: "written" (networks.lstm_scan: W_h's gradient as one matmul after
+    rnn_unroll: int = 1  # recurrent steps per scan iteration (temporal.SequenceModel.unroll; same numbers)
+    # The LSTMs' backward pass: "written" (temporal.lstm_scan: W_h's gradient as one matmul after
     # the loop; each LSTM's forward + backward 1.25-1.5x faster on the H100) or "autodiff" (JAX's
     # own); same function and gradients. A config.json written before the field reads "autodiff".
     lstm_grad: str = "written"

@@ -2,8 +2,8 @@
 
 Why: the learners of a run are vmapped (or `lax.map`ped) over seeds with per-seed weights. A
 vmapped convolution becomes a grouped one (seeds = feature groups), which cuDNN runs at about
-half the rate of S plain ones (`benchmarks/bench_seed_axis.py`), so on one GPU the experiment
-runs each seed's update alone (`lax.map`). That serialises the sequential learners' LSTMs too:
+half the rate of S plain ones (`benchmarks/diagnostics/bench_seed_axis.py`), so on one GPU the
+experiment runs each seed's update alone (`lax.map`). That serialises the sequential learners' LSTMs too:
 24 steps of a few small kernels each, at ~42 windows per seed, which leave the GPU idle. With
 these wrappers around the frame networks, a learner can be vmapped over seeds (its LSTMs, heads
 and Adam batched: one kernel per step for all seeds) while its convolutions still run one seed at

@@ -1,8 +1,9 @@
 """Sequential learners SVAE, PRED and DSA (paper Sec. IV.A), trained on windows of frames.
 
-All three reuse the frame VAEs' conv stack and deconv decoder (networks.py), the Bernoulli
-likelihood and Adam, and take `Windows` (bulbjax.data.sequence): frames `[B, T, R, R, 3]` uint8,
-actions `[B, T, A]`, and a `valid` mask that is False on padding after an episode boundary.
+All three reuse the frame VAEs' conv stack and deconv decoder (networks.py), temporal models
+(temporal.py: SVAE's LSTM, DSA's encoders), the Bernoulli likelihood and Adam, and take
+`Windows` (bulbjax.data.sequence): frames `[B, T, R, R, 3]` uint8, actions `[B, T, A]`, and a
+`valid` mask that is False on padding after an episode boundary.
 Losses are per valid frame: (sum over valid steps of reconstruction + beta * KL) / (number of
 valid steps), so beta=1 weighs reconstruction and KL per frame exactly as the frame VAE does.
 
@@ -36,15 +37,9 @@ import optax
 
 from bulbjax.data.sequence import Windows
 from bulbjax.learners.base import LearnerConfig, LearnerState, Metrics
-from bulbjax.learners.networks import (
-    DeconvDecoder,
-    FrameFeatures,
-    GaussianHead,
-    SequenceModel,
-    check_frame_shape,
-    lecun_normal_flat,
-)
+from bulbjax.learners.networks import DeconvDecoder, FrameFeatures, GaussianHead, check_frame_shape, lecun_normal_flat
 from bulbjax.learners.per_seed import per_seed, per_seed_loss
+from bulbjax.learners.temporal import SequenceModel
 
 # `SequentialVAE.per_seed_frames`: off, conv stack recomputed in its backward loop, or saved.
 PER_SEED_FRAMES = ("", "remat", "saved")
@@ -91,15 +86,15 @@ class SequentialVAE:
     config: LearnerConfig = LearnerConfig()
     action_dim: int = 1  # one-hot size for discrete actions, action_size for continuous
     # Frame networks one seed at a time when vmapped over seeds, the rest batched: how the
-    # "hybrid" seed loop runs learners with LSTMs on one GPU (`loop.resolve_seed_loop`). ""
+    # "hybrid" seed loop runs learners with LSTMs on one GPU (`seeds.resolve_seed_loop`). ""
     # (off), "remat" (the conv stack's forward recomputed in its backward loop) or "saved" (its
     # activations saved); the decoder and likelihood compute value and gradient in one loop
     # (`per_seed_loss`). Same numbers, another schedule.
     per_seed_frames: str = ""
     sequential: ClassVar[bool] = True
-    # Whether the "hybrid" seed loop vmaps this learner (`loop.with_seed_loop`): worth it where
-    # LSTMs are a large share of an update (DSA: three; H100, 6 seeds, 5.74 -> 5.03 ms per
-    # seed-update), not for SVAE's one (4.25 -> 4.28 ms; `benchmarks/bench_seed_axis.py`).
+    # Whether the "hybrid" seed loop vmaps this learner (`experiment.seeds.with_seed_loop`): worth
+    # it where LSTMs are a large share of an update (DSA: three; H100, 6 seeds, 5.74 -> 5.03 ms
+    # per seed-update), not for SVAE's one (4.25 -> 4.28 ms; benchmarks/diagnostics/bench_seed_axis.py).
     hybrid_vmapped: ClassVar[bool] = False
 
     def __post_init__(self) -> None:

@@ -17,7 +17,7 @@ Cases (all on an InvertedPendulum of 8 worlds per device, 2 devices unless said)
   epoch_mp     2 processes as reset_mp, a small six-learner Experiment over the global mesh
                (init + 2 epochs)
 
-    python benchmarks/diag_multigpu.py [CASE ...] [--gdb CASE] [--out results.json]
+    python benchmarks/diagnostics/diag_multigpu.py [CASE ...] [--gdb CASE] [--out results.json]
 """
 
 from __future__ import annotations
@@ -31,7 +31,7 @@ import sys
 import time
 
 HERE = os.path.dirname(os.path.abspath(__file__))
-ROOT = os.path.dirname(HERE)
+ROOT = os.path.dirname(os.path.dirname(HERE))
 CASES = ("plain", "reset_sm1", "reset_each", "render_each", "reset_pmap", "reset_gspmd", "reset_sm",
          "reset_sm@NONE", "reset_sm@WARP_STAGED_EX", "reset_mp", "epoch_mp", "epoch_each")
 

@@ -4,20 +4,20 @@ Why: a DSA update costs ~2x a frame VAE's on the H100 although its convolutions 
 the difference is three LSTM recurrences (two bidirectional) over 24 steps at ~42 windows, each
 step a few small kernels in a row. This times one LSTM's forward and backward (gradients for the
 input and the weights) in two forms with the same parameters and function:
-- `scan`: `networks.lstm_scan` (the input projection as one matmul, the recurrence in a
+- `scan`: `temporal.lstm_scan` (the input projection as one matmul, the recurrence in a
   `lax.scan` unrolled `--unrolls` steps, the backward pass written out with W_h's gradient as
   one matmul after the loop), what the learners run;
-- `autodiff`: the same forward with autodiff's backward pass (`networks.lstm_scan_autodiff`);
+- `autodiff`: the same forward with autodiff's backward pass (`temporal.lstm_scan_autodiff`);
 - `cudnn`: `jax.experimental.rnn.lstm`, cuDNN's RNN kernels (GPU only), the weights packed
   into cuDNN's flat layout by `cudnn_lstm_weights` below;
 under `lax.map` over `--seeds` per-seed weight sets (the epoch's seed loop on one GPU), at the
 shapes of SVAE's LSTM and DSA's three. It also reports the largest difference between the two
 forms' outputs and gradients.
 
-Loads `bulbjax/learners/networks.py` by path, so it needs only jax and flax (no MuJoCo):
+Imports `bulbjax.learners` without `bulbjax/__init__`, so it needs only jax and flax (no MuJoCo):
 
-    python benchmarks/bench_lstm.py --out "$OUT"            # GPU
-    python benchmarks/bench_lstm.py --small                 # CPU smoke: the scan forms, the packing
+    python benchmarks/diagnostics/bench_lstm.py --out "$OUT"   # GPU
+    python benchmarks/diagnostics/bench_lstm.py --small        # CPU smoke: the scan forms, the packing
 
 Writes <out>/lstm_<device>_<stamp>.json and prints a table.
 """
@@ -26,10 +26,10 @@ from __future__ import annotations
 
 import argparse
 import datetime as dt
-import importlib.util
 import json
 import os
 import sys
+import types
 from typing import Any, Callable
 
 import jax
@@ -37,14 +37,16 @@ import jax.numpy as jnp
 from jax.experimental import rnn
 
 HERE = os.path.dirname(os.path.abspath(__file__))
-sys.path.insert(0, HERE)
+BENCH = os.path.dirname(HERE)
+ROOT = os.path.dirname(BENCH)
+sys.path.insert(0, BENCH)
 from timing import time_fn  # noqa: E402  (jax only)
 
-_spec = importlib.util.spec_from_file_location(
-    "bj_networks", os.path.join(os.path.dirname(HERE), "bulbjax", "learners", "networks.py"))
-networks = importlib.util.module_from_spec(_spec)
-sys.modules["bj_networks"] = networks  # flax's dataclasses look the module up by name
-_spec.loader.exec_module(networks)
+if "bulbjax" not in sys.modules:  # the learners without bulbjax/__init__ (which imports MuJoCo)
+    _pkg = types.ModuleType("bulbjax")
+    _pkg.__path__ = [os.path.join(ROOT, "bulbjax")]
+    sys.modules["bulbjax"] = _pkg
+from bulbjax.learners import temporal  # noqa: E402
 
 # (name, directions, input width) at fig2-invpend's sizes: hidden 512, action 1, latent 12 (DSA:
 # static 3, dynamic 9); SVAE's LSTM reads the flattened conv stack (4 x 4 x 256) and the action.
@@ -65,7 +67,7 @@ def _weights(key: jax.Array, seeds: int, d: int, n_in: int, h: int) -> tuple[jax
 
 
 def scan_form(unroll: int, scan: Callable | None = None) -> Callable:
-    scan = scan or networks.lstm_scan
+    scan = scan or temporal.lstm_scan
 
     def run(x, wi, wh, b):
         xs = [x if i == 0 else jnp.flip(x, axis=1) for i in range(wi.shape[0])]
@@ -133,7 +135,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     p.add_argument("--unrolls", default="1,4,24")
     p.add_argument("--repeats", type=int, default=20)
     p.add_argument("--small", action="store_true", help="CPU smoke sizes, scan form only")
-    p.add_argument("--out", default=os.path.join(HERE, "results"))
+    p.add_argument("--out", default=os.path.join(BENCH, "results"))
     a = p.parse_args(argv)
     if a.small:
         a.seeds, a.batch, a.steps, a.hidden, a.repeats = 2, 4, 6, 16, 2
@@ -154,7 +156,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         args = (x, wi, wh, b, r)
         forms = {}
         for u in a.unrolls.split(","):
-            forms[f"autodiff_u{u}"] = scan_form(int(u), networks.lstm_scan_autodiff)
+            forms[f"autodiff_u{u}"] = scan_form(int(u), temporal.lstm_scan_autodiff)
             forms[f"scan_u{u}"] = scan_form(int(u))
         if gpu:
             forms["cudnn"] = cudnn_lstm

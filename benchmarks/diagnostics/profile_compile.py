@@ -4,7 +4,7 @@ in this process, one after the other, with JAX's persistent cache off unless `--
 is given (XLA's per-fusion autotuning results live in that cache too: without it every compile
 autotunes from scratch). Writes `<out-dir>/compile_<preset>_<device>_<timestamp>.json`.
 
-    python benchmarks/profile_compile.py --preset fig2-invpend --bf16 --rnn-unroll 4 \
+    python benchmarks/diagnostics/profile_compile.py --preset fig2-invpend --bf16 --rnn-unroll 4 \
         --set default --set noautotune=xla_gpu_autotune_level:0
 """
 
@@ -17,15 +17,16 @@ import os
 import sys
 import time
 
-HERE = os.path.dirname(os.path.abspath(__file__))
-sys.path.insert(0, os.path.dirname(HERE))
-sys.path.insert(0, HERE)
+BENCH = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+sys.path.insert(0, os.path.dirname(BENCH))
+sys.path.insert(0, BENCH)
 
 import jax  # noqa: E402
 
 from profile_epoch import add_config_args, build_config, parse_variant  # noqa: E402
 
 from bulbjax.experiment.loop import Experiment  # noqa: E402
+from bulbjax.experiment.programs import Programs  # noqa: E402
 
 
 def main(argv: list[str] | None = None) -> dict:
@@ -35,7 +36,7 @@ def main(argv: list[str] | None = None) -> dict:
     p.add_argument("--set", action="append", default=[], metavar="NAME[=KEY:VALUE;...]",
                    help="a named set of XLA compile options (repeatable; default: one set, no options)")
     p.add_argument("--compile-cache", default="", help="JAX persistent cache folder (default: off)")
-    p.add_argument("--out-dir", default=os.path.join(HERE, "results"))
+    p.add_argument("--out-dir", default=os.path.join(BENCH, "results"))
     a = p.parse_args(argv)
     if a.compile_cache:
         from bulbjax.compile_cache import enable
@@ -46,7 +47,7 @@ def main(argv: list[str] | None = None) -> dict:
     res: dict = {"preset": a.preset, "argv": sys.argv if argv is None else argv, "build_s": time.perf_counter() - t0,
                  "device_kind": jax.devices()[0].device_kind, "jax": jax.__version__,
                  "compile_cache": a.compile_cache or None, "programs": {}}
-    progs = exp.programs((True, False))
+    progs = Programs.of(exp, (True, False))
     sets = dict(parse_variant(s) for s in a.set) or {"default": {}}
     for name in [x for x in a.programs.split(",") if x]:
         t0 = time.perf_counter()

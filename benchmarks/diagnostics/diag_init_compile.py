@@ -1,8 +1,8 @@
 """What init's compile time is made of (issue 13, cold start): each learner's parameter init
-over the seeds (`vmap`, as `Experiment._init` does it, and `lax.map`) compiled alone, then the
+over the seeds (`vmap`, and `lax.map` as `Learning.init_learner` does it) compiled alone, then the
 env's rollouts that fill the buffers. Prints seconds per part; `--out FILE` writes them as JSON.
 
-    python benchmarks/diag_init_compile.py --preset fig2-invpend --bf16
+    python benchmarks/diagnostics/diag_init_compile.py --preset fig2-invpend --bf16
 """
 
 from __future__ import annotations
@@ -13,9 +13,9 @@ import os
 import sys
 import time
 
-HERE = os.path.dirname(os.path.abspath(__file__))
-sys.path.insert(0, os.path.dirname(HERE))
-sys.path.insert(0, HERE)
+BENCH = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+sys.path.insert(0, os.path.dirname(BENCH))
+sys.path.insert(0, BENCH)
 
 import jax  # noqa: E402
 
@@ -47,13 +47,14 @@ def main() -> None:
     ppo = jax.vmap(exp.ppo.init)(keys)
     k = jax.random.PRNGKey(1)
     steps = -(-cfg.replay_capacity // exp.N)
-    out["parts"]["env reset"] = timed_compile(exp._env_reset, k)
+    reset = exp.devices.env_reset
+    out["parts"]["env reset"] = timed_compile(reset, k)
     out["parts"]["replay fill rollout (render every step)"] = timed_compile(
-        lambda pp, kk: exp._collect(pp, exp._env_reset(kk), kk, steps, random=True), ppo, k)
+        lambda pp, kk: exp.streams.collect(pp, reset(kk), kk, steps, random=True), ppo, k)
     out["parts"]["reference rollout"] = timed_compile(
-        lambda pp, kk: exp._rollout(pp, exp._env_reset(kk), kk, cfg.reference_steps, random=True), ppo, k)
+        lambda pp, kk: exp.policy.rollout(pp, reset(kk), kk, cfg.reference_steps, random=True), ppo, k)
     if exp.window_length:
-        out["parts"]["window buffers fill"] = timed_compile(exp._init_windows, ppo, k)
+        out["parts"]["window buffers fill"] = timed_compile(exp.streams.init_windows, ppo, k)
     for n, v in out["parts"].items():
         print(f"{n:45} {v:7.1f} s")
     if a.out:

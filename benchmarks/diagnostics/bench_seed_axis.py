@@ -1,5 +1,5 @@
 """How the seed axis of the learner updates costs on an accelerator (issue 13): `vmap` over seeds
-(what `Experiment.learn_phase` does) against `lax.map` over seeds (one seed at a time, each a
+(what `Learning.learn_phase` does with seed loop vmap) against `lax.map` over seeds (one seed at a time, each a
 plain batch-1,024 update) and one seed alone, for one learner at the paper's sizes.
 
 Why: in the fig2-invpend epoch profile (benchmarks/README.md) a frame VAE's 10 updates for 6
@@ -14,10 +14,10 @@ forms "hybrid_remat" (what `--seed-loop hybrid` of the experiment runs for DSA) 
 the conv stack's forward recomputed in its backward loop or its activations saved), the LSTMs
 batched.
 
-    python benchmarks/bench_seed_axis.py --bf16 --out "$OUT"                    # GPU
-    python benchmarks/bench_seed_axis.py --learner dsa --bf16 --rnn-unroll 4 --capacity 200 \
+    python benchmarks/diagnostics/bench_seed_axis.py --bf16 --out "$OUT"                    # GPU
+    python benchmarks/diagnostics/bench_seed_axis.py --learner dsa --bf16 --rnn-unroll 4 --capacity 200 \
         --trace "$OUT/trace_dsa" --out "$OUT"                                  # + a profiler trace
-    python benchmarks/bench_seed_axis.py --small                                # CPU smoke (~1 min)
+    python benchmarks/diagnostics/bench_seed_axis.py --small                                # CPU smoke (~1 min)
 
 With `--trace DIR`, the timed calls of each form run inside a host annotation `bj_timed_<form>`;
 `trace_summary.py DIR --window bj_timed_<form>` gives each one's device time and busy share. The
@@ -40,15 +40,15 @@ import sys
 import time
 from typing import Any
 
-HERE = os.path.dirname(os.path.abspath(__file__))
-sys.path.insert(0, os.path.dirname(HERE))
-sys.path.insert(0, HERE)
+BENCH = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+sys.path.insert(0, os.path.dirname(BENCH))
+sys.path.insert(0, BENCH)
 
 import jax  # noqa: E402
 import jax.numpy as jnp  # noqa: E402
 
 from bulbjax.data.sequence import Windows  # noqa: E402
-from bulbjax.experiment.loop import train_learner  # noqa: E402
+from bulbjax.experiment.learning import train_learner  # noqa: E402
 from bulbjax.learners import LearnerConfig, is_sequential, make_learner  # noqa: E402
 from timing import time_fn as timed  # noqa: E402  (first call, then median/min of repeats)
 
@@ -66,7 +66,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     p.add_argument("--trace", default="", help="JAX profiler trace of the timed calls into this folder")
     p.add_argument("--repeats", type=int, default=5)
     p.add_argument("--small", action="store_true", help="CPU smoke sizes")
-    p.add_argument("--out", default=os.path.join(HERE, "results"))
+    p.add_argument("--out", default=os.path.join(BENCH, "results"))
     a = p.parse_args(argv)
     res, seeds = 64, a.seeds
     over: dict[str, Any] = {"lr": 1e-4}

@@ -1,3 +1,14 @@
+"""Are frames rendered for a sequence of stored steps (`env.render_sequence`, inside one jitted call
+or a scan) the frames rendered one step at a time (`env.render_frames`), and does CartPole's pole
+move across the image with its angle? Prints booleans and a correlation (CPU or GPU).
+
+    python benchmarks/diagnostics/check_render_correspondence.py
+"""
+import os
+import sys
+
+sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__)))))
+
 import jax, jax.numpy as jnp, numpy as np, bulbjax
 from bulbjax.envs.base import RenderInput
 N = 192

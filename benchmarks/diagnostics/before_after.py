@@ -10,9 +10,9 @@ seeds) and the paired per-seed difference after - before with its 90% band, plus
 versions' curves: `before_after.md`, `before_after.png`, `before_after.json`.
 
     git worktree add /tmp/before 90433af     # before: the LSTMs as flax nn.RNN cells
-    python benchmarks/before_after.py run --code /tmp/before --deconv-impl transpose --out runs/ba_before
-    python benchmarks/before_after.py run --code . --out runs/ba_after            # subpixel, hoisted LSTMs
-    python benchmarks/before_after.py compare runs/ba_before runs/ba_after --out docs/results/before_after
+    python benchmarks/diagnostics/before_after.py run --code /tmp/before --deconv-impl transpose --out runs/ba_before
+    python benchmarks/diagnostics/before_after.py run --code . --out runs/ba_after            # subpixel, hoisted LSTMs
+    python benchmarks/diagnostics/before_after.py compare runs/ba_before runs/ba_after --out docs/results/before_after
 """
 
 from __future__ import annotations
@@ -25,7 +25,7 @@ from typing import Any
 
 import numpy as np
 
-HERE = os.path.dirname(os.path.abspath(__file__))
+ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
 
 def cmd_run(a: argparse.Namespace) -> None:
@@ -52,19 +52,19 @@ def cmd_run(a: argparse.Namespace) -> None:
 def _errors(run_dir: str, last: int) -> tuple[dict[str, np.ndarray], list[int], list[str], Any]:
     """Per (learner, stream): `[seeds]` overall normalised error over the last `last` probed
     epochs; the epochs; the learners; all records."""
-    sys.path.insert(0, os.path.dirname(HERE))
-    from bulbjax.experiment import report
+    sys.path.insert(0, ROOT)
+    from bulbjax.experiment import records
 
-    recs = report.read_jsonl(report.metrics_path(run_dir))
-    epochs = sorted({r["epoch"] for r in report.probed(recs)})[-last:]
-    learners = list(report.probed(recs)[0]["probes"])
-    out = {(n, s): report.per_seed_error(recs, n, s, None, epochs) for n in learners for s, _ in report.STREAMS}
+    recs = records.read_jsonl(records.metrics_path(run_dir))
+    epochs = sorted({r["epoch"] for r in records.probed(recs)})[-last:]
+    learners = list(records.probed(recs)[0]["probes"])
+    out = {(n, s): records.per_seed_error(recs, n, s, None, epochs) for n in learners for s, _ in records.STREAMS}
     return out, epochs, learners, recs
 
 
 def cmd_compare(a: argparse.Namespace) -> None:
-    sys.path.insert(0, os.path.dirname(HERE))
-    from bulbjax.experiment import report
+    sys.path.insert(0, ROOT)
+    from bulbjax.experiment import records
 
     before, ep_b, learners, rec_b = _errors(a.before, a.last)
     after, ep_a, _, rec_a = _errors(a.after, a.last)
@@ -75,14 +75,14 @@ def cmd_compare(a: argparse.Namespace) -> None:
                        "|---|---|---|---|---|---|"]
     for (n, s), b in before.items():
         x = after[(n, s)]
-        mb, hb = report.ci90(b)
-        ma, ha = report.ci90(x)
-        md, hd = report.ci90(x - b)
+        mb, hb = records.ci90(b)
+        ma, ha = records.ci90(x)
+        md, hd = records.ci90(x - b)
         same = bool(abs(md) <= hd)
         rows.append({"learner": n, "stream": s, "before": [float(mb), float(hb)], "after": [float(ma), float(ha)],
                      "diff": [float(md), float(hd)], "within_noise": same,
                      "before_seeds": b.tolist(), "after_seeds": x.tolist()})
-        lines.append(f"| {n} | {dict(report.STREAMS)[s]} | {mb:.3f} ± {hb:.3f} | {ma:.3f} ± {ha:.3f} | "
+        lines.append(f"| {n} | {dict(records.STREAMS)[s]} | {mb:.3f} ± {hb:.3f} | {ma:.3f} ± {ha:.3f} | "
                      f"{md:+.3f} ± {hd:.3f} | {'yes' if same else 'no'} |")
     n_seeds = len(next(iter(before.values())))
     key = lambda r: (r["epoch"], r["seed"])  # noqa: E731
@@ -104,14 +104,14 @@ def cmd_compare(a: argparse.Namespace) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, axes = plt.subplots(len(report.STREAMS), len(learners), figsize=(2.6 * len(learners), 5),
+    fig, axes = plt.subplots(len(records.STREAMS), len(learners), figsize=(2.6 * len(learners), 5),
                              squeeze=False, sharey=True)
     for j, n in enumerate(learners):
-        for i, (s, label) in enumerate(report.STREAMS):
+        for i, (s, label) in enumerate(records.STREAMS):
             ax = axes[i][j]
             for recs, version, c in ((rec_b, "before", "tab:gray"), (rec_a, "after", "tab:blue")):
-                ep, v = report.curves(recs, n, s, None)
-                m, h = report.ci90(v)
+                ep, v = records.curves(recs, n, s, None)
+                m, h = records.ci90(v)
                 ax.plot(ep, m, color=c, label=version)
                 ax.fill_between(ep, m - h, m + h, color=c, alpha=0.2)
             ax.set_title(f"{n} {label}", fontsize=8)
@@ -127,7 +127,7 @@ def main(argv: list[str] | None = None) -> None:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     sub = p.add_subparsers(dest="cmd", required=True)
     r = sub.add_parser("run")
-    r.add_argument("--code", default=os.path.dirname(HERE), help="source tree whose bulbjax runs")
+    r.add_argument("--code", default=ROOT, help="source tree whose bulbjax runs")
     r.add_argument("--preset", default="fig2-invpend")
     r.add_argument("--seeds", type=int, default=3)
     r.add_argument("--epochs", type=int, default=8)

@@ -9,9 +9,9 @@ one after another (`--mode seq`) or in K threads at once (`--mode threads`). Run
 own process (XLA keeps autotuning results per process); `--xla-autotune-level 0` in XLA_FLAGS
 tells whether the autotuner is what serialises them.
 
-    python benchmarks/diag_parallel_compile.py --mode seq --out "$OUT"
-    python benchmarks/diag_parallel_compile.py --mode threads --out "$OUT"
-    XLA_FLAGS=--xla_gpu_autotune_level=0 python benchmarks/diag_parallel_compile.py --mode threads --tag at0 --out "$OUT"
+    python benchmarks/diagnostics/diag_parallel_compile.py --mode seq --out "$OUT"
+    python benchmarks/diagnostics/diag_parallel_compile.py --mode threads --out "$OUT"
+    XLA_FLAGS=--xla_gpu_autotune_level=0 python benchmarks/diagnostics/diag_parallel_compile.py --mode threads --tag at0 --out "$OUT"
 """
 
 from __future__ import annotations
@@ -29,7 +29,7 @@ from typing import Any
 import jax
 import jax.numpy as jnp
 
-ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 if "bulbjax" not in sys.modules:  # the learners without bulbjax/__init__ (which imports MuJoCo)
     _pkg = types.ModuleType("bulbjax")
     _pkg.__path__ = [os.path.join(ROOT, "bulbjax")]

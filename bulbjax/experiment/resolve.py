@@ -1,0 +1,170 @@
+"""One place where a run's settings are resolved: a preset (or a saved config, or the defaults),
+the overrides a user gave, the domain's PPO settings, `--small`, and learner options, in one
+fixed order and checked, for every entry point (`bulbjax run`, `run --resume`, `bulbjax fit`, the
+benchmarks). A command line only maps its flags to these functions' arguments; text values
+(`learners="vae,dsa"`, `version="random"`, `KEY=VALUE` options) are parsed and checked here.
+
+The order (`resolve`):
+  1. the base: a saved config (`base`), else the preset named, else `ExperimentConfig()`;
+  2. `overrides`: ExperimentConfig fields (env, seeds, epochs, learners, version, ...);
+  3. the domain's PPO settings (`envs.registry.ppo_config_for`: locomotion's longer rollouts);
+  4. `small`: CPU sizes (`small_config`); the overrides given win over its sizes;
+  5. `learner`, then `learner_options`: LearnerConfig fields (lr, compute_dtype, ...).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any, Mapping, Sequence
+
+from bulbjax.data import synthetic
+from bulbjax.envs import registry
+from bulbjax.experiment.config import (ExperimentConfig, OfflineConfig, RunOptions, preset as named_preset,
+                                       read_run_config, run_options_of, small_config)
+from bulbjax.learners import LearnerConfig, parse_learner_options
+
+# `bulbjax fit --small`: a CPU-sized dataset (worlds, steps per world, held-out steps per world).
+SMALL_DATASET: dict[str, int] = {"data_worlds": 32, "data_steps": 128, "heldout_steps": 32}
+
+
+def parse_learners(text: str | Sequence[str]) -> tuple[str, ...]:
+    """`"vae, vae_rpl"` (a command line's comma-separated list) or a sequence -> learner names."""
+    if isinstance(text, str):
+        return tuple(x.strip() for x in text.split(",") if x.strip())
+    return tuple(text)
+
+
+def parse_version(text: int | str) -> int | str:
+    """An object version: "random" or a non-negative int (also as text)."""
+    if text == "random":
+        return text
+    try:
+        v = int(text)
+    except (TypeError, ValueError):
+        v = -1
+    if v < 0:
+        raise ValueError(f"--version must be a non-negative int or 'random', got {text!r}")
+    return v
+
+
+def parse_compiler_options(items: Sequence[str]) -> dict[str, Any]:
+    """`["KEY=VALUE", ...]` -> XLA compile options for `jax.jit(..., compiler_options=...)`: values
+    that read as ints, floats or true/false become those, the rest stay strings (e.g.
+    `xla_gpu_enable_command_buffer=FUSION,CUBLAS,WHILE`). XLA rejects unknown keys at compile."""
+    out: dict[str, Any] = {}
+    for item in items:
+        key, sep, text = item.partition("=")
+        if not sep or not key.strip():
+            raise ValueError(f"compiler option {item!r} must read KEY=VALUE, e.g. "
+                             "xla_gpu_enable_command_buffer=FUSION,CUBLAS,WHILE")
+        value: Any = text.strip()
+        if value.lower() in ("true", "false"):
+            value = value.lower() == "true"
+        else:
+            for cast in (int, float):
+                try:
+                    value = cast(value)
+                    break
+                except ValueError:
+                    pass
+        out[key.strip()] = value
+    return out
+
+
+_NESTED = {"ppo", "learner", "probe"}  # set through their own arguments (`learner=`) or the preset
+
+
+def _overrides(overrides: Mapping[str, Any]) -> dict[str, Any]:
+    """The overrides as ExperimentConfig field values (text parsed); unknown fields are an error."""
+    fields = {f.name for f in dataclasses.fields(ExperimentConfig)} - _NESTED
+    unknown = sorted(set(overrides) - fields)
+    if unknown:
+        raise ValueError(f"ExperimentConfig has no settable fields {unknown}; these can be overridden: "
+                         f"{', '.join(sorted(fields))} (learner settings: learner=... or KEY=VALUE options)")
+    out = dict(overrides)
+    if "learners" in out:
+        out["learners"] = parse_learners(out["learners"])
+    if "version" in out:
+        out["version"] = parse_version(out["version"])
+    return out
+
+
+def _learner(base: LearnerConfig, learner: Mapping[str, Any], options: Sequence[str]) -> LearnerConfig:
+    fields = {f.name for f in dataclasses.fields(LearnerConfig)}
+    unknown = sorted(set(learner) - fields)
+    if unknown:
+        raise ValueError(f"LearnerConfig has no fields {unknown}; its fields: {', '.join(sorted(fields))}")
+    out = dataclasses.replace(base, **learner) if learner else base
+    if options:
+        out = dataclasses.replace(out, **parse_learner_options(options))
+    return out
+
+
+def resolve(preset: str | None = None, *, base: ExperimentConfig | None = None,
+            overrides: Mapping[str, Any] | None = None, learner: Mapping[str, Any] | None = None,
+            learner_options: Sequence[str] = (), small: bool = False,
+            domain_ppo: bool = True) -> ExperimentConfig:
+    """A run's ExperimentConfig, in the order of the module doc: `base` or the preset named
+    (unknown names list the presets) or the defaults; `overrides` (ExperimentConfig fields; text
+    accepted for `learners` and `version`); the domain's PPO settings unless `domain_ppo` is
+    False (an unknown env is an error naming the registered ones); `small`'s CPU sizes, under
+    the overrides; `learner` (LearnerConfig fields), then `learner_options` (`KEY=VALUE` text).
+    Every step's config checks itself: a bad value is a ValueError that names it."""
+    if base is not None and preset:
+        raise ValueError(f"give a preset ({preset!r}) or a base config, not both")
+    cfg = base if base is not None else named_preset(preset) if preset else ExperimentConfig()
+    given = _overrides(overrides or {})
+    if given:
+        cfg = cfg.replace(**given)
+    if domain_ppo:
+        cfg = cfg.replace(ppo=registry.ppo_config_for(cfg.env, cfg.ppo))
+    if small:
+        cfg = small_config(cfg)
+        if given:  # what the user set wins over --small's sizes (e.g. --ppo-updates, --sequence-length)
+            cfg = cfg.replace(**given)
+    lc = _learner(cfg.learner, learner or {}, learner_options)
+    return cfg if lc == cfg.learner else cfg.replace(learner=lc)
+
+
+def resolve_resume(run_dir: str, preset: str | None = None, *, overrides: Mapping[str, Any] | None = None,
+                   learner: Mapping[str, Any] | None = None, learner_options: Sequence[str] = (),
+                   small: bool = False, seed: int | None = None, probe_every: int | None = None,
+                   **stretch: Any) -> tuple[ExperimentConfig, RunOptions]:
+    """Config and options of a resumed run (`bulbjax run --resume RUN_DIR`): the run's own
+    config.json with what was given on top, as a fresh run would apply it to the saved
+    settings (a `preset` builds the config anew; the domain's PPO settings only with a new
+    `env`); its epochs unless `epochs` is overridden; its seed and probe_every unless given.
+    `stretch`: the RunOptions that may change between stretches (checkpoint_every, keep, ...).
+    `run.check_resume` then refuses whatever changes what the run computes."""
+    saved, raw = read_run_config(run_dir)
+    overrides = dict(overrides or {})
+    kw = dict(overrides=overrides, learner=learner, learner_options=learner_options, small=small)
+    cfg = resolve(preset, **kw) if preset else resolve(base=saved, domain_ppo="env" in overrides, **kw)
+    if "epochs" not in overrides:
+        cfg = cfg.replace(epochs=saved.epochs)
+    ident = run_options_of(raw)
+    opts = RunOptions(seed=ident["seed"] if seed is None else seed,
+                      probe_every=ident["probe_every"] if probe_every is None else probe_every, **stretch)
+    return cfg, opts
+
+
+def resolve_offline(preset: str | None = None, *, overrides: Mapping[str, Any] | None = None,
+                    learner: Mapping[str, Any] | None = None, learner_options: Sequence[str] = (),
+                    small: bool = False, dataset: Mapping[str, int] | None = None,
+                    **schedule: Any) -> OfflineConfig:
+    """An offline fit's config (`bulbjax fit`): the run settings as `resolve` gives them, from a
+    preset or an `env` among the overrides (a registered one, or SyntheticMovers: 32x32 frames
+    and windows of 8 unless given, one colour scheme, no PPO settings); the dataset's size
+    (`small`: `SMALL_DATASET`; `dataset`: data_worlds, data_steps, heldout_steps on top); the
+    schedule (`updates`, `probe_every`, `data_seed`, ...: OfflineConfig fields)."""
+    overrides = dict(overrides or {})
+    env = overrides.get("env")
+    if env is None and not preset:
+        raise ValueError("fit needs --env (an environment of `bulbjax envs`, or SyntheticMovers) or --preset")
+    synth = env == synthetic.NAME
+    if synth:  # SyntheticMovers' own defaults, under what was given
+        overrides = {"resolution": 32, "sequence_length": 8, **overrides, "multicolour": False}
+    base = resolve(preset, overrides=overrides, learner=learner, learner_options=learner_options,
+                   small=small, domain_ppo=not synth)
+    sizes = {**(SMALL_DATASET if small else {}), **(dataset or {})}
+    return OfflineConfig(base=base, **sizes, **schedule)

@@ -1,0 +1,110 @@
+"""The configuration layer (`bulbjax.experiment.resolve`): presets resolve with their domain's
+PPO settings, overrides and learner options apply in the documented order (the flags given win
+over `--small`), `fit` and `--resume` resolve through the same steps, and bad values are errors
+that name what was wrong and what is accepted. No environment is built here."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+
+import pytest
+
+from bulbjax.envs.registry import ppo_config_for
+from bulbjax.experiment.config import PRESETS, ExperimentConfig, preset, small_config
+from bulbjax.experiment.resolve import (SMALL_DATASET, parse_learners, parse_version, resolve, resolve_offline,
+                                        resolve_resume)
+
+
+def test_presets_resolve_with_their_domain_ppo():
+    for name, cfg in PRESETS.items():
+        out = resolve(name)
+        assert out.replace(ppo=cfg.ppo) == cfg  # the preset itself, PPO aside
+        assert out.ppo == ppo_config_for(cfg.env, cfg.ppo)
+    cheetah = resolve("fig2-halfcheetah")
+    assert (cheetah.ppo.num_steps, cheetah.ppo.lr) == (128, 3e-4) and cheetah.ppo.num_envs == cheetah.num_envs
+    assert resolve("fig2-cartpole").ppo == PRESETS["fig2-cartpole"].ppo  # the pendulums keep PPO's defaults
+    assert resolve("fig2-halfcheetah", domain_ppo=False).ppo == PRESETS["fig2-halfcheetah"].ppo
+    assert resolve() == ExperimentConfig().replace(ppo=ppo_config_for("CartPole"))
+
+
+def test_overrides_and_learner_options_apply():
+    cfg = resolve("fig2-invpend", overrides={"seeds": 2, "epochs": 7, "learners": "vae, dsa", "version": "0",
+                                             "learner_seed_loop": "map"},
+                  learner={"lr": 3e-4, "compute_dtype": "bfloat16"}, learner_options=["lr=1e-3", "channel_pad=8"])
+    assert (cfg.seeds, cfg.epochs, cfg.learners, cfg.version, cfg.learner_seed_loop) == (2, 7, ("vae", "dsa"), 0, "map")
+    # options after the typed learner fields: lr from the option, dtype from `learner`
+    assert (cfg.learner.lr, cfg.learner.compute_dtype, cfg.learner.channel_pad) == (1e-3, "bfloat16", 8)
+    assert cfg.learner.sequence_length == cfg.seq_len == 24  # the config keeps the two in step
+    assert resolve(overrides={"env": "Ant"}).ppo == ppo_config_for("Ant")  # the overridden env's PPO
+    assert resolve(overrides={"version": "random", "env": "GeomOnIncline"}).version == "random"
+    assert parse_learners(" vae,, svae ") == ("vae", "svae") and parse_version(3) == 3
+
+
+def test_small_is_cpu_sized_and_the_flags_given_win():
+    base = resolve("fig2-halfcheetah")
+    small = resolve("fig2-halfcheetah", small=True)
+    assert small == small_config(base)
+    assert (small.num_envs, small.ppo.num_envs, small.ppo.num_steps, small.seq_len) == (16, 16, 64, 8)
+    assert small.ppo.lr == 3e-4  # the domain's PPO settings survive --small
+    given = resolve("fig2-cartpole", small=True, overrides={"ppo_updates_per_epoch": 2, "sequence_length": 12,
+                                                            "seeds": 1})
+    assert (given.ppo_updates_per_epoch, given.seq_len, given.seeds, given.num_envs) == (2, 12, 1, 16)
+
+
+@pytest.mark.parametrize("kw, match", [
+    (dict(preset="fig3"), "available: fig2-cartpole"),
+    (dict(overrides={"seed": 1}), "no settable fields \\['seed'\\].*seeds"),
+    (dict(overrides={"ppo": None}), "no settable fields \\['ppo'\\]"),
+    (dict(overrides={"env": "Pendulum"}), "unknown environment 'Pendulum'; available: .*CartPole"),
+    (dict(overrides={"version": "-1"}), "--version must be a non-negative int or 'random'"),
+    (dict(overrides={"learners": "vae,vea"}), "unknown learners \\['vea'\\]"),
+    (dict(overrides={"seeds": 0}), "seeds must be >= 1"),
+    (dict(overrides={"learner_seed_loop": "pmap"}), "learner_seed_loop must be one of"),
+    (dict(learner={"learning_rate": 1e-3}), "LearnerConfig has no fields \\['learning_rate'\\]; its fields: .*lr"),
+    (dict(learner_options=["channelpad=1"]), "KEY one of"),
+    (dict(learner_options=["batch_size=big"]), "'big' is not a int"),
+    (dict(preset="fig2-ant", base=ExperimentConfig()), "a preset .* or a base config, not both"),
+])
+def test_bad_settings_are_clear_errors(kw, match):
+    with pytest.raises(ValueError, match=match):
+        resolve(**kw)
+
+
+def test_offline_fit_resolves_through_the_same_steps():
+    synth = resolve_offline(overrides={"env": "SyntheticMovers", "learners": "vae,svae"}, small=True,
+                            dataset={"data_steps": 64}, updates=10, probe_every=5)
+    b = synth.base
+    assert (b.env, b.resolution, b.seq_len, b.multicolour, b.learners) == ("SyntheticMovers", 32, 8, False,
+                                                                           ("vae", "svae"))
+    assert b.ppo == dataclasses.replace(small_config(ExperimentConfig()).ppo, num_envs=b.num_envs)  # no domain PPO
+    assert (synth.data_worlds, synth.data_steps, synth.heldout_steps) == (SMALL_DATASET["data_worlds"], 64,
+                                                                         SMALL_DATASET["heldout_steps"])
+    assert (synth.updates, synth.probe_every) == (10, 5)
+    sized = resolve_offline(overrides={"env": "SyntheticMovers", "resolution": 48, "sequence_length": 6})
+    assert (sized.base.resolution, sized.base.seq_len, sized.data_worlds) == (48, 6, 256)
+    pend = resolve_offline("fig2-invpend", overrides={"resolution": 32}, small=True)
+    assert pend.base == resolve("fig2-invpend", overrides={"resolution": 32}, small=True)
+    with pytest.raises(ValueError, match="fit needs --env"):
+        resolve_offline()
+    with pytest.raises(ValueError, match="data_steps=4 is shorter than a training window"):
+        resolve_offline(overrides={"env": "SyntheticMovers", "learners": "svae"}, dataset={"data_steps": 4})
+
+
+def test_resume_starts_from_the_runs_own_config(tmp_path):
+    saved = resolve("fig2-halfcheetah", small=True, overrides={"seeds": 2, "epochs": 5})
+    with open(tmp_path / "config.json", "w") as f:
+        json.dump({"experiment": dataclasses.asdict(saved), "run": {"seed": 7, "probe_every": 3}}, f)
+    cfg, opts = resolve_resume(str(tmp_path), keep=4)
+    assert cfg == saved and (opts.seed, opts.probe_every, opts.keep) == (7, 3, 4)
+    longer, opts = resolve_resume(str(tmp_path), overrides={"epochs": 9}, seed=1)
+    assert longer == saved.replace(epochs=9) and opts.seed == 1
+    # the flags given apply to the saved settings; the domain's PPO only with a new env
+    lr, _ = resolve_resume(str(tmp_path), learner={"lr": 0.5})
+    assert lr.learner.lr == 0.5 and lr.ppo == saved.ppo
+    ant, _ = resolve_resume(str(tmp_path), overrides={"env": "Ant"})
+    assert ant.ppo == ppo_config_for("Ant", saved.ppo)
+    anew, _ = resolve_resume(str(tmp_path), "fig2-invpend")
+    assert anew == resolve("fig2-invpend").replace(epochs=saved.epochs)
+    with pytest.raises(ValueError, match="config.json does not exist"):
+        resolve_resume(str(tmp_path / "nowhere"))
