@@ -73,12 +73,21 @@ def holds(run_dir: str, files: Sequence[str] = RUN_FILES) -> list[str]:
 
 
 def _read_records(path: str) -> list[dict[str, Any]]:
-    from bulbjax.experiment import report
-
+    """The whole JSON records of a metrics file (a half-written or unreadable line skipped): what
+    a run folder holds, read here rather than through `records` (which writes through this module)."""
     try:
-        return report.read_jsonl(path, tolerate_partial=True)
-    except (OSError, ValueError):
+        with open(path) as f:
+            lines = f.read().split("\n")
+    except OSError:
         return []
+    out = []
+    for line in lines:
+        if line.strip():
+            try:
+                out.append(json.loads(line))
+            except json.JSONDecodeError:
+                continue
+    return out
 
 
 def describe(run_dir: str, fit: bool = False) -> str:
