@@ -184,6 +184,20 @@ def test_vector_pixels_last_frame():
     assert ended and checked_live
 
 
+def test_gymnasium_make_after_import():
+    """`import bulbjax.gym` (done above) registered the ids: gymnasium.make builds the env with its
+    spec, and check_env passes without gymnasium's warning about a missing spec."""
+    import warnings
+
+    env = gymnasium.make("bulbjax/CartPole-v0", obs="pixels", resolution=32)
+    assert env.spec is not None and env.spec.id == "bulbjax/CartPole-v0"
+    assert env.unwrapped.observation_space.shape == (32, 32, 3)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        check_env(env.unwrapped, skip_close_check=True)
+    assert not [w for w in caught if "spec" in str(w.message).lower()], [str(w.message) for w in caught]
+
+
 def test_single_env_check_env():
     env = make_env("CartPoleContinuous", obs="pixels", resolution=32, render_mode="rgb_array")
     assert isinstance(env, GymEnv)
