@@ -53,16 +53,47 @@ def _stretch_options(args: argparse.Namespace) -> dict:
                 stop_after=args.stop_after, tensorboard=args.tensorboard, recon_every=args.recon_every)
 
 
+def _per_gpu(args: argparse.Namespace) -> int | None:
+    """On a host with several GPUs (`--layout auto` or `processes`): run one process per GPU
+    (`bulbjax.local_processes`: in one process the GPUs would take turns in MJX-Warp's Python
+    callbacks) and return its exit code; None where one process is the layout."""
+    from bulbjax import local_processes
+
+    gpus = local_processes.visible_gpus()[: args.devices or None]
+    if len(gpus) < 2:
+        if args.layout == "processes":
+            raise ValueError(f"--layout processes runs one process per GPU and this host has {len(gpus)} "
+                             "(CUDA_VISIBLE_DEVICES / nvidia-smi): leave --layout at auto")
+        return None
+    from bulbjax.experiment.resolve import resolve, resolve_resume
+
+    settings = _settings(args)
+    if args.resume:  # the seed count of the run being resumed
+        seeds = resolve_resume(args.resume, args.preset, seed=args.seed, probe_every=args.probe_every,
+                               **settings, **_stretch_options(args))[0].seeds
+    else:
+        seeds = resolve(args.preset, **settings).seeds
+    n = local_processes.process_count(seeds, len(gpus))
+    if n < 2:
+        return None
+    return local_processes.run_per_gpu(args.argv, gpus[:n], args.resume or args.out or "runs/latest")
+
+
 def cmd_run(args: argparse.Namespace) -> int:
     """Map the flags to (config, options, folder) (`bulbjax.experiment.resolve`; a resumed run
     starts from its own config.json, and `run.check_resume` refuses any flag that changes what it
     computes: only --epochs may grow it) and hand over to `bulbjax.experiment.run.run`."""
     from bulbjax import distributed
 
-    # before anything else touches JAX's devices: a multi-process run joins its peers first
-    distributed.initialize(distributed.DistributedConfig.from_env(
+    dist = distributed.DistributedConfig.from_env(
         coordinator=args.coordinator, num_processes=args.num_processes, process_id=args.process_id,
-        local_device_ids=_parse_ids(args.local_devices), auto=args.distributed))
+        local_device_ids=_parse_ids(args.local_devices), auto=args.distributed)
+    if not dist.wanted and args.layout in ("auto", "processes"):
+        spread = _per_gpu(args)
+        if spread is not None:
+            return spread
+    # before anything else touches JAX's devices: a multi-process run joins its peers first
+    distributed.initialize(dist)
     import jax
 
     from bulbjax.experiment.config import RunOptions
@@ -96,7 +127,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     argv = ["bulbjax", *getattr(args, "argv", [])]
     with log_to_file(os.path.join(out, log_name(jax.process_index())), fresh=args.overwrite, header=" ".join(argv)):
         run(cfg, opts, out, resume=bool(args.resume), overwrite=args.overwrite, devices=devices, argv=argv,
-            compiler_options=compiler_options, layout=args.layout)
+            compiler_options=compiler_options, layout="groups" if args.layout == "processes" else args.layout)
     return 0
 
 
@@ -289,11 +320,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     r.add_argument("--devices", type=int, default=None,
                    help="use the first D local devices of each process (default all): the seeds are split "
                         "into one group per device (see --layout)")
-    r.add_argument("--layout", default="auto", choices=("auto", "groups", "sharded", "single"),
-                   help="how the seeds lie over several devices: groups (one program per device, each on "
-                        "its share of the seeds; auto's choice), sharded (one program over a mesh: CPU host "
-                        "devices only, refused on GPUs, where it does not compile with MJX-Warp) or single "
-                        "(the first device)")
+    r.add_argument("--layout", default="auto", choices=("auto", "processes", "groups", "sharded", "single"),
+                   help="how the seeds lie over several devices: processes (one process per GPU of this host, "
+                        "joined by jax.distributed on localhost; auto's choice with several GPUs), groups (one "
+                        "program per device in this process, each on its share of the seeds; auto's choice "
+                        "elsewhere), sharded (one program over a mesh: CPU host devices only, refused on GPUs, "
+                        "where it does not compile with MJX-Warp) or single (the first device)")
     r.add_argument("--coordinator", default=None, metavar="HOST:PORT",
                    help="multi-process run (jax.distributed): process 0's address, the same on every process "
                         "(or JAX_COORDINATOR_ADDRESS); with --num-processes and --process-id")
