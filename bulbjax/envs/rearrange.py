@@ -87,6 +87,7 @@ from bulbjax.envs.reacher_rearrange import (REACHER_CAMERA, ReacherRearrange, Re
                                             ReacherRearrangeOneGeom, ReacherRearrangeOneYcb, ReacherRearrangeYcb)
 from bulbjax.envs.rearrange_base import Rearrange
 from bulbjax.envs.rearrange_scene import (  # noqa: F401  (the domain's constants, one import away)
+    SHAPE_BOX, SHAPE_CYLINDER, SHAPE_MESH, SHAPE_SPHERE,
     NUM_VERSIONS,
     NUM_LISTS,
     EPISODE_STEPS,

@@ -22,6 +22,7 @@ from bulbjax.eval.spec import StateEntry
 os.environ.setdefault("MUJOCO_GL", "disable")  # dm_control needs no GL context to build models
 from dm_control import mjcf  # noqa: E402
 from bulbjax.envs.rearrange_scene import (  # noqa: F401
+    SHAPE_MESH,
     BULLET_DT,
     BULLET_SUBSTEPS,
     CYLINDER_DEFAULT_DIMS,
