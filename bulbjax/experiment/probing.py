@@ -20,7 +20,7 @@ import numpy as np
 from bulbjax.data import replay, sequence
 from bulbjax.data.sequence import Windows
 from bulbjax.envs import rearrange
-from bulbjax.eval import objects, probe
+from bulbjax.eval import linear, objects, probe
 from bulbjax.experiment.seeds import Team, over_seeds, stack_members, switch_buffer, unstack_members
 from bulbjax.learners import is_sequential
 
@@ -65,10 +65,15 @@ def fit_and_score(latents: dict[str, Any], held: dict[str, Windows], key: jax.Ar
     on `probe_latents`' training pairs and score it on every held-out stream's valid steps.
     `score_objects` (frame learners) maps a stream's per-step latents `[B, L, Z]` and its windows
     to the object-level probe (`Probing.object_scorer`), kept as `"objects"`.
-    Returns `{stream: {"mae", "baseline", "spread"(, "objects")}}`, each `[D]` in the states'
-    units."""
+    Beside the MLP, the linear (ridge) probe (`bulbjax.eval.linear`) on the same training pairs
+    and the MLP's own validation split (`probe.validation_rows`, recomputed from the same key:
+    no key drawn beyond the MLP's), scored on the same steps: `"linear_mae"` `[D]` and the
+    regulariser it chose per entry, `"linear_log10_lambda"` `[D]`.
+    Returns `{stream: {"mae", "baseline", "spread", "linear_mae", "linear_log10_lambda"
+    (, "objects")}}`, errors `[D]` in the states' units."""
     tz, ts = latents["tz"], latents["ts"]
     p = probe.fit(key, tz, ts, config, groups=latents["groups"])
+    lin = linear.fit(tz, ts, probe.validation_rows(key, tz.shape[0], config, latents["groups"]))
     res = {}
     for stream, w in held.items():
         zw = latents["held"][stream]
@@ -76,7 +81,9 @@ def fit_and_score(latents: dict[str, Any], held: dict[str, Windows], key: jax.Ar
         s, v = w.states.reshape((-1, ts.shape[-1])), w.valid.reshape(-1)
         res[stream] = {"mae": probe.mae(probe.predict(p, z), s, v),
                        "baseline": probe.constant_baseline(ts, s, v),
-                       "spread": probe.spread(s, v)}
+                       "spread": probe.spread(s, v),
+                       "linear_mae": probe.mae(linear.predict(lin, z), s, v),
+                       "linear_log10_lambda": lin.log10_lambda}
         if score_objects is not None:
             res[stream]["objects"] = score_objects(zw, w)
     return res
