@@ -20,6 +20,7 @@ from bulbjax.experiment.records import STREAMS, ci90, groups_of, per_seed_error,
 PENDULUMS = ("CartPole", "InvertedPendulum")
 LOCOMOTION = ("HalfCheetah", "Ant")
 SEQUENTIAL = ("svae", "pred", "dsa")
+CONTRASTIVE = ("stdim", "curl")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -111,6 +112,16 @@ def check(records: Sequence[dict[str, Any]], spec: Sequence[StateEntry], env: st
         out.append(Verdict(claim, m, ""))
     else:
         out.append(Verdict(claim, *_lower(records, "pred", "vae_rpl", "curr", None, epochs)))
+    for name in CONTRASTIVE:  # beyond the paper: rows only where the run has the learner
+        if name not in have:
+            continue
+        for group in [g for g in ("position", vel) if g and g in groups_of(spec)]:
+            claim = f"contrastive vs VAE_rpl on {group}: {name} below vae_rpl (beyond the paper)"
+            if m := missing("vae_rpl"):
+                out.append(Verdict(claim, m, ""))
+                continue
+            parts = [_lower(records, name, "vae_rpl", s, group, epochs) for s in ("rand", "curr")]
+            out.append(Verdict(claim, _combine([v for v, _ in parts]), "; ".join(d for _, d in parts)))
     out += _probe_agreement(records, epochs)
     return out, epochs
 

@@ -29,7 +29,8 @@ def probe_latents(learner: Any, params: Any, train: Any, held: dict[str, Windows
                   config: probe.ProbeConfig, train_frames: int, corrupt: Any = None) -> dict[str, Any]:
     """The learner's half of a probe (one seed; the convolutions): the training pairs' latents
     `tz [T, Z']`, their states `ts [T, D]` and `groups` (each pair's world, or None), and each
-    held-out stream's per-step latents `held [B, L, Z']`. `train` is `(frames, states)` or
+    held-out stream's per-step latents `held [B, L, Z']`. A sequential learner's own
+    `probe_context` (steps of context) replaces `config.sequence_context` when it has one. `train` is `(frames, states)` or
     `(frames, states, groups)` for a frame learner and `Windows` for a sequential one, whose
     per-step latents (with `config.sequence_context` steps of context, see
     `probe.context_latents`) are paired with the states of the same step and `train_frames`
@@ -39,7 +40,9 @@ def probe_latents(learner: Any, params: Any, train: Any, held: dict[str, Windows
     corrupt = corrupt or (lambda z, k: z)
     if is_sequential(learner):
         l = learner.sequence_length
-        ctx = lambda z: probe.context_latents(z, config.sequence_context)  # noqa: E731
+        # a learner whose per-step latent holds one frame (stdim) may ask for fewer steps
+        context = getattr(learner, "probe_context", None) or config.sequence_context
+        ctx = lambda z: probe.context_latents(z, context)  # noqa: E731
         z = ctx(corrupt(learner.encode(params, train), key))
         z, s = z.reshape((-1, z.shape[-1])), train.states[:, :l].reshape((-1, train.states.shape[-1]))
         v = train.valid[:, :l].reshape(-1).astype(jnp.float32)

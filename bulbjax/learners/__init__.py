@@ -146,3 +146,6 @@ __all__ = [
     "make_learner",
     "resolve_config",
 ]
+
+# Learners registered by their own modules (registry.py): one line each.
+from bulbjax.learners import contrastive  # noqa: E402,F401  (stdim, curl)
