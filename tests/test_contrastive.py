@@ -105,3 +105,37 @@ def test_loss_falls_and_the_probe_reads_position(name: str, data) -> None:
                             probe.ProbeConfig(), 16)
         assert lat["tz"].shape == (16, 4) and lat["held"]["rand"].shape == (4, learner.sequence_length, 4)
         assert isinstance(w, Windows)
+
+
+def test_one_epoch_of_the_experiment_with_ppo_on_stdim() -> None:
+    """Both learners in one epoch of the experiment (stdim from the window buffer, curl from
+    replay), PPO observing stdim's latent: losses, MLP and linear probes of both."""
+    from bulbjax.eval.probe import ProbeConfig
+    from bulbjax.experiment import Experiment, ExperimentConfig
+    from bulbjax.learners import LearnerConfig
+    from bulbjax.rl.ppo import PPOConfig
+
+    cfg = ExperimentConfig(
+        env="CartPole", learners=("stdim", "curl"), seeds=2, epochs=1, num_envs=4, resolution=32,
+        sequence_length=4, rl_input="latent:stdim",
+        ppo=PPOConfig(num_envs=4, num_steps=8, num_minibatches=2, update_epochs=1),
+        ppo_updates_per_epoch=1, frames_per_epoch=8, replay_capacity=32,
+        learner=LearnerConfig(batch_size=16, conv_features=(8, 8, 8, 8), hidden=16, lr=1e-3),
+        learner_batches=2, eval_frames=8, probe_train_frames=16,
+        probe=ProbeConfig(hidden=(8,), steps=10, batch_size=16), reference_steps=16)
+    exp = Experiment(cfg)
+    rs, m = exp.epoch(exp.init(jax.random.PRNGKey(0)), jax.random.PRNGKey(1))
+    m = jax.device_get(m)
+    d = exp.env.state_dim
+    assert exp.learners["stdim"].batch_size == 4 and exp.learners["curl"].batch_size == 8
+    for name in ("stdim", "curl"):
+        lm = m["learners"][name]
+        assert lm["loss"].shape == (2,) and np.all(np.isfinite(lm["loss"])) and np.all(lm["loss"] > 0)
+        for stream in ("curr", "rand"):
+            p = m["probes"][name][stream]
+            assert p["mae"].shape == p["linear_mae"].shape == (2, d)
+            assert np.all(np.isfinite(p["mae"])) and np.all(np.isfinite(p["linear_mae"]))
+    assert np.all(np.asarray(m["learners"]["stdim"]["pairs"]) > 0)
+    # PPO observes stdim's one-frame latent: 2 x the state's dimension, not two steps of it
+    assert exp.ppo.obs_size == exp.learners["stdim"].latent_dim == 2 * d
+    assert all(np.all(np.isfinite(v)) for v in m["ppo"].values())
