@@ -72,9 +72,10 @@ def round_floats(v: Any, digits: int = 5, report_digits: int | None = None,
 def is_report_value(path: tuple[str, ...]) -> bool:
     """Whether the number at `path` of a record is one that tables and findings average over
     seeds and epochs before printing 3 decimals: the PPO return, a probe's group and overall
-    errors (`probes/<learner>/<stream>/groups|overall/...`) and the object-probe summaries."""
+    errors (`probes/<learner>/<stream>/groups|overall/...`, the same under `linear_probes`) and
+    the object-probe summaries."""
     return (path[:1] == ("rl_return",) or path[:1] == ("objects",)
-            or (path[:1] == ("probes",) and len(path) > 3 and path[3] in ("groups", "overall")))
+            or (path[:1] in (("probes",), ("linear_probes",)) and len(path) > 3 and path[3] in ("groups", "overall")))
 
 
 def is_probed(record: dict[str, Any]) -> bool:

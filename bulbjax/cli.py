@@ -267,7 +267,8 @@ def main(argv: Sequence[str] | None = None) -> int:
                         "the flags below override it")
     r.add_argument("--env", default=None, help="environment (default CartPole)")
     r.add_argument("--learners", default=None,
-                   help="comma-separated: vae,vae_rpl,beta_vae,svae,pred,dsa (default the first three)")
+                   help="comma-separated: vae,vae_rpl,beta_vae,svae,pred,dsa,spair,spair6,stdim,curl or any "
+                        "registered learner (default the first three)")
     r.add_argument("--seeds", type=int, default=None, help="seeds run side by side (default 3)")
     r.add_argument("--epochs", type=int, default=None, help="epochs (default 50)")
     r.add_argument("--sequence-length", type=int, default=None,

@@ -73,3 +73,14 @@ def test_one_seed_decides_nothing() -> None:
     assert got["replay fixes VAE_v0 on π_rand"] == "undecided"
     assert got["svae below vae_rpl on velocity"] == "undecided"
     assert got["β-VAE no better than VAE_rpl"] == "undecided"
+
+
+def test_contrastive_rows_only_with_the_learner() -> None:
+    """Beyond the paper: stdim against vae_rpl on position and velocity, rows only where the run
+    has the contrastive learner."""
+    v, _ = findings.check(records({"vae_rpl": (0.6, 0.8), "stdim": (0.3, 0.8)}), SPEC, "InvertedPendulum")
+    got = {x.claim: x.verdict for x in v if x.claim.startswith("contrastive")}
+    assert got == {"contrastive vs VAE_rpl on position: stdim below vae_rpl (beyond the paper)": "holds",
+                   "contrastive vs VAE_rpl on velocity: stdim below vae_rpl (beyond the paper)": "undecided"}
+    v, _ = findings.check(records({"vae_rpl": (0.6, 0.8)}), SPEC, "InvertedPendulum")
+    assert not [x for x in v if x.claim.startswith("contrastive")]

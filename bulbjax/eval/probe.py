@@ -158,6 +158,14 @@ def _snapshot_predictions(model: nn.Module, mlps: Any, x: jax.Array, y_mean: jax
     return jax.vmap(lambda p: model.apply(p, x))(mlps) * y_std + y_mean
 
 
+def validation_rows(key: jax.Array, rows: int, config: ProbeConfig = ProbeConfig(),
+                    groups: jax.Array | None = None) -> jax.Array:
+    """`[rows]` bool: the rows `fit(key, ...)` holds out for validation (recomputed from the
+    same key, nothing drawn beyond it), so that the linear probe (`bulbjax.eval.linear`) is
+    chosen on exactly the MLP's validation split and fitted on its training rows."""
+    return _validation_mask(jax.random.split(key, 3)[0], rows, config.validation, groups)
+
+
 @functools.partial(jax.jit, static_argnames=("config",))
 def fit(
     key: jax.Array, latents: jax.Array, states: jax.Array, config: ProbeConfig = ProbeConfig(),

@@ -11,7 +11,7 @@ from typing import Any
 
 from bulbjax.data import synthetic
 from bulbjax.eval.probe import ProbeConfig
-from bulbjax.learners import LEARNER_NAMES, SEQUENCE_LEARNER_NAMES, LearnerConfig
+from bulbjax.learners import LearnerConfig, is_sequential_name, learner_names
 from bulbjax.rl.ppo import PPOConfig
 
 # How learner work may run over the seed axis (`ExperimentConfig.learner_seed_loop`).
@@ -107,14 +107,14 @@ class ExperimentConfig:
     def window_length(self) -> int:
         """Steps per stored window: the longest any chosen sequential learner needs (PRED needs
         seq_len + pred_horizon); 0 without sequential learners."""
-        if not any(n in SEQUENCE_LEARNER_NAMES for n in self.learners):
+        if not any(is_sequential_name(n) for n in self.learners):
             return 0
         return self.seq_len + (self.learner.pred_horizon if "pred" in self.learners else 0)
 
     def __post_init__(self) -> None:
-        unknown = [n for n in self.learners if n not in LEARNER_NAMES]
+        unknown = [n for n in self.learners if n not in learner_names()]
         if unknown or not self.learners:
-            raise ValueError(f"unknown learners {unknown}; accepted: {', '.join(LEARNER_NAMES)}")
+            raise ValueError(f"unknown learners {unknown}; accepted: {', '.join(learner_names())}")
         if self.rl_input not in ("state", "pixels"):
             name = self.rl_learner
             if name is None:

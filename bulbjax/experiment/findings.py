@@ -20,6 +20,7 @@ from bulbjax.experiment.records import STREAMS, ci90, groups_of, per_seed_error,
 PENDULUMS = ("CartPole", "InvertedPendulum")
 LOCOMOTION = ("HalfCheetah", "Ant")
 SEQUENTIAL = ("svae", "pred", "dsa")
+CONTRASTIVE = ("stdim", "curl")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -111,7 +112,43 @@ def check(records: Sequence[dict[str, Any]], spec: Sequence[StateEntry], env: st
         out.append(Verdict(claim, m, ""))
     else:
         out.append(Verdict(claim, *_lower(records, "pred", "vae_rpl", "curr", None, epochs)))
+    for name in CONTRASTIVE:  # beyond the paper: rows only where the run has the learner
+        if name not in have:
+            continue
+        for group in [g for g in ("position", vel) if g and g in groups_of(spec)]:
+            claim = f"contrastive vs VAE_rpl on {group}: {name} below vae_rpl (beyond the paper)"
+            if m := missing("vae_rpl"):
+                out.append(Verdict(claim, m, ""))
+                continue
+            parts = [_lower(records, name, "vae_rpl", s, group, epochs) for s in ("rand", "curr")]
+            out.append(Verdict(claim, _combine([v for v, _ in parts]), "; ".join(d for _, d in parts)))
+    out += _probe_agreement(records, epochs)
     return out, epochs
+
+
+def _probe_agreement(records: Sequence[dict[str, Any]], epochs: Sequence[int]) -> list[Verdict]:
+    """Per learner with a linear probe: the MLP probe's error not above the linear probe's on
+    the same pairs (overall, both streams), a check on the MLP's choices (an MLP that overfits
+    or picks the wrong snapshot lands above the linear probe). Does not hold when the linear
+    probe is lower on a stream (90% band of `mlp - linear` above 0); holds otherwise with 2 or
+    more seeds. The numbers show how far the two probes agree."""
+    linear = [r for r in probed(records) if r.get("linear_probes")]
+    if not linear:
+        return []
+    out = []
+    for name in linear[0]["linear_probes"]:
+        verdicts, parts = [], []
+        for stream in ("rand", "curr"):
+            mlp = per_seed_error(records, name, stream, None, epochs)
+            lin = per_seed_error(records, name, stream, None, epochs, probes="linear_probes")
+            diff = (mlp - lin)[np.isfinite(mlp - lin)]
+            mean, half = ci90(diff) if diff.size >= 2 else (float(np.mean(diff)) if diff.size else np.nan, np.inf)
+            verdicts.append("does not hold" if mean - half > 0 else "holds" if diff.size >= 2 else "undecided")
+            parts.append(f"overall, {stream_label(stream)}: MLP {np.nanmean(mlp):.3f}, linear {np.nanmean(lin):.3f}; "
+                         f"MLP - linear = {mean:+.3f} ± {half:.3f}")
+        out.append(Verdict(f"probes agree for {name}: MLP probe's error not above the linear probe's "
+                           "(beyond the paper)", _combine(verdicts), "; ".join(parts)))
+    return out
 
 
 def markdown(verdicts: Sequence[Verdict], epochs: Sequence[int], seeds: int) -> str:

@@ -37,7 +37,7 @@ from bulbjax.experiment.devices import Devices, make_mesh
 from bulbjax.experiment.learning import train_learner
 from bulbjax.experiment.policy import Policy
 from bulbjax.experiment.probing import fit_and_score, probe_latents, probe_over_seeds
-from bulbjax.experiment.records import read_jsonl, write_jsonl, write_jsonl_atomic
+from bulbjax.experiment.records import linear_summary, read_jsonl, write_jsonl, write_jsonl_atomic
 from bulbjax.experiment.seeds import SeedGroup, Team, learner_loop, over_seeds, resolve_seed_loop, with_seed_loop
 from bulbjax.learners import check_finite, is_sequential, make_learner
 
@@ -207,6 +207,9 @@ def records_of(update: int, probes: Any, losses: Any, ref_spread: np.ndarray,
             rec["probes"][name] = {st: probe.summarise(d["mae"][s], d["baseline"][s], ref_spread, spec,
                                                         spread_D=d["spread"][s])
                                    for st, d in streams.items()}
+            if any("linear_mae" in d for d in streams.values()):
+                rec.setdefault("linear_probes", {})[name] = {
+                    st: linear_summary(d, s, ref_spread, spec) for st, d in streams.items()}
         out.append(rec)
     return out
 

@@ -20,7 +20,7 @@ import numpy as np
 from bulbjax.data import replay, sequence
 from bulbjax.data.sequence import Windows
 from bulbjax.envs import rearrange
-from bulbjax.eval import objects, probe
+from bulbjax.eval import linear, objects, probe
 from bulbjax.experiment.seeds import Team, over_seeds, stack_members, switch_buffer, unstack_members
 from bulbjax.learners import is_sequential
 
@@ -29,7 +29,8 @@ def probe_latents(learner: Any, params: Any, train: Any, held: dict[str, Windows
                   config: probe.ProbeConfig, train_frames: int, corrupt: Any = None) -> dict[str, Any]:
     """The learner's half of a probe (one seed; the convolutions): the training pairs' latents
     `tz [T, Z']`, their states `ts [T, D]` and `groups` (each pair's world, or None), and each
-    held-out stream's per-step latents `held [B, L, Z']`. `train` is `(frames, states)` or
+    held-out stream's per-step latents `held [B, L, Z']`. A sequential learner's own
+    `probe_context` (steps of context) replaces `config.sequence_context` when it has one. `train` is `(frames, states)` or
     `(frames, states, groups)` for a frame learner and `Windows` for a sequential one, whose
     per-step latents (with `config.sequence_context` steps of context, see
     `probe.context_latents`) are paired with the states of the same step and `train_frames`
@@ -39,7 +40,9 @@ def probe_latents(learner: Any, params: Any, train: Any, held: dict[str, Windows
     corrupt = corrupt or (lambda z, k: z)
     if is_sequential(learner):
         l = learner.sequence_length
-        ctx = lambda z: probe.context_latents(z, config.sequence_context)  # noqa: E731
+        # a learner whose per-step latent holds one frame (stdim) may ask for fewer steps
+        context = getattr(learner, "probe_context", None) or config.sequence_context
+        ctx = lambda z: probe.context_latents(z, context)  # noqa: E731
         z = ctx(corrupt(learner.encode(params, train), key))
         z, s = z.reshape((-1, z.shape[-1])), train.states[:, :l].reshape((-1, train.states.shape[-1]))
         v = train.valid[:, :l].reshape(-1).astype(jnp.float32)
@@ -65,10 +68,15 @@ def fit_and_score(latents: dict[str, Any], held: dict[str, Windows], key: jax.Ar
     on `probe_latents`' training pairs and score it on every held-out stream's valid steps.
     `score_objects` (frame learners) maps a stream's per-step latents `[B, L, Z]` and its windows
     to the object-level probe (`Probing.object_scorer`), kept as `"objects"`.
-    Returns `{stream: {"mae", "baseline", "spread"(, "objects")}}`, each `[D]` in the states'
-    units."""
+    Beside the MLP, the linear (ridge) probe (`bulbjax.eval.linear`) on the same training pairs
+    and the MLP's own validation split (`probe.validation_rows`, recomputed from the same key:
+    no key drawn beyond the MLP's), scored on the same steps: `"linear_mae"` `[D]` and the
+    regulariser it chose per entry, `"linear_log10_lambda"` `[D]`.
+    Returns `{stream: {"mae", "baseline", "spread", "linear_mae", "linear_log10_lambda"
+    (, "objects")}}`, errors `[D]` in the states' units."""
     tz, ts = latents["tz"], latents["ts"]
     p = probe.fit(key, tz, ts, config, groups=latents["groups"])
+    lin = linear.fit(tz, ts, probe.validation_rows(key, tz.shape[0], config, latents["groups"]))
     res = {}
     for stream, w in held.items():
         zw = latents["held"][stream]
@@ -76,7 +84,9 @@ def fit_and_score(latents: dict[str, Any], held: dict[str, Windows], key: jax.Ar
         s, v = w.states.reshape((-1, ts.shape[-1])), w.valid.reshape(-1)
         res[stream] = {"mae": probe.mae(probe.predict(p, z), s, v),
                        "baseline": probe.constant_baseline(ts, s, v),
-                       "spread": probe.spread(s, v)}
+                       "spread": probe.spread(s, v),
+                       "linear_mae": probe.mae(linear.predict(lin, z), s, v),
+                       "linear_log10_lambda": lin.log10_lambda}
         if score_objects is not None:
             res[stream]["objects"] = score_objects(zw, w)
     return res

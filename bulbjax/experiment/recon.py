@@ -39,18 +39,27 @@ def figure_files(run_dir: str) -> list[str]:
 
 class RunFigures:
     """Draws a run's figures from its RunState for one seed's learners (`config.seed`), the
-    learners named in `learners` (default all; an unknown name is an error)."""
+    learners named in `learners` (default all that have `reconstruct`; an unknown name, or one
+    without `reconstruct`, is an error)."""
 
     def __init__(self, exp: Experiment, run_seed: int = 0, config: figures.FigureConfig = figures.FigureConfig(),
                  learners: Sequence[str] | None = None):
         self.exp, self.run_seed, self.config = exp, run_seed, config
-        names = list(exp.learners) if learners is None else list(learners)
+        # learners without `reconstruct` (contrastive ones) have no row unless named
+        names = ([n for n, l in exp.learners.items() if hasattr(l, "reconstruct")] if learners is None
+                 else list(learners))
+        if not names and learners is None:
+            raise ValueError(f"none of this run's learners ({', '.join(exp.learners)}) reconstructs frames: "
+                             "no reconstruction figure to draw")
         unknown = [n for n in names if n not in exp.learners]
         if unknown or not names:
             raise ValueError(f"learners {unknown or names} are not in this run; it has "
                              f"{', '.join(exp.learners)} (pick some of those with --learners)")
         if not 0 <= config.seed < exp.config.seeds:
             raise ValueError(f"figure seed {config.seed}: the run has seeds 0..{exp.config.seeds - 1}")
+        blind = [n for n in names if not hasattr(exp.learners[n], "reconstruct")]
+        if blind:
+            raise ValueError(f"learners {blind} do not reconstruct frames: no reconstruction figure for them")
         self.learners = {n: exp.learners[n] for n in names}
         self._held = jax.jit(self._held_out)
 

@@ -29,7 +29,9 @@ NORM_NOTE = ("normalised error = MAE / reference spread of each state entry (mea
 
 def epoch_records(epoch: int, metrics: Any, spec: Sequence[StateEntry]) -> list[dict[str, Any]]:
     """One JSON-able record per seed from the epoch's metrics (arrays with a leading seed axis).
-    Epochs without a probe (`--probe-every`) have an empty `probes`. Learners with an object-level
+    Epochs without a probe (`--probe-every`) have an empty `probes`. The linear (ridge) probe of
+    the same pairs is under `linear_probes[learner][stream]` (`linear_summary`: groups and
+    overall as in `probes`; absent in epochs without a probe). Learners with an object-level
     probe (SPAIR in multi-object domains) also get `objects[learner][stream]`
     (`bulbjax.eval.objects.summary_of`: per object and averaged); other records have no `objects`."""
     m = _to_numpy(metrics)
@@ -51,11 +53,26 @@ def epoch_records(epoch: int, metrics: Any, spec: Sequence[StateEntry]) -> list[
                 stream: summarise(d["mae"][s], d["baseline"][s], m["ref_spread"][s], spec,
                                   spread_D=d["spread"][s])
                 for stream, d in streams.items()}
+            if any("linear_mae" in d for d in streams.values()):
+                rec.setdefault("linear_probes", {})[name] = {
+                    stream: linear_summary(d, s, m["ref_spread"][s], spec) for stream, d in streams.items()}
             for stream, d in streams.items():
                 if "objects" in d:
                     one = {k: v[s] for k, v in d["objects"].items()}
                     rec.setdefault("objects", {}).setdefault(name, {})[stream] = objects.summary_of(one, names)
         out.append(rec)
+    return out
+
+
+def linear_summary(d: dict[str, Any], s: int, ref_spread_D: Any, spec: Sequence[StateEntry]) -> dict[str, Any]:
+    """The linear (ridge) probe's part of a record for seed `s` of one stream's probe output `d`
+    (`probing.fit_and_score`): `summarise` of its `linear_mae` against the same constant and
+    reference spread as the MLP's, each entry cut to `mae`, `mae_norm` and the regulariser it
+    chose, `log10_lambda` (the rest is the MLP record's, under `probes`)."""
+    out = summarise(d["linear_mae"][s], d["baseline"][s], ref_spread_D, spec, spread_D=d["spread"][s])
+    lam = np.asarray(d["linear_log10_lambda"][s], np.float64)
+    out["entries"] = {name: {"mae": e["mae"], "mae_norm": e["mae_norm"], "log10_lambda": float(lam[i])}
+                      for i, (name, e) in enumerate(out["entries"].items())}
     return out
 
 
@@ -155,11 +172,14 @@ def probed(records: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
 
 
 def curves(records: Sequence[dict[str, Any]], learner: str, stream: str, group: str | None,
-           key: str = "mae_norm", x_key: str = "epoch") -> tuple[np.ndarray, np.ndarray]:
+           key: str = "mae_norm", x_key: str = "epoch", probes: str = "probes") -> tuple[np.ndarray, np.ndarray]:
     """Probed epochs and `[seeds, epochs]` values of a group's error (or `baseline_norm`);
-    `group=None`: the overall error (as in `per_seed_error`)."""
+    `group=None`: the overall error (as in `per_seed_error`). `probes="linear_probes"`: the
+    linear probe's (NaN in records without one)."""
     def value(r: dict[str, Any]) -> Any:
-        x = r["probes"][learner][stream]
+        x = r.get(probes, {}).get(learner, {}).get(stream)
+        if x is None:
+            return None
         g = x["overall"] if group is None else x["groups"].get(group)
         return None if g is None else g[key]
     return _seed_epoch_matrix(probed(records), value, x_key)
@@ -185,24 +205,31 @@ def object_curves(records: Sequence[dict[str, Any]], learner: str, stream: str,
     return _seed_epoch_matrix([r for r in records if r.get("objects")], value)
 
 
+def has_linear(records: Sequence[dict[str, Any]]) -> bool:
+    """Whether the records carry the linear probe (`linear_probes`; runs made before it did not)."""
+    return any(r.get("linear_probes") for r in records)
+
+
 def has_objects(records: Sequence[dict[str, Any]]) -> bool:
     return any(r.get("objects") for r in records)
 
 
 def per_seed_error(records: Sequence[dict[str, Any]], learner: str, stream: str, group: str | None,
-                   at: Sequence[int], x_key: str = "epoch") -> np.ndarray:
+                   at: Sequence[int], x_key: str = "epoch", probes: str = "probes") -> np.ndarray:
     """`[seeds]` normalised error of `learner` on `stream` (`group`, or overall when None), each
     seed's mean over its probed records whose `x_key` is in `at` (NaN for a seed without any);
-    `learner="constant"` gives the constant predictor's (`baseline_norm`)."""
+    `learner="constant"` gives the constant predictor's (`baseline_norm`). `probes` names the
+    probe: `"probes"` (the MLP) or `"linear_probes"` (the ridge probe; records of runs made
+    before it existed have none: NaN)."""
     seeds = sorted({r["seed"] for r in records})
     out = np.full(len(seeds), np.nan)
     for i, s in enumerate(seeds):
         vals = []
         for r in records:
-            if r["seed"] != s or r[x_key] not in at or not r.get("probes"):
+            if r["seed"] != s or r[x_key] not in at or not r.get(probes):
                 continue
-            name = next(iter(r["probes"])) if learner == "constant" else learner
-            x = r["probes"][name][stream]
+            name = next(iter(r[probes])) if learner == "constant" else learner
+            x = r[probes][name][stream]
             x = x["overall"] if group is None else x["groups"][group]
             vals.append(x["baseline_norm" if learner == "constant" else "mae_norm"])
         if vals:

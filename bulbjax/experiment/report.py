@@ -15,9 +15,9 @@ from bulbjax.eval import objects
 from bulbjax.eval.spec import StateEntry
 from bulbjax.experiment import findings
 from bulbjax.experiment.config import read_run_config, run_options_of
-from bulbjax.experiment.records import (NORM_NOTE, STREAMS, ci90, curves, epochs_to_reach, groups_of, has_objects,
-                                        last_returns, metrics_path, object_curves, per_seed_error, probed, read_jsonl,
-                                        rl_curve, write_jsonl)
+from bulbjax.experiment.records import (NORM_NOTE, STREAMS, ci90, curves, epochs_to_reach, groups_of, has_linear,
+                                        has_objects, last_returns, metrics_path, nanmean, object_curves, per_seed_error,
+                                        probed, read_jsonl, rl_curve, write_jsonl)
 
 def plot(records: Sequence[dict[str, Any]], spec: Sequence[StateEntry], path: str, title: str,
          solved_return: float | None = None, x_key: str = "epoch",
@@ -25,13 +25,16 @@ def plot(records: Sequence[dict[str, Any]], spec: Sequence[StateEntry], path: st
     """Fig. 2 of the paper for one domain: normalised MAE against epoch for each learner (mean and
     90% band over seeds), rows pi_curr / pi_rand, one column per state group, RL return below
     (when the records have one). The dotted black line is the constant (median) predictor: an
-    error is read against it. Offline fits plot against `x_key="update"`, one stream."""
+    error is read against it. Solid lines and bands: the MLP probe; dashed lines (mean over
+    seeds): the linear (ridge) probe of the same pairs, when the records have one. Offline fits
+    plot against `x_key="update"`, one stream."""
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     groups = groups_of(spec)
     learners = list(probed(records)[0]["probes"])
+    linear = has_linear(records)
     has_rl = "rl_return" in records[0]
     rows = len(streams) + has_rl
     fig, axes = plt.subplots(rows, len(groups), figsize=(4.2 * len(groups), 2.9 * rows + 0.6),
@@ -45,6 +48,10 @@ def plot(records: Sequence[dict[str, Any]], spec: Sequence[StateEntry], path: st
                 mean, half = ci90(v)
                 ax.plot(ep, mean, color=colours[i % len(colours)], label=name, marker="." if len(ep) < 30 else None)
                 ax.fill_between(ep, mean - half, mean + half, color=colours[i % len(colours)], alpha=0.2)
+                if linear:
+                    ep, v = curves(records, name, stream, group, x_key=x_key, probes="linear_probes")
+                    ax.plot(ep, nanmean(v, 0), color=colours[i % len(colours)], ls="--", lw=1.0,
+                            label=f"{name} (linear)")
             ep, b = curves(records, learners[0], stream, group, key="baseline_norm", x_key=x_key)
             ax.plot(ep, np.nanmean(b, 0), "k:", label="constant predictor")
             ax.set_title(f"{label}: {group}")
@@ -56,7 +63,8 @@ def plot(records: Sequence[dict[str, Any]], spec: Sequence[StateEntry], path: st
         _plot_rl(axes[-1], records, solved_return)
     axes[0, 0].legend(fontsize=8)
     import textwrap
-    note = "\n".join(textwrap.wrap(NORM_NOTE, 55 * len(groups)))
+    probes_note = "solid: MLP probe (90% band); dashed: linear (ridge) probe. " if linear else ""
+    note = "\n".join(textwrap.wrap(probes_note + NORM_NOTE, 55 * len(groups)))
     fig.suptitle(f"{title}\n{note}", fontsize=8)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
@@ -138,7 +146,9 @@ def table(records: Sequence[dict[str, Any]], spec: Sequence[StateEntry], last: i
           x_key: str = "epoch", streams: Sequence[tuple[str, str]] = STREAMS) -> str:
     """Markdown table of the final normalised group errors (mean +- 90% CI over seeds, averaged
     over the `last` probed epochs) per learner and stream, with the constant predictor, the RL
-    return over the same epochs, and a line saying what the errors are divided by."""
+    return over the same epochs, and a line saying what the errors are divided by. Rows
+    `<learner>` are the MLP probe's; rows `<learner> (linear)` the linear (ridge) probe's on the
+    same pairs, when the records have one."""
     epochs = sorted({r[x_key] for r in probed(records)})[-last:]
     recs = [r for r in records if r[x_key] in epochs]
     groups = groups_of(spec)
@@ -147,8 +157,10 @@ def table(records: Sequence[dict[str, Any]], spec: Sequence[StateEntry], last: i
     lines = [head, "|" + "---|" * (3 + len(groups))]
     seeds = sorted({r["seed"] for r in recs})
 
-    def cell(name: str, stream: str, g: str) -> str:
-        v = per_seed_error(recs, name, stream, None if g == "overall" else g, epochs, x_key)
+    linear = has_linear(recs)
+
+    def cell(name: str, stream: str, g: str, probes: str = "probes") -> str:
+        v = per_seed_error(recs, name, stream, None if g == "overall" else g, epochs, x_key, probes)
         mean, half = ci90(v)
         return f"{mean:.3f} ± {half:.3f}"
 
@@ -156,6 +168,9 @@ def table(records: Sequence[dict[str, Any]], spec: Sequence[StateEntry], last: i
         for name in learners + ["constant"]:
             cells = [cell(name, stream, g) for g in groups + ["overall"]]
             lines.append(f"| {name} | {label} | " + " | ".join(cells) + " |")
+        for name in learners if linear else []:
+            cells = [cell(name, stream, g, "linear_probes") for g in groups + ["overall"]]
+            lines.append(f"| {name} (linear) | {label} | " + " | ".join(cells) + " |")
     lines.append("")
     lines.append(f"{x_key} {', '.join(str(e) for e in epochs)}; mean ± 90% CI over {len(seeds)} seeds.")
     if "rl_return" in recs[0]:
@@ -166,6 +181,10 @@ def table(records: Sequence[dict[str, Any]], spec: Sequence[StateEntry], last: i
                  "the last of them where none ended in them")
         lines.append(f"PPO return over {where}: {mean:.1f} ± {half:.1f} (90% CI over {len(seeds)} seeds)")
     lines.append("")
+    if linear:
+        lines.append("Rows `<learner>`: the MLP probe; `<learner> (linear)`: closed-form ridge regression on the "
+                     "same pairs and validation split, regulariser chosen per entry on it "
+                     "(`bulbjax.eval.linear`).")
     lines.append(f"Errors: {NORM_NOTE}; raw MAE in each entry's unit in metrics.jsonl.")
     return "\n".join(lines)
 

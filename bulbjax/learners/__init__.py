@@ -1,6 +1,8 @@
 """Learners and their registry.
 
-`make_learner(name, latent_dim, config, action_dim=1)` builds one of the frame learners
+`make_learner(name, latent_dim, config, action_dim=1)` builds a registered learner (registry.py:
+a new learner is one module that calls `register_learner`, plus one import line at the end of
+this file), among them the built-in frame learners
 - `vae`: VAE_v0, plain conv VAE (beta=1, no replay retention);
 - `vae_rpl`: the same model, asking replay to retain 50% of the initial frames;
 - `beta_vae`: beta-VAE with beta=5 (the paper's best) and the same 50% retention;
@@ -29,22 +31,39 @@ from bulbjax.learners.base import (
     parse_learner_options,
 )
 from bulbjax.learners.networks import ConvEncoder, DeconvDecoder, check_frame_shape
+from bulbjax.learners.registry import (is_sequential_name, learner_names, register_learner, registration,
+                                       unregister_learner)
 from bulbjax.learners.sequential import DSA, PRED, SEQUENTIAL_LEARNERS, SVAE, SequentialVAE
 from bulbjax.learners.spair import SPAIR
 from bulbjax.learners.vae import VAE
 
-# Per-name defaults, applied on top of LearnerConfig's defaults.
-_PRESETS: dict[str, dict[str, Any]] = {
-    "vae": {},
-    "vae_rpl": {"retain_fraction": 0.5},
-    "beta_vae": {"beta": 5.0, "retain_fraction": 0.5},
-    "svae": {"retain_fraction": 0.5},
-    "pred": {"retain_fraction": 0.5},
-    "dsa": {"retain_fraction": 0.5},
-    "spair": {"batch_size": 64, "retain_fraction": 0.5},
-    "spair6": {"batch_size": 64, "retain_fraction": 0.5, "spair_grid": 6},
-}
-LEARNER_NAMES: tuple[str, ...] = tuple(_PRESETS)
+
+# The built-in learners (registry.py: how a new one registers itself).
+def _vae(latent_dim: int, config: LearnerConfig, action_dim: int) -> VAE:
+    return VAE(latent_dim=latent_dim, config=config)
+
+
+def _spair(latent_dim: int, config: LearnerConfig, action_dim: int) -> SPAIR:
+    return SPAIR(config=config)  # its latent size follows from its config (G*G cells)
+
+
+def _sequential(cls: type[SequentialVAE]):
+    def make(latent_dim: int, config: LearnerConfig, action_dim: int) -> SequentialVAE:
+        return cls(latent_dim=latent_dim, config=config, action_dim=action_dim)
+    return make
+
+
+register_learner("vae", _vae)
+register_learner("vae_rpl", _vae, defaults={"retain_fraction": 0.5})
+register_learner("beta_vae", _vae, defaults={"beta": 5.0, "retain_fraction": 0.5})
+for _name, _cls in SEQUENTIAL_LEARNERS.items():
+    register_learner(_name, _sequential(_cls), defaults={"retain_fraction": 0.5}, sequential=True)
+register_learner("spair", _spair, defaults={"batch_size": 64, "retain_fraction": 0.5})
+register_learner("spair6", _spair, defaults={"batch_size": 64, "retain_fraction": 0.5, "spair_grid": 6})
+
+# The paper's learners (`learner_names()` also has those registered after them: the modules
+# imported at the end of this file, a test's own).
+LEARNER_NAMES: tuple[str, ...] = learner_names()
 SEQUENCE_LEARNER_NAMES: tuple[str, ...] = tuple(SEQUENTIAL_LEARNERS)
 FRAME_LEARNER_NAMES: tuple[str, ...] = tuple(n for n in LEARNER_NAMES if n not in SEQUENTIAL_LEARNERS)
 
@@ -60,8 +79,7 @@ def resolve_config(
     defaults (so `LearnerConfig(lr=1e-3)` keeps vae_rpl's retention; to force a field back
     to its global default, e.g. beta=1.0 for beta_vae, pass a Mapping).
     """
-    if name not in _PRESETS:
-        raise ValueError(f"unknown learner {name!r}; accepted names: {', '.join(LEARNER_NAMES)}")
+    reg = registration(name)
     if config is None:
         overrides: dict[str, Any] = {}
     elif isinstance(config, LearnerConfig):
@@ -79,7 +97,7 @@ def resolve_config(
         overrides = dict(config)
     else:
         raise TypeError(f"config must be a LearnerConfig, a Mapping or None, got {type(config)}")
-    return LearnerConfig(**{**_PRESETS[name], **overrides})
+    return LearnerConfig(**{**reg.defaults, **overrides})
 
 
 def make_learner(
@@ -87,16 +105,11 @@ def make_learner(
     latent_dim: int,
     config: LearnerConfig | Mapping[str, Any] | None = None,
     action_dim: int = 1,
-) -> VAE | SequentialVAE | SPAIR:
-    """Build the learner `name` (one of LEARNER_NAMES); see `resolve_config`. `action_dim` is the
-    width of the actions the sequential learners condition on (one-hot size for discrete
-    actions); the frame learners ignore it."""
-    cfg = resolve_config(name, config)
-    if name in SEQUENTIAL_LEARNERS:
-        return SEQUENTIAL_LEARNERS[name](latent_dim=latent_dim, config=cfg, action_dim=action_dim)
-    if name.startswith("spair"):
-        return SPAIR(config=cfg)
-    return VAE(latent_dim=latent_dim, config=cfg)
+) -> Any:
+    """Build the registered learner `name` (`learner_names()`; registry.py) with its factory;
+    see `resolve_config`. `action_dim` is the width of the actions the sequential learners
+    condition on (one-hot size for discrete actions); the frame learners ignore it."""
+    return registration(name).factory(latent_dim, resolve_config(name, config), action_dim)
 
 
 def is_sequential(learner: Any) -> bool:
@@ -116,6 +129,11 @@ __all__ = [
     "SequenceLearner",
     "SequentialVAE",
     "is_sequential",
+    "is_sequential_name",
+    "learner_names",
+    "register_learner",
+    "registration",
+    "unregister_learner",
     "parse_learner_options",
     "ConvEncoder",
     "DeconvDecoder",
@@ -128,3 +146,6 @@ __all__ = [
     "make_learner",
     "resolve_config",
 ]
+
+# Learners registered by their own modules (registry.py): one line each.
+from bulbjax.learners import contrastive  # noqa: E402,F401  (stdim, curl)

@@ -1,8 +1,24 @@
-"""Common pieces of the frame learners: config, training state, interface, NaN guard.
+"""Common pieces of the learners: config, training state, the learner interface, NaN guard.
 
-A frame learner turns single uint8 frames into latent codes. The evaluation loop only
-relies on the `FrameLearner` protocol below, so the VAE variants and the later
-sequential learners can be swapped freely.
+The learner interface. The experiment relies only on one of the two protocols below, so any
+learner satisfying one can be registered (`bulbjax/learners/registry.py`) and trained, probed and
+fed to PPO beside the paper's:
+- `FrameLearner`: trains on single uint8 frames `[B, H, W, 3]`, one latent per frame;
+- `SequenceLearner`: trains on `Windows` (`bulbjax/data/sequence.py`: frames `[B, T, H, W, 3]`,
+  the actions into them `[B, T, A]`, true states, a `valid` mask that is False on padding after
+  an episode's end), one latent per step.
+Both are pure and jittable: a learner is an immutable (frozen dataclass) description, its
+parameters and optimiser state live in `LearnerState`, randomness comes in as keys. Per epoch the
+experiment calls `update` `ExperimentConfig.learner_batches` times per seed on batches it samples
+(`batch_size` frames, or `batch_size` windows), and `encode` for the probes (on replay frames and
+held-out windows) and, with `--rl-input latent:<name>`, for PPO's observations (no gradient flows
+back into the learner). Everything runs under `jax.vmap` or `lax.map` over seeds.
+
+The equal-compute rule (the paper, Sec. IV.A): every learner sees about the same number of frames
+per update, `LearnerConfig.batch_size` (1,024). A frame learner's `batch_size` is that number; a
+sequential one's is `batch_size // sequence_length` windows; a learner whose per-frame cost is
+far higher says how it scales down and why (SPAIR: 64 frames). A learner that looks at two views
+or two steps of each sample (contrastive ones) counts the frames it encodes.
 """
 
 from __future__ import annotations
@@ -198,7 +214,13 @@ Metrics = dict[str, jax.Array]
 
 @runtime_checkable
 class FrameLearner(Protocol):
-    """What the evaluation loop needs from a frame learner. All methods are pure and jittable."""
+    """What the evaluation loop needs from a frame learner. All methods are pure and jittable.
+
+    Required: the attributes and methods below; `sequential` is False or absent. Optional
+    capabilities the experiment looks for: `reconstruct(params, frames) -> [B, H, W, 3]` float32
+    in [0, 1] (the reconstruction figures; learners without it are left out of them), `update_key` (learners equal up to a
+    traced keyword of `update` share one update program: vae, vae_rpl, beta_vae),
+    `boxes_of_latents` (SPAIR's object probe)."""
 
     latent_dim: int
     config: LearnerConfig
@@ -212,18 +234,21 @@ class FrameLearner(Protocol):
         """Fresh params and optimiser state for frames of shape (H, W, 3)."""
         ...
 
+    @property
+    def batch_size(self) -> int:
+        """Frames the caller samples from replay per update (the equal-compute rule above)."""
+        ...
+
     def update(
         self, state: LearnerState, frames: jax.Array, key: jax.Array
     ) -> tuple[LearnerState, Metrics]:
-        """One gradient step on uint8 frames [B, H, W, 3]; metrics are float32 scalars."""
+        """One gradient step on uint8 frames [B, H, W, 3] (B = `batch_size`; any B must work);
+        metrics are float32 scalars, `loss` among them (logged per epoch, NaN-checked)."""
         ...
 
     def encode(self, params: Any, frames: jax.Array) -> jax.Array:
-        """Posterior means [B, latent_dim] float32 for uint8 frames [B, H, W, 3]."""
-        ...
-
-    def reconstruct(self, params: Any, frames: jax.Array) -> jax.Array:
-        """Reconstructions [B, H, W, 3] float32 in [0, 1] for uint8 frames."""
+        """Latents [B, latent_dim] float32 for uint8 frames [B, H, W, 3], deterministic (a VAE's
+        posterior means): what the probes regress the state from and PPO may observe."""
         ...
 
 
@@ -255,7 +280,12 @@ class SequenceLearner(Protocol):
     Inputs are `Windows` (bulbjax.data.sequence) with at least `window_length` steps; longer
     windows are cut to the first `window_length`. Latents are per step: `encode` gives one
     latent per step of the first `sequence_length` steps, and the probe maps the latent at
-    step t to the true state at step t (padded steps are left out via `Windows.valid`).
+    step t to the true state at step t (padded steps are left out via `Windows.valid`). The run
+    stores windows of `ExperimentConfig.seq_len` steps (`sequence_length`, set from it), plus
+    PRED's horizon when pred runs: a new sequential learner needs `window_length ==
+    sequence_length`. Registered with `sequential=True` (registry.py) so that the run keeps
+    window buffers. `--rl-input latent:<name>` also needs `frame_features(params, frames)` and
+    `encode_features(params, features, actions)` (as `SequentialVAE` has).
     """
 
     latent_dim: int
@@ -269,13 +299,23 @@ class SequenceLearner(Protocol):
         ...
 
     @property
-    def batch_size(self) -> int:
-        """Windows per batch: config.batch_size // sequence_length."""
+    def sequence_length(self) -> int:
+        """Steps per window whose latents `encode` gives (config.sequence_length)."""
         ...
+
+    @property
+    def batch_size(self) -> int:
+        """Windows per batch: config.batch_size // sequence_length (the equal-compute rule)."""
+        ...
+
+    @property
+    def retain_fraction(self) -> float: ...
 
     def init(self, key: jax.Array, frame_shape: tuple[int, int, int]) -> LearnerState: ...
 
-    def update(self, state: LearnerState, windows: Any, key: jax.Array) -> tuple[LearnerState, Metrics]: ...
+    def update(self, state: LearnerState, windows: Any, key: jax.Array) -> tuple[LearnerState, Metrics]:
+        """One gradient step on `batch_size` windows; metrics as `FrameLearner.update`'s."""
+        ...
 
     def encode(self, params: Any, windows: Any) -> jax.Array:
         """Per-step latents [B, sequence_length, latent_dim] float32."""
