@@ -74,6 +74,9 @@ def _per_gpu(args: argparse.Namespace) -> int | None:
     else:
         seeds = resolve(args.preset, **settings).seeds
     n = local_processes.process_count(seeds, len(gpus))
+    if n < len(gpus):
+        print(f"{seeds} seeds on {len(gpus)} GPUs: {n} process(es), one GPU each, {len(gpus) - n} GPU(s) idle "
+              f"(every process runs as many seeds: give --seeds a multiple of {len(gpus)} to use all)", flush=True)
     if n < 2:
         return None
     return local_processes.run_per_gpu(args.argv, gpus[:n], args.resume or args.out or "runs/latest")
