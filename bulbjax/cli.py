@@ -152,6 +152,8 @@ def cmd_fit(args: argparse.Namespace) -> int:
     from bulbjax.experiment.rundir import LOG_FILE, check_out_dir
 
     cfg = build_offline_config(args)
+    if args.seed < 0:
+        raise ValueError(f"--seed must be a non-negative integer (the learners' base PRNG seed), got {args.seed}")
     check_out_dir(args.out, resume=args.resume, overwrite=args.overwrite, fit=True)
     with log_to_file(os.path.join(args.out, LOG_FILE), fresh=args.overwrite,
                      header=" ".join(["bulbjax", *getattr(args, "argv", [])])):
