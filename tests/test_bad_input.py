@@ -43,7 +43,7 @@ def test_gymnasium_single_env_refuses_actions_outside_its_space():
     import gymnasium
 
     import bulbjax.gym  # noqa: F401  registers bulbjax/<Name>-v0
-    from bulbjax.interop.gym import InvalidAction
+    from bulbjax.gym import InvalidAction
 
     env = gymnasium.make(f"bulbjax/{ENV}-v0", obs="state", render=False)
     env.reset(seed=0)
