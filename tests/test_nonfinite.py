@@ -113,3 +113,23 @@ def test_epoch_reports_nonfinite_resets_and_keeps_replay_finite():
     for buf in rs.buffers.values():
         assert np.all(np.isfinite(buf.states))
     assert np.all(np.isfinite(rs.train_env.data.qpos)) and np.all(np.isfinite(rs.train_env.obs))
+
+
+def test_gym_adapter_never_shows_a_nan_last_observation():
+    """gymnasium's NEXT_STEP autoreset shows an ended episode's last observation: for a world whose
+    physics went non-finite that is its last finite one (before the step), then the new episode."""
+    from bulbjax.interop.gym import make_vec
+
+    venv = make_vec("InvertedPendulum", N, obs="state", render=False)
+    venv.reset(seed=0)
+    before = np.asarray(venv.state.lowdim)
+    venv._state = _poison(venv.state, 1)  # as if the physics had gone NaN in world 1
+    a = np.zeros((N, 1), np.float32)
+    obs, rew, term, trunc, info = venv.step(a)
+    assert term.tolist() == [False, True, False] and not trunc.any() and rew[1] == 0.0
+    assert np.all(np.isfinite(obs))
+    np.testing.assert_array_equal(obs[1], before[1])
+    obs, rew, term, trunc, info = venv.step(a)  # the new episode's first observation, reward 0
+    assert np.all(np.isfinite(obs)) and rew[1] == 0.0 and not term[1]
+    np.testing.assert_array_equal(obs[1], np.asarray(venv.state.lowdim)[1])
+    assert np.asarray(venv.state.counts["nonfinite_resets"]).tolist() == [0, 1, 0]
