@@ -108,16 +108,23 @@ def make_chunk(env: Any, chunk: int):
         bad = lambda x: (~jnp.isfinite(x)).sum(dtype=jnp.int32)  # noqa: E731
         return bad(s.obs) + bad(s.data.qpos) + bad(s.data.qvel)
 
+    versions = max(int(env.num_versions), 1)
+
     def body(carry, k):
-        s, done, trunc, leak = carry
+        s, done, trunc, leak, by_version = carry
+        version = s.params.get("version", jnp.zeros(env.num_envs, jnp.int32))  # of the episode stepped
+        before = s.counts["nonfinite_resets"]
         s = env.step(s, act(k))
+        new = s.counts["nonfinite_resets"] - before
+        by_version = by_version + jax.ops.segment_sum(new, version, num_segments=versions)
         return (s, done + s.done.sum().astype(jnp.int32), trunc + s.truncated.sum().astype(jnp.int32),
-                leak + leaked(s)), None
+                leak + leaked(s), by_version), None
 
     def run(state, key):
         z = jnp.zeros((), jnp.int32)
-        (state, done, trunc, leak), _ = jax.lax.scan(body, (state, z, z, z), jax.random.split(key, chunk))
-        return state, {"episodes": done, "truncated": trunc, "leaked": leak,
+        carry = (state, z, z, z, jnp.zeros(versions, jnp.int32))
+        (state, done, trunc, leak, by_version), _ = jax.lax.scan(body, carry, jax.random.split(key, chunk))
+        return state, {"episodes": done, "truncated": trunc, "leaked": leak, "by_version": by_version,
                        **{k: v.sum() for k, v in state.counts.items()}}
 
     return jax.jit(run, donate_argnums=0)
@@ -126,6 +133,7 @@ def make_chunk(env: Any, chunk: int):
 def soak_one(name: str, a: argparse.Namespace, log) -> dict[str, Any]:
     """Soak one environment; its record (or the reason it was skipped)."""
     import jax
+    import numpy as np
 
     import bulbjax
     from bulbjax.envs.registry import env_class
@@ -152,14 +160,20 @@ def soak_one(name: str, a: argparse.Namespace, log) -> dict[str, Any]:
     state = reset(k_reset)
     compiled = run.lower(state, key).compile()
     jax.block_until_ready(state)
+    # non-finite entries in the first reset's state (the resets inside `step` are in `leaked`)
+    rec["reset_nonfinite"] = int(sum((~np.isfinite(np.asarray(x))).sum()
+                                     for x in (state.obs, state.data.qpos, state.data.qvel)))
     rec["build_compile_s"] = round(time.perf_counter() - t0, 2)
     totals = {"episodes": 0, "truncated": 0, "leaked": 0}
+    by_version = np.zeros(max(int(env.num_versions), 1), np.int64)  # non-finite resets per object version
     events: list[list[int]] = []  # [chunk, worlds reset for non-finite physics in it]
     prev_resets, t_run, t_print = 0, time.perf_counter(), time.perf_counter()
     for c in range(chunks):
         key, k = jax.random.split(key)
         state, stats = compiled(state, k)
-        stats = {k: int(v) for k, v in jax.device_get(stats).items()}
+        stats = jax.device_get(stats)
+        by_version += np.asarray(stats.pop("by_version"), np.int64)
+        stats = {k: int(v) for k, v in stats.items()}
         for k in totals:
             totals[k] += stats[k]
         if stats["nonfinite_resets"] > prev_resets and len(events) < 200:
@@ -168,7 +182,7 @@ def soak_one(name: str, a: argparse.Namespace, log) -> dict[str, Any]:
         now = time.perf_counter()
         if now - t_print >= a.print_every and c + 1 < chunks:
             done = (c + 1) * chunk * a.worlds
-            log(f"  {name}: {done / 1e6:.2f} M / {rec['steps'] / 1e6:.2f} M steps, {done / (now - t_run):,.0f} "
+            log(f"  {name}: {done:,} / {rec['steps']:,} steps, {done / (now - t_run):,.1f} "
                 f"steps/s, non-finite resets so far {prev_resets}")
             t_print = now
     run_s = time.perf_counter() - t_run
@@ -179,12 +193,13 @@ def soak_one(name: str, a: argparse.Namespace, log) -> dict[str, Any]:
         nonfinite_worlds=int((per_world_counts["nonfinite_resets"] > 0).sum()),
         nonfinite_max_per_world=int(per_world_counts["nonfinite_resets"].max()),
         nonfinite_events=events,
+        **({"nonfinite_by_version": by_version.tolist()} if env.num_versions else {}),
         actions_fixed=int(per_world_counts["actions_fixed"].sum()),
         episodes=totals["episodes"], truncated=totals["truncated"],
         terminated=totals["episodes"] - totals["truncated"], leaked_nonfinite=totals["leaked"],
         run_s=round(run_s, 3), wall_s=round(time.perf_counter() - t0, 2),
         steps_per_s=round(rec["steps"] / run_s, 1) if run_s > 0 else None)
-    log(f"{name:<28} {rec['steps']:>12,} steps  {rec['steps_per_s'] or 0:>12,.0f} steps/s  episodes "
+    log(f"{name:<28} {rec['steps']:>12,} steps  {rec['steps_per_s'] or 0:>12,.1f} steps/s  episodes "
         f"{rec['episodes']:>9,}  non-finite resets {rec['nonfinite_resets']:>6} ({rec['nonfinite_entries']} "
         f"entries, {rec['nonfinite_worlds']} worlds)  leaked {rec['leaked_nonfinite']}  "
         f"compile {rec['build_compile_s']:.1f} s  wall {rec['wall_s']:.1f} s")
@@ -250,7 +265,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                       "steps": sum(r["steps"] for r in ran),
                       "nonfinite_resets": sum(r["nonfinite_resets"] for r in ran),
                       "with_nonfinite": [r["env"] for r in ran if r["nonfinite_resets"]],
-                      "leaked_nonfinite": sum(r["leaked_nonfinite"] for r in ran)}
+                      "leaked_nonfinite": sum(r["leaked_nonfinite"] + r["reset_nonfinite"] for r in ran)}
     write_json(path, out)
     s = out["summary"]
     log(f"soak done: {s['envs']} environments, {s['steps']:,} steps, {s['nonfinite_resets']} non-finite resets "

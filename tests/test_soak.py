@@ -35,7 +35,8 @@ def test_small_soak_counts_and_writes_json(tmp_path, capsys):
     assert rec["env"] == "CartPole" and rec["worlds"] == 8
     assert rec["steps"] == rec["target_steps"] == 400 and rec["steps_per_world"] == 50 and rec["chunk"] == 25
     assert rec["episodes"] > 8 and rec["episodes"] == rec["terminated"] + rec["truncated"]
-    assert rec["nonfinite_resets"] == 0 and rec["leaked_nonfinite"] == 0 and rec["actions_fixed"] == 0
+    assert rec["nonfinite_resets"] == 0 and rec["leaked_nonfinite"] == rec["reset_nonfinite"] == 0
+    assert rec["actions_fixed"] == 0
     assert rec["steps_per_s"] > 0 and rec["run_s"] > 0
     assert res["summary"]["steps"] == rec["steps"] and res["summary"]["with_nonfinite"] == []
     assert "CartPole" in out and "non-finite resets" in out  # one line per environment
