@@ -174,8 +174,8 @@ class Experiment:
         metrics of it, its counter moved on, and the keys of the later phases. `learners`: the
         states PPO's policy reads (`Policy.rl_learners`)."""
         k_rl, k_rep, k_learn, k_eval, k_probe = jax.random.split(key, 5)
-        # named scopes label each phase's ops in a profiler trace (benchmarks/trace_summary.py)
         resets_before = train_env.counts["nonfinite_resets"]
+        # named scopes label each phase's ops in a profiler trace (benchmarks/trace_summary.py)
         with jax.named_scope("bj.rl"):
             ppo_state, train_env, ppo_m, ret_sum, count, steps, train_hist = self.policy.rl_phase(
                 ppo_state, train_env, k_rl, learners, train_hist)
