@@ -453,6 +453,11 @@ def _where_tree(mask: jax.Array, a: Any, b: Any) -> Any:
     return jax.tree.map(sel, a, b)
 
 
+def _finite_rows(data: mjx.Data) -> jax.Array:
+    """`[N]` bool: the worlds whose qpos and qvel are finite."""
+    return jnp.isfinite(data.qpos).all(axis=1) & jnp.isfinite(data.qvel).all(axis=1)
+
+
 def _nonfinite(x: jax.Array) -> jax.Array:
     """Per world `[N]` int32: the NaN or inf entries of a batched array `[N, ...]`."""
     return (~jnp.isfinite(x)).reshape(x.shape[0], -1).sum(axis=1).astype(jnp.int32)

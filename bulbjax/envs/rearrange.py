@@ -92,7 +92,7 @@ import mujoco
 import numpy as np
 from mujoco import mjx
 
-from bulbjax.envs.base import EnvConfig, EnvState, MjxPixelEnv, _where_tree, asset_dir
+from bulbjax.envs.base import EnvConfig, EnvState, MjxPixelEnv, _finite_rows, _where_tree, asset_dir
 from bulbjax.envs.camera import CameraConfig
 from bulbjax.envs.incline import _quat_mat, geom_object
 from bulbjax.envs.locomotion import _quiet_solver_limits
@@ -642,6 +642,9 @@ class Rearrange(MjxPixelEnv):
             return (i <= NAN_RETRIES) & todo.any()
 
         _, draws, data, _ = jax.lax.while_loop(more, attempt, (jnp.int32(0), draws, data, done))
+        # Still non-finite after the redraws: the world starts from its placement before the
+        # settle (finite by construction; a step that goes NaN from it is reset and counted).
+        data = _where_tree(done & ~_finite_rows(data), jax.vmap(self._place)(draws), data)
         params = {"version": draws["version"]}
         if forward:
             data = jax.vmap(mjx.forward, in_axes=(None, 0))(self._world_model(params), data)
