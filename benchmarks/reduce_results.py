@@ -17,8 +17,8 @@ bytes):
   findings average before printing 3 decimals (PPO return, group and overall probe errors,
   object-probe summaries) to `--report-digits` (default 7, so that the reports come out as
   before: at 5, a mean near a rounding boundary moved by 0.001 in the last printed digit);
-* records of the epochs in between keep `epoch`, `seed`, `rl_return`, `rl_episodes`, `ppo`,
-  each learner's `loss` (not its kl, recon or valid_frac), `replay_dropped` and an empty
+* records of the epochs in between keep `epoch`, `seed`, `rl_return`, `rl_episodes`,
+  `nonfinite_resets` (where the run wrote it), `ppo`, each learner's `loss` (not its kl, recon or valid_frac), `replay_dropped` and an empty
   `probes`, rounded the same; the reference spread they repeated (the same list in every record
   of a run, kept in the probed ones) goes. No report reads ppo, learners or replay_dropped.
   `--unprobed minimal` keeps only epoch, seed, rl_return, rl_episodes (what the plots' RL row,
@@ -49,7 +49,8 @@ from typing import Any, Iterable
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 DEFAULT_PATHS = ("docs/results", "docs/images")
-SCALARS = ("epoch", "seed", "rl_return", "rl_episodes", "ppo", "learners", "replay_dropped", "probes")
+SCALARS = ("epoch", "seed", "rl_return", "rl_episodes", "nonfinite_resets", "ppo", "learners", "replay_dropped",
+           "probes")
 MINIMAL = ("epoch", "seed", "rl_return", "rl_episodes", "probes")
 
 

@@ -116,7 +116,8 @@ def cmd_run(args: argparse.Namespace) -> int:
         out = args.resume
     else:
         cfg = resolve(args.preset, **settings)
-        opts = RunOptions(seed=args.seed or 0, probe_every=args.probe_every or 1, **_stretch_options(args))
+        opts = RunOptions(seed=0 if args.seed is None else args.seed,
+                          probe_every=1 if args.probe_every is None else args.probe_every, **_stretch_options(args))
         out = args.out or "runs/latest"
     local = jax.local_devices()
     if args.devices is not None and not 1 <= args.devices <= len(local):
@@ -186,6 +187,8 @@ def cmd_fit(args: argparse.Namespace) -> int:
     from bulbjax.experiment.rundir import LOG_FILE, check_out_dir
 
     cfg = build_offline_config(args)
+    if args.seed < 0:
+        raise ValueError(f"--seed must be a non-negative integer (the learners' base PRNG seed), got {args.seed}")
     check_out_dir(args.out, resume=args.resume, overwrite=args.overwrite, fit=True)
     with log_to_file(os.path.join(args.out, LOG_FILE), fresh=args.overwrite,
                      header=" ".join(["bulbjax", *getattr(args, "argv", [])])):
@@ -233,6 +236,9 @@ def cmd_render(args: argparse.Namespace) -> int:
     import bulbjax
     from bulbjax.experiment.resolve import parse_version
 
+    for flag, value, least in (("--frames", args.frames, 1), ("--steps", args.steps, 0), ("--seed", args.seed, 0)):
+        if value < least:
+            raise ValueError(f"{flag} must be >= {least}, got {value}")
     version = parse_version(args.version)
     env = bulbjax.make(args.env, num_envs=args.frames, resolution=args.resolution, version=version,
                        show_targets=args.show_targets)

@@ -5,9 +5,9 @@ Importing it registers every domain as `bulbjax/<Name>-v0`, so that
 env carries its spec, which gymnasium's `check_env` looks for)."""
 
 from bulbjax.interop.gym import (AUTORESET_MODES, OBS_KINDS, AdapterConfig, BulbjaxVectorEnv, GymEnv,
-                                 make_env, make_vec, register_envs)
+                                 InvalidAction, make_env, make_vec, register_envs)
 
-__all__ = ["AUTORESET_MODES", "OBS_KINDS", "AdapterConfig", "BulbjaxVectorEnv", "GymEnv", "make_env",
-           "make_vec", "register_envs"]
+__all__ = ["AUTORESET_MODES", "OBS_KINDS", "AdapterConfig", "BulbjaxVectorEnv", "GymEnv", "InvalidAction",
+           "make_env", "make_vec", "register_envs"]
 
 register_envs()

@@ -65,6 +65,9 @@ class EnvState:
     info: dict[str, jax.Array]  # episode_return / episode_length of the episode that just ended
     # Per-world physical parameters drawn at each reset (e.g. mass, friction); {} if none.
     params: dict[str, jax.Array] = struct.field(default_factory=dict)
+    # Per-world int32 counts since `reset` (`COUNTS`): worlds reset because their physics went
+    # non-finite, the non-finite entries seen then, action entries that were NaN or out of range.
+    counts: dict[str, jax.Array] = struct.field(default_factory=dict)
     depth: jax.Array | None = None  # [N, H, W] float32 metres (observation "depth"), else None
     points: jax.Array | None = None  # [N, P, 3] float32 world points (observation "pointcloud")
 
@@ -72,6 +75,10 @@ class EnvState:
     def render_input(self) -> RenderInput:
         return RenderInput(qpos=self.data.qpos, scheme=self.scheme,
                            mocap_pos=self.data.mocap_pos, mocap_quat=self.data.mocap_quat)
+
+
+# `EnvState.counts`: what `step` repaired, per world, since `reset`.
+COUNTS = ("nonfinite_resets", "nonfinite_entries", "actions_fixed")
 
 
 @dataclass(frozen=True)
@@ -254,14 +261,32 @@ class MjxPixelEnv:
             step_count=jnp.zeros(self.num_envs, jnp.int32), episode_return=zeros, scheme=scheme,
             key=keys, info={"episode_return": zeros, "episode_length": jnp.zeros(self.num_envs, jnp.int32),
                             "lowdim_raw": self.raw_state(data, params)},
-            params=params, depth=obs.get("depth"), points=obs.get("points"))
+            params=params, depth=obs.get("depth"), points=obs.get("points"),
+            counts={k: jnp.zeros(self.num_envs, jnp.int32) for k in COUNTS})
 
     def step(self, state: EnvState, action: jax.Array) -> EnvState:
-        """Apply `action` to every world, step physics, reset worlds whose episode ended."""
+        """Apply `action` to every world, step physics, reset worlds whose episode ended.
+
+        Bad input and bad physics never reach the returned state. An action of the wrong shape
+        or dtype is a ValueError when traced; NaN entries of a continuous action become 0 and
+        the others are clipped to the action space [-1, 1] (bulb's wrappers clip to it; a
+        discrete action is clipped to [0, num_actions)), each entry changed counted in
+        `counts["actions_fixed"]`. A world whose physics goes non-finite (any NaN or inf in
+        qpos, qvel, the state or the reward) ends its episode as terminated, with reward 0, and
+        is reset like any ended episode (so its frames, state and replay are the new episode's),
+        counted in `counts["nonfinite_resets"]` (and its bad entries in `"nonfinite_entries"`).
+        For finite, in-range input all of this is the identity: the results are bit for bit
+        those without it."""
         action = self._check_action(action)
+        action, fixed = self._repair_action(action)
         data = self.physics(state.data, action, state.params)
         lowdim = self._lowdim_batch(data, state.params)
         reward, terminated = self._reward_terminated_batch(data, lowdim, action, state.data, state.params)
+        bad_entries = (_nonfinite(data.qpos) + _nonfinite(data.qvel) + _nonfinite(lowdim)
+                       + (~jnp.isfinite(reward)).astype(jnp.int32))
+        bad = bad_entries > 0
+        terminated = terminated | bad
+        reward = jnp.where(bad, 0.0, reward)
         step_count = state.step_count + 1
         truncated = (step_count >= self.episode_length) & ~terminated
         done = terminated | truncated
@@ -292,7 +317,9 @@ class MjxPixelEnv:
             reward=reward, done=done.astype(jnp.float32), truncated=truncated.astype(jnp.float32),
             step_count=jnp.where(done, 0, step_count), episode_return=jnp.where(done, 0.0, ep_return),
             scheme=scheme, key=split[:, 0], info=info, params=params,
-            depth=obs.get("depth"), points=obs.get("points"))
+            depth=obs.get("depth"), points=obs.get("points"),
+            counts=_add_counts(state.counts, nonfinite_resets=bad.astype(jnp.int32),
+                               nonfinite_entries=bad_entries, actions_fixed=fixed))
 
     def physics(self, data: mjx.Data, action: jax.Array, params: dict[str, jax.Array] | None = None) -> mjx.Data:
         """One env step of physics for every world, without rewards, resets or frames: the
@@ -398,6 +425,16 @@ class MjxPixelEnv:
                              f"in [-1, 1]; got {action.dtype} {action.shape}")
         return action.astype(jnp.float32)
 
+    def _repair_action(self, action: jax.Array) -> tuple[jax.Array, jax.Array]:
+        """A checked action made safe: NaN -> 0, then clipped to the action space (continuous
+        [-1, 1], discrete [0, num_actions)); and per world the number of entries changed."""
+        if self.discrete:
+            fixed = (action < 0) | (action >= self.num_actions)
+            return jnp.clip(action, 0, self.num_actions - 1), fixed.astype(jnp.int32)
+        fixed = ~jnp.isfinite(action) | (action < -1.0) | (action > 1.0)
+        action = jnp.clip(jnp.where(jnp.isnan(action), 0.0, action), -1.0, 1.0)
+        return action, fixed.sum(axis=1).astype(jnp.int32)
+
     def _geom_id(self, name: str) -> int:
         gid = mujoco.mj_name2id(self.mj_model, mujoco.mjtObj.mjOBJ_GEOM, name)
         if gid < 0:
@@ -414,6 +451,21 @@ def _where_tree(mask: jax.Array, a: Any, b: Any) -> Any:
         m = mask.reshape(mask.shape + (1,) * (x.ndim - 1))
         return jnp.where(m, x, y)
     return jax.tree.map(sel, a, b)
+
+
+def _finite_rows(data: mjx.Data) -> jax.Array:
+    """`[N]` bool: the worlds whose qpos and qvel are finite."""
+    return jnp.isfinite(data.qpos).all(axis=1) & jnp.isfinite(data.qvel).all(axis=1)
+
+
+def _nonfinite(x: jax.Array) -> jax.Array:
+    """Per world `[N]` int32: the NaN or inf entries of a batched array `[N, ...]`."""
+    return (~jnp.isfinite(x)).reshape(x.shape[0], -1).sum(axis=1).astype(jnp.int32)
+
+
+def _add_counts(counts: dict[str, jax.Array], **step: jax.Array) -> dict[str, jax.Array]:
+    """`EnvState.counts` after a step (a state without counts, e.g. built by hand, starts at 0)."""
+    return {k: counts.get(k, jnp.zeros_like(v)) + v for k, v in step.items()}
 
 
 OBSERVATIONS = ("rgb", "depth", "pointcloud")

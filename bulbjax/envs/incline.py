@@ -45,7 +45,7 @@ import mujoco
 import numpy as np
 from mujoco import mjx
 
-from bulbjax.envs.base import EnvConfig, EnvState, MjxPixelEnv, _where_tree
+from bulbjax.envs.base import EnvConfig, EnvState, MjxPixelEnv, _finite_rows, _where_tree
 from bulbjax.envs.camera import CameraConfig
 from bulbjax.envs.locomotion import _quiet_solver_limits
 from bulbjax.eval.spec import StateEntry
@@ -386,6 +386,10 @@ class Incline(MjxPixelEnv):
             placed, params, start_x = jax.vmap(self._place)(draws)
             data = _where_tree(bad, placed, data)
             data = jax.lax.cond(bad.any(), lambda d: self._fall(d, params, start_x, bad), lambda d: d, data)
+        # Still non-finite after the redraws: the world starts where its object was placed, above
+        # the incline before the fall (finite by construction), so no reset hands on NaN.
+        placed = jax.vmap(self._place)(draws)[0]
+        data = _where_tree(done & ~_finite_rows(data), placed, data)
         if forward:
             data = jax.vmap(mjx.forward, in_axes=(None, 0))(self._world_model(params), data)
         return data, params["texture"], params, draws["key"]

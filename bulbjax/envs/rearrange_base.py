@@ -13,7 +13,7 @@ import mujoco
 import numpy as np
 from mujoco import mjx
 
-from bulbjax.envs.base import EnvConfig, EnvState, MjxPixelEnv, _where_tree
+from bulbjax.envs.base import EnvConfig, EnvState, MjxPixelEnv, _finite_rows, _where_tree
 from bulbjax.envs.incline import _quat_mat
 from bulbjax.envs.locomotion import _quiet_solver_limits
 from bulbjax.envs.render import SCENERY_GROUP
@@ -434,6 +434,9 @@ class Rearrange(MjxPixelEnv):
             return (i <= NAN_RETRIES) & todo.any()
 
         _, draws, data, _ = jax.lax.while_loop(more, attempt, (jnp.int32(0), draws, data, done))
+        # Still non-finite after the redraws: the world starts from its placement before the
+        # settle (finite by construction; a step that goes NaN from it is reset and counted).
+        data = _where_tree(done & ~_finite_rows(data), jax.vmap(self._place)(draws), data)
         params = {"version": draws["version"]}
         if forward:
             data = jax.vmap(mjx.forward, in_axes=(None, 0))(self._world_model(params), data)

@@ -6,6 +6,7 @@ configs read back from a run's config.json. Frozen dataclasses that check their 
 from __future__ import annotations
 
 import dataclasses
+import numbers
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -199,6 +200,8 @@ class RunOptions:
     recon_every: int = 0  # recon_<epoch>.png (+ boxes_<epoch>.png with SPAIR) every N epochs and at the end (0: none)
 
     def __post_init__(self) -> None:
+        if not isinstance(self.seed, numbers.Integral) or self.seed < 0:
+            raise ValueError(f"--seed must be a non-negative integer (the run's base PRNG seed), got {self.seed!r}")
         for name in ("probe_every", "keep"):
             if getattr(self, name) < 1:
                 raise ValueError(f"--{name.replace('_', '-')} must be >= 1, got {getattr(self, name)}")
@@ -250,6 +253,8 @@ class OfflineConfig:
                              f"({self.eval_length} steps)")
         if self.updates_per_call < 0:
             raise ValueError(f"updates_per_call must be >= 0, got {self.updates_per_call}")
+        if self.data_seed < 0:
+            raise ValueError(f"--data-seed must be a non-negative integer, got {self.data_seed}")
 
     @property
     def synthetic(self) -> bool:

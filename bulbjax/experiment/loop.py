@@ -174,10 +174,13 @@ class Experiment:
         metrics of it, its counter moved on, and the keys of the later phases. `learners`: the
         states PPO's policy reads (`Policy.rl_learners`)."""
         k_rl, k_rep, k_learn, k_eval, k_probe = jax.random.split(key, 5)
+        resets_before = train_env.counts["nonfinite_resets"]
         # named scopes label each phase's ops in a profiler trace (benchmarks/trace_summary.py)
         with jax.named_scope("bj.rl"):
             ppo_state, train_env, ppo_m, ret_sum, count, steps, train_hist = self.policy.rl_phase(
                 ppo_state, train_env, k_rl, learners, train_hist)
+        # worlds of this epoch's rollouts reset because their physics went non-finite (`EnvState.counts`)
+        nonfinite = self.devices.per_seed(train_env.counts["nonfinite_resets"] - resets_before).sum(1)
         with jax.named_scope("bj.replay"):
             buffers = self.streams.replay_phase(buffers, steps, k_rep)
         with jax.named_scope("bj.windows"):
@@ -185,6 +188,7 @@ class Experiment:
         metrics = {
             "rl_return": jnp.where(count > 0, ret_sum / jnp.maximum(count, 1), jnp.nan),
             "rl_episodes": count,
+            "nonfinite_resets": nonfinite,
             "ppo": ppo_m,
             "ref_spread": jnp.broadcast_to(ref_spread, (self.S,) + ref_spread.shape),
             "replay_dropped": {**{k: b.num_dropped for k, b in buffers.items()},

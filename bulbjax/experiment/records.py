@@ -42,6 +42,8 @@ def epoch_records(epoch: int, metrics: Any, spec: Sequence[StateEntry]) -> list[
         rec: dict[str, Any] = {
             "epoch": epoch, "seed": s,
             "rl_return": _f(m["rl_return"][s]), "rl_episodes": _f(m["rl_episodes"][s]),
+            # PPO's worlds reset this epoch because their physics went non-finite
+            **({"nonfinite_resets": int(m["nonfinite_resets"][s])} if "nonfinite_resets" in m else {}),
             "ppo": {k: _f(v[s]) for k, v in m["ppo"].items()},
             "learners": {n: {k: _f(v[s]) for k, v in lm.items()} for n, lm in m["learners"].items()},
             "replay_dropped": {k: int(v[s]) for k, v in m["replay_dropped"].items()},

@@ -20,7 +20,10 @@ returned by the step that ends an episode already holds the next episode's first
 key then seeds all worlds: bulbjax splits one key over its worlds).
 
 Actions: float `[N, action_size]` in [-1, 1]. For discrete domains `action_size = num_actions`
-and the world takes `argmax` of its row (so a Gaussian policy's output can drive CartPole).
+and the world takes `argmax` of its row (so a Gaussian policy's output can drive CartPole). Any
+other shape is a ValueError naming `(num_envs, action_size)` when traced; NaN and out-of-range
+values go to `env.step`, which treats NaN as 0, clips to [-1, 1] and counts them
+(`state.pipeline_state.counts["actions_fixed"]`).
 Observations: `obs="state"` -> float32 `[N, D]` true state; `obs="pixels"` -> the dict
 `{"pixels/view_0": float32 [N, H, W, 3] in [0, 1]}` (Brax's vision networks read `pixels/` keys).
 """

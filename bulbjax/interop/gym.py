@@ -23,6 +23,10 @@ ended, and renders its frame with `env.render_frames`. Two modes (`metadata["aut
   the new episode's first observation; the last one is in `info["final_obs"]` (an object array,
   None where no episode ended) and the ended episode's info in `info["final_info"]`.
 
+Actions: shape and dtype as `action_space` says (the vector env also takes `[N]` for a
+one-dimensional Box); an action outside the space, NaN included, is refused with `InvalidAction`
+(gymnasium's `gymnasium.error.InvalidAction`, also a ValueError), naming the space.
+
 Info (vector env; every key `k` comes with a boolean mask `_k`, gymnasium's convention): the
 other view (`state` or `pixels`), and where an episode ended `episode_return` / `episode_length`.
 
@@ -126,13 +130,19 @@ class _Core:
 
     def _last(self, state: EnvState, action: jax.Array) -> dict[str, jax.Array]:
         """The observations `env.step(state, action)` would show without its auto-reset: the
-        physics step replayed, its state and (if rendering) its frame."""
-        data = self.env.physics(state.data, action, state.params)
-        out = {"state": self.env._lowdim_batch(data, state.params)}
+        physics step replayed, its state and (if rendering) its frame. A world whose physics went
+        non-finite in that step (`env.step` reset it) shows its observation before the step
+        instead: NaN never reaches the caller."""
+        data = self.env.physics(state.data, self.env._repair_action(action)[0], state.params)
+        lowdim = self.env._lowdim_batch(data, state.params)
+        finite = (jnp.isfinite(data.qpos).all(1) & jnp.isfinite(data.qvel).all(1)
+                  & jnp.isfinite(lowdim).all(1))
+        out = {"state": jnp.where(finite[:, None], lowdim, state.lowdim)}
         if self.frames:
-            ri = RenderInput(qpos=data.qpos, scheme=state.scheme, mocap_pos=data.mocap_pos,
+            qpos = jnp.where(finite[:, None], data.qpos, state.data.qpos)
+            ri = RenderInput(qpos=qpos, scheme=state.scheme, mocap_pos=data.mocap_pos,
                              mocap_quat=data.mocap_quat)
-            out["pixels"] = self.env.render_frames(ri)
+            out["pixels"] = jnp.where(finite[:, None, None, None], self.env.render_frames(ri), state.pixels)
         return out
 
     # ----- host side -----
@@ -147,14 +157,31 @@ class _Core:
                 raise ValueError(f"{env.name} takes integer actions of shape ({n},) in [0, {env.num_actions}); "
                                  f"got {a.dtype} {a.shape}")
             if a.size and (a.min() < 0 or a.max() >= env.num_actions):
-                raise ValueError(f"{env.name} actions must be in [0, {env.num_actions}); got {a.min()}..{a.max()}")
+                raise InvalidAction(f"you passed the invalid action(s) {a.min()}..{a.max()}: {env.name} actions "
+                                    f"must be in [0, {env.num_actions}). The supported action_space is "
+                                    f"`{self.single_action_space()}`")
             return a.astype(np.int32)
         if a.shape == (n,) and env.action_size == 1:
             a = a[:, None]
         if a.shape != (n, env.action_size) or not np.issubdtype(a.dtype, np.number):
             raise ValueError(f"{env.name} takes float actions of shape ({n}, {env.action_size}) in [-1, 1]; "
                              f"got {a.dtype} {a.shape}")
+        outside = ~(np.abs(a.astype(np.float64)) <= 1.0)  # NaN too
+        if outside.any():
+            w = np.flatnonzero(outside.any(axis=1))
+            raise InvalidAction(f"you passed the invalid action `{a[w[0]].tolist()}` (world {w[0]}; "
+                                f"{len(w)} world(s) NaN or outside [-1, 1]). The supported action_space is "
+                                f"`{self.single_action_space()}`: clip to [-1, 1] before stepping")
         return a.astype(np.float32)
+
+
+class InvalidAction(gymnasium.error.InvalidAction, ValueError):
+    """An action outside the adapter's action space (NaN included): gymnasium's own error for
+    that (`gymnasium.error.InvalidAction`, as CarRacing raises it), also a ValueError like the
+    adapter's other input errors. gymnasium's classic-control envs `assert
+    action_space.contains(action)` instead; an assert vanishes under `python -O`, this does not.
+    (`env.step` itself clips such actions and counts them; the adapters refuse them, so a bug
+    upstream is seen rather than silently clipped.)"""
 
 
 def _integral(a: np.ndarray) -> bool:

@@ -1,0 +1,122 @@
+"""Bad input through every door, one test per door: the Python API (`env.step` refuses a wrong
+shape or dtype when traced, naming the shape it takes), the gymnasium adapters (single and
+vector: an action outside the space is gymnasium's `InvalidAction`, also a ValueError), the Brax
+wrapper (a wrong shape names the shape) and the command line (a bad flag value is one line,
+`bulbjax: error: ...`, exit status 2, naming the flag or value). NaN and out-of-range actions
+given to `env.step` itself are repaired and counted (tests/test_nonfinite.py). Nothing here
+steps physics: the refusals come before it."""
+
+from __future__ import annotations
+
+import os
+import re
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import bulbjax
+from bulbjax.cli import main
+
+ENV = "InvertedPendulum"  # the cheapest continuous domain; CartPole for the discrete one
+
+
+def _abstract_state(env):
+    return jax.eval_shape(env.reset, jax.random.PRNGKey(0))
+
+
+@pytest.mark.parametrize("name, action, expected", [
+    ("InvertedPendulum", jnp.zeros((3,)), r"float actions of shape \(3, 1\)"),
+    ("InvertedPendulum", jnp.zeros((3, 2)), r"float actions of shape \(3, 1\)"),
+    ("InvertedPendulum", jnp.zeros((3, 1), jnp.int32), r"float actions of shape \(3, 1\).*got int32"),
+    ("CartPole", jnp.zeros((3,), jnp.float32), r"integer actions of shape \(3,\).*got float32"),
+    ("CartPole", jnp.zeros((3, 1), jnp.int32), r"integer actions of shape \(3,\)"),
+])
+def test_python_api_refuses_wrong_shape_or_dtype_when_traced(name, action, expected):
+    env = bulbjax.make(name, num_envs=3, render=False)
+    with pytest.raises(ValueError, match=expected):
+        jax.eval_shape(env.step, _abstract_state(env), action)  # tracing alone: no physics runs
+
+
+def test_gymnasium_single_env_refuses_actions_outside_its_space():
+    import gymnasium
+
+    import bulbjax.gym  # noqa: F401  registers bulbjax/<Name>-v0
+    from bulbjax.gym import InvalidAction
+
+    env = gymnasium.make(f"bulbjax/{ENV}-v0", obs="state", render=False)
+    env.reset(seed=0)
+    state = env.unwrapped._state
+    for bad in (np.array([1.5], np.float32), np.array([np.nan], np.float32), np.array([-np.inf])):
+        assert not env.action_space.contains(bad)
+        with pytest.raises(gymnasium.error.InvalidAction, match=r"invalid action.*action_space is `Box\(-1.0, 1.0"):
+            env.step(bad)
+        with pytest.raises(ValueError):  # InvalidAction is a ValueError too
+            env.step(bad)
+    assert issubclass(InvalidAction, ValueError)
+    with pytest.raises(ValueError, match=r"action of shape \(1,\)"):
+        env.step(np.zeros(3, np.float32))
+    assert env.unwrapped._state is state  # nothing was stepped
+
+
+def test_gymnasium_vector_env_refuses_actions_outside_its_space():
+    import gymnasium
+
+    from bulbjax.interop.gym import make_vec
+
+    venv = make_vec(ENV, 2, obs="state", render=False)
+    venv.reset(seed=0)
+    state = venv.state
+    for bad in (np.array([[0.5], [1.01]], np.float32), np.array([[np.nan], [0.0]])):
+        assert not venv.action_space.contains(bad.astype(np.float32))
+        with pytest.raises(gymnasium.error.InvalidAction, match=r"world [01];"):
+            venv.step(bad)
+    with pytest.raises(ValueError, match=r"float actions of shape \(2, 1\)"):
+        venv.step(np.zeros((3, 1), np.float32))
+    assert venv.state is state  # nothing was stepped
+    discrete = make_vec("CartPole", 2, obs="state", render=False)
+    discrete.reset(seed=0)
+    with pytest.raises(gymnasium.error.InvalidAction, match=r"in \[0, 2\)"):
+        discrete.step(np.array([0, 2]))
+
+
+def test_brax_wrapper_refuses_wrong_shape():
+    from bulbjax.interop.brax import BraxEnv
+
+    benv = BraxEnv(bulbjax.make(ENV, num_envs=3, render=False))
+    state = jax.eval_shape(benv.reset, jax.random.PRNGKey(0))
+    for bad in (jnp.zeros((3,)), jnp.zeros((2, 1)), jnp.zeros((3, 1, 1))):
+        with pytest.raises(ValueError, match=r"takes actions of shape \(3, 1\)"):
+            jax.eval_shape(benv.step, state, bad)
+    # the right shape traces (NaN and out-of-range values are then repaired and counted by env.step)
+    out = jax.eval_shape(benv.step, state, jnp.zeros((3, 1)))
+    assert out.pipeline_state.counts["actions_fixed"].shape == (3,)
+
+
+@pytest.mark.parametrize("args, message", [
+    (["run", "--seed", "-1"], "--seed must be a non-negative integer"),
+    (["run", "--epochs", "0"], "epochs must be >= 1, got 0"),
+    (["run", "--seeds", "-2"], "seeds must be >= 1, got -2"),
+    (["run", "--ppo-updates", "-1"], "ppo_updates_per_epoch must be >= 1"),
+    (["run", "--probe-every", "0"], "--probe-every must be >= 1, got 0"),
+    (["run", "--keep", "0"], "--keep must be >= 1"),
+    (["run", "--max-minutes", "-5"], "--max-minutes must be >= 0"),
+    (["run", "--env", "Pendulum"], "unknown environment 'Pendulum'; available: CartPole"),
+    (["run", "--learners", "vae,vea"], r"unknown learners \['vea'\]"),
+    (["run", "--preset", "fig9"], "unknown preset 'fig9'; available: fig2-cartpole"),
+    (["run", "--version", "-1"], "--version must be a non-negative int or 'random'"),
+    (["run", "--devices", "0"], "--devices 0: this machine has"),
+    (["fit", "--env", "SyntheticMovers", "--seed", "-3"], "--seed must be a non-negative integer"),
+    (["fit", "--env", "SyntheticMovers", "--data-worlds", "0"], "data_worlds must be >= 1"),
+    (["fit", "--env", "SyntheticMovers", "--data-seed", "-1"], "--data-seed must be a non-negative integer"),
+    (["render", "--frames", "0"], "--frames must be >= 1, got 0"),
+    (["render", "--steps", "-1"], "--steps must be >= 0"),
+])
+def test_cli_bad_values_are_one_line_errors(args, message, tmp_path, capsys):
+    out = str(tmp_path / "out")
+    assert main([*args, "--out", out]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and err.startswith("bulbjax: error: ")
+    assert re.search(message, err), err
+    assert not os.path.exists(out)  # refused before anything was written
