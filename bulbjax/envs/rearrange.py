@@ -81,10 +81,12 @@ Known differences from bulb:
 
 from __future__ import annotations
 
-from bulbjax.envs.franka_rearrange import (FRANKA_BASE, FRANKA_CAMERA, FrankaRearrange, FrankaRearrangeGeom,
-                                           FrankaRearrangeOneGeom, FrankaRearrangeOneYcb, FrankaRearrangeYcb)
-from bulbjax.envs.reacher_rearrange import (REACHER_CAMERA, ReacherRearrange, ReacherRearrangeGeom,
-                                            ReacherRearrangeOneGeom, ReacherRearrangeOneYcb, ReacherRearrangeYcb)
+from bulbjax.envs.franka_rearrange import (  # noqa: F401
+    EE_POS_MAX, EE_POS_MIN, FRANKA_BASE, FRANKA_CAMERA, FRANKA_EFFORTS, FRANKA_REST, FrankaRearrange,
+    FrankaRearrangeGeom, FrankaRearrangeOneGeom, FrankaRearrangeOneYcb, FrankaRearrangeYcb)
+from bulbjax.envs.reacher_rearrange import (  # noqa: F401
+    REACHER_CAMERA, REACHER_LIMITS, ReacherRearrange, ReacherRearrangeGeom, ReacherRearrangeOneGeom,
+    ReacherRearrangeOneYcb, ReacherRearrangeYcb)
 from bulbjax.envs.rearrange_base import Rearrange
 from bulbjax.envs.rearrange_scene import (  # noqa: F401  (the domain's constants, one import away)
     SHAPE_BOX, SHAPE_CYLINDER, SHAPE_MESH, SHAPE_SPHERE,
