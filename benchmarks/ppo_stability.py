@@ -145,7 +145,7 @@ class Variant:
 
     def result(self, epochs: int, threshold: float) -> dict[str, Any]:
         cat = {k: np.concatenate([r[k] for r in self.records])[:epochs].T for k in self.records[0]}  # [S, E]
-        nan_to_none = lambda a: [[None if not np.isfinite(x) else round(float(x), 6) for x in row] for row in a]  # noqa: E731
+        nan_to_none = lambda a: [[None if not np.isfinite(x) else float(f"{float(x):.6g}") for x in row] for row in a]  # noqa: E731
         stab = [stability(row, threshold) for row in cat["ret"]]
         shares = [s["share_after"] for s in stab if s["share_after"] is not None]
         steady = self.chunk_s[1:] or self.chunk_s
