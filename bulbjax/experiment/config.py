@@ -273,12 +273,12 @@ _FIG2_LEARNERS = ("vae", "vae_rpl", "beta_vae", "svae", "pred", "dsa")
 
 
 # PPO's stability settings per Fig. 2 domain (docs/ppo.md has the measurements behind them). The
-# pendulums: a log-std floor at -2 (std 0.135; the solved pendulum held 1,000 on every seed while
-# its log-std was -1.7 to -2.5, epochs 50-99, and started to drop once it fell below -3) and lr
-# annealed linearly to a tenth over 2,000 updates (a 1,000-epoch run of 2 updates per epoch:
-# at constant lr KL and clip fraction grew ~10x and ~3x from epochs 50-99 to 300-999).
+# pendulums: a log-std floor at -2 (std 0.135; the solved pendulum held >= 950 in 92-100% of
+# epochs 50-99 while its log-std was -1.5 to -2.5, and began to drop once it fell below -3) and
+# lr annealed linearly to a tenth over 2,000 updates (a 1,000-epoch run of 2 updates per epoch:
+# at constant lr KL and clip fraction grew 10-20x and ~3x from epochs 50-99 to 300-999).
 # HalfCheetah: a floor at -1.5 (std 0.22): the seed that never ran went below it at epoch ~42
-# with a return of ~600, the five that ran only at epochs 70-90, at 2,000-2,800; the same anneal
+# with a return of ~600, the five that ran only at epochs 60-90, at 2,000-2,800; the same anneal
 # (its domain lr, 3e-4, is set by `ppo_config_for`). CartPole (discrete: no log-std) takes the
 # anneal alone; Ant and Rearrange keep PPO's defaults.
 PENDULUM_PPO = PPOConfig(anneal_updates=2000, lr_floor=0.1, min_log_std=-2.0)
