@@ -21,7 +21,12 @@ import math
 import os
 from collections import defaultdict
 
+import sys
+
 import numpy as np
+
+sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+from ppo_stability import carry_forward, stability  # noqa: E402  (benchmarks/ppo_stability.py)
 
 _GAUSS = 0.5 * (1.0 + math.log(2.0 * math.pi))
 
@@ -46,27 +51,6 @@ def read_scalars(run_dir: str) -> dict[int, dict[str, np.ndarray]]:
     return out
 
 
-def carry_forward(ret: np.ndarray) -> np.ndarray:
-    """Returns with NaN (no episode finished that epoch: a 1,000-step episode spans ~8 epochs of
-    128 steps) replaced by the last finished episodes' mean, as `rl.ppo.train` reports them."""
-    out = ret.copy()
-    for i in range(1, len(out)):
-        if np.isnan(out[i]):
-            out[i] = out[i - 1]
-    return out
-
-
-def stability(ret: np.ndarray, threshold: float) -> tuple[int | None, float | None]:
-    """(first epoch index at >= threshold, share of the later epochs at >= threshold); `ret`
-    carried forward over epochs where no episode finished."""
-    ret = carry_forward(ret)
-    hit = np.nonzero(ret >= threshold)[0]
-    if not len(hit):
-        return None, None
-    rest = ret[hit[0] + 1:]
-    return int(hit[0]), float((rest >= threshold).mean()) if len(rest) else 1.0
-
-
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument("runs", nargs="+", help="run folders (each with metrics.jsonl[.gz])")
@@ -79,7 +63,8 @@ def main() -> None:
         for seed, m in sorted(read_scalars(run).items()):
             ret = carry_forward(m["rl_return"])
             log_std = m["log_std_mean"] if "log_std_mean" in m else m["entropy"] / a.action_size - _GAUSS
-            first, share = stability(ret, a.threshold)
+            st = stability(ret, a.threshold)
+            first, share = st["first_epoch"], st["share_after"]
             drops = [i for i in range(1, len(ret)) if ret[i] < a.threshold <= ret[i - 1]]
             vl = m["value_loss"]
             med = float(np.nanmedian(vl))
