@@ -11,7 +11,9 @@ The key chain is the experiment's (init from `PRNGKey(seed)`, epoch keys split f
 Variants: `old`, the preset's PPO with the stability options off (what the committed runs
 used); `new`, the preset's PPO as it is now (`--new KEY=VALUE` changes it, e.g.
 `--new target_kl=0.02 --new obs_norm_updates=400`); `both` interleaves their chunks, so a
-`--max-minutes` stop leaves both at the same epoch. Writes
+`--max-minutes` stop leaves both at the same epoch. `--state PATH` keeps the variants' states
+and records in PATH after every chunk and continues from it when it exists (same arguments), so
+a run longer than one call goes on in the next on the same machine. Writes
 `benchmarks/results/ppo_stability_<device>_<date>.json`: per variant the PPO settings, per-seed
 per-epoch returns (mean of the episodes finished in the epoch, null where none finished),
 episodes, PPO scalars (lr, log-std, KL, clip fraction, value loss, entropy, update share,
@@ -31,6 +33,7 @@ import dataclasses
 import json
 import math
 import os
+import pickle
 import re
 import sys
 import time
@@ -161,6 +164,32 @@ class Variant:
         )
 
 
+def save_state(path: str, ident: dict, variants: list[Variant]) -> None:
+    """The variants' states, records and chunk times in `path` (written whole, then renamed)."""
+    data = dict(ident=ident, variants={v.name: dict(state=jax.device_get(v.state), records=v.records,
+                                                    chunk_s=v.chunk_s) for v in variants})
+    with open(path + ".tmp", "wb") as f:
+        pickle.dump(data, f)
+    os.replace(path + ".tmp", path)
+
+
+def load_state(path: str, ident: dict) -> dict:
+    """`save_state`'s file; made with other arguments than `ident` it is an error."""
+    with open(path, "rb") as f:
+        data = pickle.load(f)
+    if data["ident"] != ident:
+        raise SystemExit(f"{path} was made with other arguments: {data['ident']}")
+    return data
+
+
+def continue_from(data: dict, variants: list[Variant]) -> None:
+    """Put `load_state`'s states, records and chunk times into `variants`."""
+    for v in variants:
+        d = data["variants"][v.name]
+        v.state = jax.tree.map(jnp.asarray, d["state"])
+        v.records, v.chunk_s = d["records"], d["chunk_s"]
+
+
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--preset", default="fig2-invpend")
@@ -176,13 +205,17 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--threshold", type=float, default=None, help="default: 950 / 195 / 2,500 by domain")
     p.add_argument("--small", action="store_true", help="CPU sizes (the preset's --small)")
     p.add_argument("--out", default=RESULTS, help="folder of the JSON")
+    p.add_argument("--state", default=None, help="keep / continue from the run's state in this file")
     a = p.parse_args(argv)
     t_start = time.time()
+    from bulbjax import compile_cache
+
+    compile_cache.enable()  # a later call of the same settings loads the chunk programs
     from bulbjax.experiment.devices import Devices
     from bulbjax.experiment.resolve import resolve
 
-    overrides = {k: v for k, v in dict(seeds=a.seeds, epochs=a.epochs,
-                                                   ppo_updates_per_epoch=a.ppo_updates).items() if v is not None}
+    given = dict(seeds=a.seeds, epochs=a.epochs, ppo_updates_per_epoch=a.ppo_updates)
+    overrides = {k: v for k, v in given.items() if v is not None}
     base = resolve(a.preset, overrides=overrides, small=a.small)
     threshold = a.threshold if a.threshold is not None else next(
         (v for k, v in THRESHOLDS.items() if base.env.startswith(k)), math.nan)
@@ -195,6 +228,10 @@ def main(argv: list[str] | None = None) -> int:
     print(f"{a.preset}: {base.env}, {base.seeds} seeds x {base.num_envs} worlds, {base.ppo_updates_per_epoch} "
           f"PPO updates of {base.ppo.num_steps} steps per epoch, {base.epochs} epochs in chunks of {chunk}, "
           f"threshold {threshold:g}, on {device}", flush=True)
+    ident = dict(preset=a.preset, seeds=base.seeds, seed=a.seed, chunk=chunk, small=a.small,
+                 ppo={n: dataclasses.asdict(configs[n].ppo) for n in names},
+                 ppo_updates_per_epoch=base.ppo_updates_per_epoch)
+    saved = load_state(a.state, ident) if a.state and os.path.exists(a.state) else None
     dev = Devices(base)
     variants = []
     for name in names:
@@ -202,8 +239,11 @@ def main(argv: list[str] | None = None) -> int:
         diff = {f: getattr(v.cfg.ppo, f) for f in STABILITY_FIELDS}
         print(f"  {name}: compiled in {v.compile_s:.1f} s; {diff}", flush=True)
         variants.append(v)
+    if saved is not None:
+        continue_from(saved, variants)
+        print(f"  continuing from {a.state} at epoch {variants[0].epochs}", flush=True)
     stopped = "done"
-    for c in range(n_chunks):
+    for c in range(variants[0].epochs // chunk, n_chunks):
         if a.max_minutes and time.time() - t_start > 60 * a.max_minutes:
             stopped = "max-minutes"
             break
@@ -216,6 +256,8 @@ def main(argv: list[str] | None = None) -> int:
                   f"lr {float(v.records[-1]['lr'][-1].mean()):.2e}"
                   + (f", log-std {float(ls[-1].mean()):+.2f}" if ls is not None else "")
                   + f", kl {float(v.records[-1]['approx_kl'][-1].mean()):.4f}", flush=True)
+        if a.state:
+            save_state(a.state, ident, variants)
     epochs = min(min(v.epochs for v in variants), base.epochs)
     res = dict(preset=a.preset, env=base.env, device=device, seeds=base.seeds, seed=a.seed, small=a.small,
                epochs_asked=base.epochs, stopped=stopped, wall_s=time.time() - t_start,

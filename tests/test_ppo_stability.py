@@ -202,9 +202,10 @@ def test_stability_figure():
 
 def test_ppo_stability_runs_small(tmp_path):
     mod = _bench()
-    assert mod.main(["--preset", "fig2-cartpole", "--small", "--seeds", "1", "--epochs", "2", "--chunk", "1",
-                     "--ppo-updates", "1", "--variant", "both", "--out", str(tmp_path)]) == 0
-    (path,) = tmp_path.glob("ppo_stability_*.json")
+    args = ["--preset", "fig2-cartpole", "--small", "--seeds", "1", "--chunk", "1", "--ppo-updates", "1",
+            "--variant", "both", "--state", str(tmp_path / "state.pkl")]
+    assert mod.main(args + ["--epochs", "2", "--out", str(tmp_path / "a")]) == 0
+    (path,) = (tmp_path / "a").glob("ppo_stability_*.json")
     res = json.loads(path.read_text())
     assert res["stopped"] == "done" and set(res["variants"]) == {"old", "new"}
     old, new = res["variants"]["old"], res["variants"]["new"]
@@ -216,3 +217,14 @@ def test_ppo_stability_runs_small(tmp_path):
         assert sum(v["episodes"][0]) > 0  # CartPole's random-ish early episodes end within 64 steps
     assert old["ppo_metrics"]["lr"][0] == [1e-3, 1e-3]
     assert new["ppo_metrics"]["lr"][0][1] < new["ppo_metrics"]["lr"][0][0] < 1e-3  # annealing
+    # a later call with the same arguments continues from the state file: one more epoch
+    assert mod.main(args + ["--epochs", "3", "--out", str(tmp_path / "b")]) == 0
+    (path,) = (tmp_path / "b").glob("ppo_stability_*.json")
+    more = json.loads(path.read_text())["variants"]
+    for name in ("old", "new"):
+        assert more[name]["epochs"] == 3
+        assert more[name]["returns"][0][:2] == res["variants"][name]["returns"][0]
+        assert more[name]["ppo_metrics"]["lr"][0][:2] == res["variants"][name]["ppo_metrics"]["lr"][0]
+    assert more["new"]["ppo_metrics"]["lr"][0][2] < more["new"]["ppo_metrics"]["lr"][0][1]
+    with pytest.raises(SystemExit, match="other arguments"):  # other settings refuse the state
+        mod.main(args + ["--epochs", "3", "--seed", "5", "--out", str(tmp_path / "c")])
