@@ -2,12 +2,16 @@
 
 from bulbjax.rl.networks import DiscreteActorCritic, GaussianActorCritic
 from bulbjax.rl.ppo import (
+    LR_SCHEDULES,
     PPO,
     PPOConfig,
     PPOState,
     RunningStats,
     Transition,
     compute_gae,
+    floor_log_std,
+    lr_factor,
+    mean_log_std,
     rollout,
     train,
 )
@@ -19,6 +23,10 @@ __all__ = [
     "RunningStats",
     "Transition",
     "compute_gae",
+    "floor_log_std",
+    "lr_factor",
+    "mean_log_std",
+    "LR_SCHEDULES",
     "rollout",
     "train",
     "DiscreteActorCritic",

@@ -28,6 +28,7 @@ from flax import struct
 from bulbjax.rl.networks import DiscreteActorCritic, GaussianActorCritic, PixelActorCritic
 
 _LOG_2PI = math.log(2.0 * math.pi)
+LR_SCHEDULES = ("linear", "cosine")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -37,7 +38,12 @@ class PPOConfig:
     num_envs: int = 64  # the paper's number of parallel simulators (used by `make_env`-style callers)
     num_steps: int = 64  # rollout length per update
     lr: float = 1e-3  # 3e-4 learns too, ~2x slower on InvertedPendulum
-    anneal_updates: int = 0  # >0: anneal lr linearly to 0 over this many updates; 0: constant lr
+    # Learning-rate anneal (`lr_factor`): over `anneal_updates` PPO updates (0: constant lr) from
+    # lr to lr * lr_floor, "linear" or "cosine", then constant at the floor. Counted in PPO
+    # updates (`PPOState.step`), so a resumed run continues the schedule where it stopped.
+    anneal_updates: int = 0
+    lr_schedule: str = "linear"
+    lr_floor: float = 0.0
     gamma: float = 0.99
     gae_lambda: float = 0.95
     clip_eps: float = 0.2
@@ -57,6 +63,53 @@ class PPOConfig:
     reward_scale: float = 0.1
     bootstrap_truncated: bool = True  # see module docstring
     init_log_std: float = 0.0  # Gaussian policies only
+    # Gaussian policies: the log-std parameter is projected onto [min_log_std, inf) after every
+    # optimiser step (None: no floor). Without it the solved pendulum's log-std falls without
+    # bound (-3 at epoch 100, -4.5 at 1,000) and each update's ratio grows with 1/std (docs/ppo.md).
+    min_log_std: Optional[float] = None
+    # KL early stop (SB3's rule): a minibatch whose approx KL to the rollout policy, measured
+    # before its step, exceeds 1.5 * target_kl is not applied, nor any later one of the update.
+    target_kl: Optional[float] = None
+    # >0: the observation statistics stop updating after this many PPO updates (frozen, so a
+    # solved task's narrowing state distribution no longer moves the inputs); 0: never frozen.
+    obs_norm_updates: int = 0
+
+    def __post_init__(self) -> None:
+        if self.lr_schedule not in LR_SCHEDULES:
+            raise ValueError(f"lr_schedule must be one of {LR_SCHEDULES}, got {self.lr_schedule!r}")
+        if not 0.0 <= self.lr_floor <= 1.0:
+            raise ValueError(f"lr_floor is a fraction of lr in [0, 1], got {self.lr_floor}")
+        if self.anneal_updates < 0 or self.obs_norm_updates < 0:
+            raise ValueError("anneal_updates and obs_norm_updates must be >= 0")
+        if self.target_kl is not None and self.target_kl <= 0:
+            raise ValueError(f"target_kl must be > 0 (or None), got {self.target_kl}")
+
+
+def lr_factor(config: PPOConfig, updates: jax.Array) -> jax.Array:
+    """The learning-rate multiplier after `updates` PPO updates (fractional within an update):
+    1 without an anneal; else from 1 to `lr_floor` over `anneal_updates`, linear or cosine, then
+    `lr_floor`. With `lr_floor=0` and "linear" it is optax's `linear_schedule` to 0."""
+    if config.anneal_updates <= 0:
+        return jnp.ones((), jnp.float32)
+    p = jnp.clip(jnp.asarray(updates, jnp.float32) / config.anneal_updates, 0.0, 1.0)
+    shape = 1.0 - p if config.lr_schedule == "linear" else 0.5 * (1.0 + jnp.cos(jnp.pi * p))
+    return config.lr_floor + (1.0 - config.lr_floor) * shape
+
+
+def _is_log_std(path: tuple) -> bool:
+    return bool(path) and getattr(path[-1], "key", None) == "log_std"
+
+
+def floor_log_std(params: Any, floor: float) -> Any:
+    """`params` with every `log_std` parameter (Gaussian heads) raised to at least `floor`."""
+    return jax.tree_util.tree_map_with_path(
+        lambda path, x: jnp.maximum(x, floor) if _is_log_std(path) else x, params)
+
+
+def mean_log_std(params: Any) -> jax.Array:
+    """Mean of the Gaussian head's `log_std` parameter (NaN when the policy has none)."""
+    leaves = [x for path, x in jax.tree_util.tree_flatten_with_path(params)[0] if _is_log_std(path)]
+    return jnp.mean(jnp.concatenate([x.ravel() for x in leaves])) if leaves else jnp.asarray(jnp.nan)
 
 
 @struct.dataclass
@@ -180,12 +233,9 @@ class PPO:
             self.network = GaussianActorCritic(action_size, tuple(config.hidden), config.init_log_std)
         if self.pixels:
             self.network = PixelActorCritic(self.network)
-        steps_per_update = config.update_epochs * config.num_minibatches
-        if config.anneal_updates > 0:
-            lr = optax.linear_schedule(config.lr, 0.0, config.anneal_updates * steps_per_update)
-        else:
-            lr = config.lr
-        self.tx = optax.chain(optax.clip_by_global_norm(config.max_grad_norm), optax.adam(lr, eps=1e-5))
+        # The anneal (`lr_factor`) scales Adam's step in `update`: the optimiser state is the
+        # constant-lr one either way, and the schedule follows PPO's update count.
+        self.tx = optax.chain(optax.clip_by_global_norm(config.max_grad_norm), optax.adam(config.lr, eps=1e-5))
 
     @classmethod
     def for_env(cls, config: PPOConfig, env: Any) -> "PPO":
@@ -298,6 +348,10 @@ class PPO:
     ) -> tuple[PPOState, dict]:
         """GAE + `update_epochs` epochs of shuffled minibatch steps on the clipped objective.
 
+        Metrics (means over the minibatch steps): the losses, entropy, approx KL, clip fraction,
+        `lr` (the annealed rate), `update_frac` (share of steps applied; < 1 after a KL stop),
+        `obs_mean_shift` / `obs_std_shift` (how far the observation statistics moved, in old
+        standard deviations / |log std ratio|), and for Gaussian policies `log_std_mean`.
         Observations are normalised with the statistics the rollout was collected with (so the
         first ratio is exactly 1); the statistics are then updated with this rollout's obs.
         """
@@ -319,27 +373,60 @@ class PPO:
         assert batch_size % cfg.num_minibatches == 0, "T * N must be divisible by num_minibatches"
         batch = jax.tree.map(lambda x: x.reshape((batch_size,) + x.shape[2:]), batch)
 
-        def minibatch_step(carry, mb):
-            params, opt_state = carry
-            grads, metrics = jax.grad(self._loss, has_aux=True)(params, mb)
-            updates, opt_state = self.tx.update(grads, opt_state, params)
-            return (optax.apply_updates(params, updates), opt_state), metrics
+        steps_per_update = cfg.update_epochs * cfg.num_minibatches
 
-        def epoch(carry, k):
+        def minibatch_step(carry, xs):
+            params, opt_state, stopped = carry
+            mb, j = xs  # j: the minibatch step's index within this update
+            grads, metrics = jax.grad(self._loss, has_aux=True)(params, mb)
+            updates, new_opt = self.tx.update(grads, opt_state, params)
+            factor = lr_factor(cfg, state.step + j / steps_per_update)
+            if cfg.anneal_updates > 0:
+                updates = jax.tree.map(lambda u: u * factor, updates)
+            new_params = optax.apply_updates(params, updates)
+            if cfg.min_log_std is not None:
+                new_params = floor_log_std(new_params, cfg.min_log_std)
+            if cfg.target_kl is not None:  # this step and all later ones of the update are skipped
+                stopped = stopped | (metrics["approx_kl"] > 1.5 * cfg.target_kl)
+                keep_old = lambda old, new: jnp.where(stopped, old, new)  # noqa: E731
+                new_params = jax.tree.map(keep_old, params, new_params)
+                new_opt = jax.tree.map(keep_old, opt_state, new_opt)
+            metrics = dict(metrics, lr=cfg.lr * factor, update_frac=1.0 - stopped.astype(jnp.float32))
+            return (new_params, new_opt, stopped), metrics
+
+        def epoch(carry, xs):
+            k, e = xs
             perm = jax.random.permutation(k, batch_size)
             mbs = jax.tree.map(
                 lambda x: x[perm].reshape((cfg.num_minibatches, -1) + x.shape[1:]), batch
             )
-            return jax.lax.scan(minibatch_step, carry, mbs)
+            return jax.lax.scan(minibatch_step, carry, (mbs, e * cfg.num_minibatches + jnp.arange(cfg.num_minibatches)))
 
-        (params, opt_state), metrics = jax.lax.scan(
-            epoch, (state.params, state.opt_state), jax.random.split(key, cfg.update_epochs)
+        (params, opt_state, _), metrics = jax.lax.scan(
+            epoch, (state.params, state.opt_state, jnp.zeros((), bool)),
+            (jax.random.split(key, cfg.update_epochs), jnp.arange(cfg.update_epochs)),
         )
         metrics = jax.tree.map(jnp.mean, metrics)
-        keep = not cfg.normalize_obs or self.pixels
-        obs_stats = state.obs_stats if keep else state.obs_stats.update(traj.obs)
+        obs_stats = self._next_obs_stats(state, traj.obs)
+        old, new = state.obs_stats, obs_stats
+        metrics["obs_mean_shift"] = jnp.mean(jnp.abs(new.mean - old.mean) / jnp.sqrt(old.var + 1e-8))
+        metrics["obs_std_shift"] = jnp.mean(jnp.abs(0.5 * jnp.log((new.var + 1e-8) / (old.var + 1e-8))))
+        if not self.discrete:
+            metrics["log_std_mean"] = mean_log_std(params)
         new_state = PPOState(params, opt_state, obs_stats, state.step + 1)
         return new_state, metrics
+
+    def _next_obs_stats(self, state: PPOState, obs: jax.Array) -> RunningStats:
+        """The observation statistics after an update on rollout `obs`: unchanged without
+        normalisation (or for frames), and once `obs_norm_updates` updates are done."""
+        cfg = self.config
+        if not cfg.normalize_obs or self.pixels:
+            return state.obs_stats
+        new = state.obs_stats.update(obs)
+        if cfg.obs_norm_updates > 0:
+            frozen = state.step >= cfg.obs_norm_updates
+            new = jax.tree.map(lambda a, b: jnp.where(frozen, a, b), state.obs_stats, new)
+        return new
 
 
 def rollout(
