@@ -52,11 +52,24 @@ def epoch_records(epoch: int, metrics: Any, spec: Sequence[StateEntry]) -> list[
                                   spread_D=d["spread"][s])
                 for stream, d in streams.items()}
             for stream, d in streams.items():
+                if "angle" in d:
+                    rec.setdefault("angles", {}).setdefault(name, {})[stream] = angle_summary(
+                        {k: v[s] for k, v in d["angle"].items()}, spec)
                 if "objects" in d:
                     one = {k: v[s] for k, v in d["objects"].items()}
                     rec.setdefault("objects", {}).setdefault(name, {})[stream] = objects.summary_of(one, names)
         out.append(rec)
     return out
+
+
+def angle_summary(angle: dict[str, Any], spec: Sequence[StateEntry]) -> dict[str, dict[str, float]]:
+    """Per object with a major-axis angle target (entries `<obj>_axis_cos2` in `spec`, in spec
+    order), the probe's and the constant predictor's mean angle error (rad) of one seed's stream
+    (`probing.fit_and_score`'s `"angle"`): `{obj: {"mae", "baseline"}}`, NaN where no held-out
+    step had a defined angle (a sphere: none ever)."""
+    objs = [e.name[: -len("_axis_cos2")] for e in spec if e.name.endswith("_axis_cos2")]
+    mae, base = (np.asarray(angle[k], np.float64).reshape(-1) for k in ("mae", "baseline"))
+    return {o: {"mae": _f(mae[i]), "baseline": _f(base[i])} for i, o in enumerate(objs)}
 
 
 def write_jsonl(path: str, records: Sequence[dict[str, Any]]) -> None:

@@ -206,6 +206,17 @@ def write_reports(run_dir: str, records: Sequence[dict[str, Any]], cfg: Any,
     return tab
 
 
+def report_spec(state_spec: Sequence[StateEntry], records: Sequence[dict]) -> tuple[StateEntry, ...]:
+    """The entries a run's probes regressed: the state and its derived targets
+    (`probing.probe_targets`), or the state alone for records written before the derived
+    targets existed (their `ref_spread` has one number per state entry)."""
+    from bulbjax.experiment.probing import probe_targets
+
+    spec = probe_targets(state_spec).spec
+    widths = {len(r["ref_spread"]) for r in records if "ref_spread" in r}
+    return tuple(state_spec) if widths == {len(state_spec)} else spec
+
+
 def redraw(run_dir: str) -> str:
     """`bulbjax report RUN_DIR`: fig2.png and table.md again from config.json and metrics.jsonl
     (also while the run is still writing them: incomplete epochs are left out)."""
@@ -214,7 +225,7 @@ def redraw(run_dir: str) -> str:
     cfg, _ = read_run_config(run_dir)
     records = read_jsonl(metrics_path(run_dir), tolerate_partial=True)
     cls = env_class(cfg.env)
-    return write_reports(run_dir, records, cfg, cls.state_spec, cls.solved_return,
+    return write_reports(run_dir, records, cfg, report_spec(cls.state_spec, records), cls.solved_return,
                          footer=f"redrawn by `bulbjax report` from {len(records)} records")
 
 
@@ -270,7 +281,7 @@ def merge_seeds(run_dirs: Sequence[str], out_dir: str) -> str:
     write_jsonl(os.path.join(out_dir, "metrics.jsonl"), merged)
     cls = env_class(cfg.env)
     names = ", ".join(f"{s['run_dir']} (seed {s['base_seed']}: {s['seeds']} seeds)" for s in sources)
-    return write_reports(out_dir, merged, cfg, cls.state_spec, cls.solved_return,
+    return write_reports(out_dir, merged, cfg, report_spec(cls.state_spec, merged), cls.solved_return,
                          footer=f"seeds of {len(runs)} runs merged by `bulbjax report --merge-seeds`: {names}")
 
 
