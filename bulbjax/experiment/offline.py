@@ -37,7 +37,7 @@ from bulbjax.experiment.devices import Devices, make_mesh
 from bulbjax.experiment.learning import train_learner
 from bulbjax.experiment.policy import Policy
 from bulbjax.experiment.probing import fit_and_score, probe_latents, probe_over_seeds, probe_targets
-from bulbjax.experiment.records import read_jsonl, write_jsonl, write_jsonl_atomic
+from bulbjax.experiment.records import nanmean, read_jsonl, write_jsonl, write_jsonl_atomic
 from bulbjax.experiment.seeds import SeedGroup, Team, learner_loop, over_seeds, resolve_seed_loop, with_seed_loop
 from bulbjax.learners import check_finite, is_sequential, make_learner
 
@@ -347,14 +347,20 @@ def _accumulate(sums: dict, m: dict, n: int) -> dict:
     return out
 
 
+def _norm_text(v: float) -> str:
+    """A normalised error for the log line; "excluded" for a group none of whose entries can be
+    normalised (NaN: every entry constant in the data)."""
+    return f"{v:.2f}" if np.isfinite(v) else "excluded"
+
+
 def _summary(recs: list[dict]) -> str:
     parts = []
     for name in recs[0]["probes"]:
         g = recs[0]["probes"][name]["rand"]["groups"]
-        vals = {k: np.nanmean([r["probes"][name]["rand"]["groups"][k]["mae_norm"] for r in recs]) for k in g}
-        parts.append(f"{name} " + "/".join(f"{v:.2f}" for v in vals.values()))
+        vals = {k: nanmean([r["probes"][name]["rand"]["groups"][k]["mae_norm"] for r in recs]) for k in g}
+        parts.append(f"{name} " + "/".join(_norm_text(v) for v in vals.values()))
     base = recs[0]["probes"][next(iter(recs[0]["probes"]))]["rand"]["groups"]
-    parts.append("constant " + "/".join(f"{g['baseline_norm']:.2f}" for g in base.values()))
+    parts.append("constant " + "/".join(_norm_text(g["baseline_norm"]) for g in base.values()))
     return "; ".join(parts) + f"  ({'/'.join(base)})"
 
 

@@ -219,8 +219,33 @@ def per_seed_error(records: Sequence[dict[str, Any]], learner: str, stream: str,
             x = x["overall"] if group is None else x["groups"][group]
             vals.append(x["baseline_norm" if learner == "constant" else "mae_norm"])
         if vals:
-            out[i] = float(np.nanmean(vals))
+            out[i] = float(nanmean(vals))
     return out
+
+
+def excluded_groups(records: Sequence[dict[str, Any]]) -> set[str]:
+    """The groups none of whose entries could be normalised in any probed record: every entry's
+    reference spread ~0 (`probe.normalisable`; e.g. `object_static` on one fixed version, whose
+    object properties never change, or a sphere's major-axis angle). Their normalised errors are
+    NaN by construction: reports say "excluded" instead of a number."""
+    out: set[str] | None = None
+    for r in probed(records):
+        for streams in r["probes"].values():
+            for x in streams.values():
+                gone = {g for g, v in x["groups"].items() if not np.isfinite(v.get("mae_norm", np.nan))
+                        and all(x["entries"][n]["group"] != g or n in x["excluded"] for n in x["entries"])}
+                out = gone if out is None else out & gone
+    return out or set()
+
+
+def band(mean: float, half: float, seeds: int, digits: int = 3) -> str:
+    """A mean and its 90% band over seeds as table text: "m ± h"; "m (1 seed)" for one seed (no
+    band: a "± 0.000" would claim a certainty one seed cannot give); "–" for no value."""
+    if not np.isfinite(mean):
+        return "–"
+    if seeds < 2:
+        return f"{mean:.{digits}f} (1 seed)"
+    return f"{mean:.{digits}f} ± {half:.{digits}f}"
 
 
 def scalars(record: dict[str, Any]) -> dict[str, float]:

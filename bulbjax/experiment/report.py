@@ -15,7 +15,8 @@ from bulbjax.eval import objects
 from bulbjax.eval.spec import StateEntry
 from bulbjax.experiment import findings
 from bulbjax.experiment.config import read_run_config, run_options_of
-from bulbjax.experiment.records import (NORM_NOTE, STREAMS, ci90, curves, epochs_to_reach, groups_of, has_objects,
+from bulbjax.experiment.records import (NORM_NOTE, STREAMS, band, ci90, curves, epochs_to_reach, excluded_groups,
+                                        groups_of, has_objects, nanmean,
                                         last_returns, metrics_path, object_curves, per_seed_error, probed, read_jsonl,
                                         rl_curve, write_jsonl)
 
@@ -37,16 +38,22 @@ def plot(records: Sequence[dict[str, Any]], spec: Sequence[StateEntry], path: st
     fig, axes = plt.subplots(rows, len(groups), figsize=(4.2 * len(groups), 2.9 * rows + 0.6),
                              squeeze=False, sharex=True)
     colours = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+    gone = excluded_groups(records)
     for row, (stream, label) in enumerate(streams):
         for col, group in enumerate(groups):
             ax = axes[row, col]
+            if group in gone:
+                ax.set_title(f"{label}: {group}")
+                ax.text(0.5, 0.5, "excluded\n(constant over the run:\nnothing to predict)", ha="center",
+                        va="center", transform=ax.transAxes, color="0.4")
+                continue
             for i, name in enumerate(learners):
                 ep, v = curves(records, name, stream, group, x_key=x_key)
                 mean, half = ci90(v)
                 ax.plot(ep, mean, color=colours[i % len(colours)], label=name, marker="." if len(ep) < 30 else None)
                 ax.fill_between(ep, mean - half, mean + half, color=colours[i % len(colours)], alpha=0.2)
             ep, b = curves(records, learners[0], stream, group, key="baseline_norm", x_key=x_key)
-            ax.plot(ep, np.nanmean(b, 0), "k:", label="constant predictor")
+            ax.plot(ep, nanmean(b, 0), "k:", label="constant predictor")
             ax.set_title(f"{label}: {group}")
             ax.set_ylabel("MAE / π_rand reference spread")
             ax.set_ylim(bottom=0)
@@ -98,7 +105,7 @@ def plot_objects(records: Sequence[dict[str, Any]], path: str, title: str,
             ax.plot(ep, mean, color=colour[name], label=name)
             ax.fill_between(ep, mean - half, mean + half, color=colour[name], alpha=0.2)
         ep, b = curves(records, learners[0], stream, "object_position", key="baseline_norm")
-        ax.plot(ep, np.nanmean(b, 0), "k:", label="constant predictor")
+        ax.plot(ep, nanmean(b, 0), "k:", label="constant predictor")
         ax.set_title(f"{label}: MLP probe, object_position")
         ax.set_ylabel("MAE / π_rand reference spread")
         ax.set_ylim(bottom=0)
@@ -146,25 +153,33 @@ def table(records: Sequence[dict[str, Any]], spec: Sequence[StateEntry], last: i
     head = "| learner | stream | " + " | ".join(f"{g} (norm. MAE)" for g in groups) + " | overall |"
     lines = [head, "|" + "---|" * (3 + len(groups))]
     seeds = sorted({r["seed"] for r in recs})
+    gone = excluded_groups(recs)
 
     def cell(name: str, stream: str, g: str) -> str:
+        if g in gone:
+            return "excluded"
         v = per_seed_error(recs, name, stream, None if g == "overall" else g, epochs, x_key)
         mean, half = ci90(v)
-        return f"{mean:.3f} ± {half:.3f}"
+        return band(mean, half, int(np.isfinite(v).sum()))
 
     for stream, label in streams:
         for name in learners + ["constant"]:
             cells = [cell(name, stream, g) for g in groups + ["overall"]]
             lines.append(f"| {name} | {label} | " + " | ".join(cells) + " |")
     lines.append("")
-    lines.append(f"{x_key} {', '.join(str(e) for e in epochs)}; mean ± 90% CI over {len(seeds)} seeds.")
+    lines.append(f"{x_key} {', '.join(str(e) for e in epochs)}; "
+                 + (f"mean ± 90% CI over {len(seeds)} seeds." if len(seeds) > 1 else "1 seed: no band over seeds."))
+    if gone:
+        lines.append(f"excluded: {', '.join(g for g in groups if g in gone)} (every entry constant over the run, "
+                     "reference spread ~0: nothing to predict, no normalised error).")
     if "rl_return" in recs[0]:
         ret, fell_back = last_returns(records, epochs, x_key)
         mean, half = ci90(ret)
+        shown = band(mean, half, len(seeds), digits=1)
         where = (f"the last {len(epochs)} probed epoch(s)" if not fell_back else
                  f"the last {len(epochs)} probed epoch(s), or a seed's latest finished episode up to "
                  "the last of them where none ended in them")
-        lines.append(f"PPO return over {where}: {mean:.1f} ± {half:.1f} (90% CI over {len(seeds)} seeds)")
+        lines.append(f"PPO return over {where}: {shown}" + (f" (90% CI over {len(seeds)} seeds)" if len(seeds) > 1 else ""))
     lines.append("")
     lines.append(f"Errors: {NORM_NOTE}; raw MAE in each entry's unit in metrics.jsonl.")
     return "\n".join(lines)
