@@ -141,12 +141,13 @@ def probe_learner(learner: Any, params: Any, train: Any, held: dict[str, Windows
                   config: probe.ProbeConfig, train_frames: int,
                   corrupt: Any = None,
                   score_objects: Callable[[jax.Array, Windows], dict] | None = None,
+                  targets: ProbeTargets | None = None,
                   ) -> dict[str, dict[str, jax.Array]]:
     """Fit a probe latent -> true state on `train` and score it on every held-out stream (one
     seed): `probe_latents` then `fit_and_score` (see them)."""
     k_c, k_f = jax.random.split(key)
     lat = probe_latents(learner, params, train, held, k_c, config, train_frames, corrupt)
-    return fit_and_score(lat, held, k_f, config, score_objects)
+    return fit_and_score(lat, held, k_f, config, score_objects, targets)
 
 
 def probe_over_seeds(loop: str, latents_seed: Callable[..., dict], fit_seed: Callable[..., dict],
