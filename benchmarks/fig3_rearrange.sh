@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
-# The `fig3-rearrange-geom` run (issues 10 and 11) in stretches on one GPU machine: the frame
-# VAEs (vae, vae_rpl, beta_vae, bf16) beside SPAIR 4x4 and 6x6 (fp32) on ReacherRearrangeGeom,
-# every world drawing one of the 12 versions per episode, 3 seeds, probes every 5 epochs,
+# The `fig3-rearrange-geom` run (issues 10, 11 and 37) in stretches on one GPU machine: the frame
+# VAEs (vae, vae_rpl, beta_vae, bf16) beside SPAIR 4x4 and 6x6 (fp32) on ReacherRearrangeGeom
+# (the fixed black-background scene; PRESET=fig3-rearrange-geom-random: every world drawing one of
+# the 12 versions per episode; PRESET=fig5-rearrange-ycb: VAE_rpl and SPAIR on RearrangeYcb), 3 seeds, probes every 5 epochs,
 # reconstruction / SPAIR box figures every RECON epochs and at the end of each stretch.
 #
 #   benchmarks/fig3_rearrange.sh            # first call starts the run, later calls resume it
@@ -12,11 +13,12 @@
 # cache keeps what was compiled, so the next call gets further). A call that finds a checkpoint
 # in RUN resumes from it. Then RUN without its checkpoints is packed into OUT/fig3.tgz (when OUT
 # is set) so that the metrics, plots and figures survive the machine.
-# Environment: RUN (default runs/fig3_rearrange_geom), MAX_MINUTES, LIMIT, RECON (default 100),
+# Environment: PRESET (default fig3-rearrange-geom), RUN (default runs/fig3_rearrange_geom), MAX_MINUTES, LIMIT, RECON (default 100),
 # EPOCHS (default: the preset's 1,000), PYTHON (default .venv/bin/python if present, else python3),
 # EXTRA (more `run` flags for a fresh start, e.g. "--small --seeds 1" for a CPU smoke test).
 set -uo pipefail
 cd "$(dirname "$0")/.."
+PRESET=${PRESET:-fig3-rearrange-geom}
 RUN=${RUN:-runs/fig3_rearrange_geom}
 MAX_MINUTES=${MAX_MINUTES:-8}
 LIMIT=${LIMIT:-570}
@@ -31,7 +33,7 @@ if [ -n "$(ls -A "$RUN/checkpoints" 2>/dev/null)" ]; then
 else
   # shellcheck disable=SC2206
   # no checkpoint: nothing to resume, so start afresh over what an earlier stretch left (--overwrite)
-  args=(--preset fig3-rearrange-geom --bf16 --probe-every 5 --out "$RUN" --overwrite ${EXTRA:-})
+  args=(--preset "$PRESET" --bf16 --probe-every 5 --out "$RUN" --overwrite ${EXTRA:-})
 fi
 [ -n "${EPOCHS:-}" ] && args+=(--epochs "$EPOCHS")
 timeout -k 15 "$LIMIT" "$PYTHON" -m bulbjax run "${args[@]}" --max-minutes "$MAX_MINUTES" \

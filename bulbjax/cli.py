@@ -287,7 +287,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     r.add_argument("--multicolour", action="store_true", help="bulb's multicolour variant")
     r.add_argument("--version", default=None,
                    help="object version of the multi-object domains (Incline 0-5, Rearrange 0-11), or random "
-                        "(one per world and episode); default 0, fig3 presets random")
+                        "(one per world and episode); default 0, fig3/fig5 presets 6 (black background), "
+                        "fig3-rearrange-geom-random random")
     r.add_argument("--seed-loop", default=None, choices=("auto", "vmap", "map", "hybrid"),
                    help="learner work over the seed axis: vmap, map (one seed at a time: ~1.9x faster "
                         "conv updates on a GPU), hybrid (map, but DSA vmapped with its convolutions one "

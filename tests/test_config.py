@@ -28,6 +28,25 @@ def test_presets_resolve_with_their_domain_ppo():
     assert resolve() == ExperimentConfig().replace(ppo=ppo_config_for("CartPole"))
 
 
+def test_multi_object_presets_fix_the_papers_black_background_scene():
+    """Issue 37: fig3/fig5 run on one fixed black-background version (bulb's 6-11), the random
+    setting is its own named preset, and fig5 puts SPAIR 4x4 and 6x6 beside VAE_rpl on YCB."""
+    from bulbjax.envs.rearrange_scene import GEOM_INFO, OBJECT_LISTS, NUM_LISTS, NUM_VERSIONS
+
+    fixed, rand, ycb = (resolve(n) for n in ("fig3-rearrange-geom", "fig3-rearrange-geom-random",
+                                             "fig5-rearrange-ycb"))
+    for cfg in (fixed, ycb):
+        assert isinstance(cfg.version, int) and NUM_LISTS <= cfg.version < NUM_VERSIONS  # black background
+    # the fixed Geom scene holds the paper's "objects of various sizes": a cylinder, the block, two spheres
+    assert set(OBJECT_LISTS["Geom"][fixed.version % NUM_LISTS]) == {"cylinder", "cube", "sphere", "sphere1"}
+    assert all(n in GEOM_INFO for n in OBJECT_LISTS["Geom"][fixed.version % NUM_LISTS])
+    assert rand.version == "random" and rand.replace(version=fixed.version) == fixed
+    assert (fixed.env, ycb.env) == ("ReacherRearrangeGeom", "ReacherRearrangeYcb")
+    assert ycb.learners == ("vae_rpl", "spair", "spair6")
+    assert (ycb.seeds, ycb.learner_batches, ycb.ppo_updates_per_epoch, ycb.learner.lr) == (3, 10, 2, 1e-4)
+    assert resolve("fig3-rearrange-geom", overrides={"version": "random"}) == rand
+
+
 def test_overrides_and_learner_options_apply():
     cfg = resolve("fig2-invpend", overrides={"seeds": 2, "epochs": 7, "learners": "vae, dsa", "version": "0",
                                              "learner_seed_loop": "map"},

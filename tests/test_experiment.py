@@ -384,9 +384,10 @@ def test_presets_and_cli_overrides():
     loco = preset("fig2-halfcheetah")
     assert (loco.learner_batches, loco.seq_len, loco.learner.sequence_length) == (50, 16, 16)
     assert preset("fig2-ant").window_length == 16 + loco.learner.pred_horizon
-    assert set(PRESETS) == {"fig2-cartpole", "fig2-invpend", "fig2-halfcheetah", "fig2-ant", "fig3-rearrange-geom"}
+    assert set(PRESETS) == {"fig2-cartpole", "fig2-invpend", "fig2-halfcheetah", "fig2-ant", "fig3-rearrange-geom",
+                            "fig3-rearrange-geom-random", "fig5-rearrange-ycb"}
     fig3 = preset("fig3-rearrange-geom")
-    assert (fig3.env, fig3.version, fig3.seeds, fig3.window_length) == ("ReacherRearrangeGeom", "random", 3, 0)
+    assert (fig3.env, fig3.version, fig3.seeds, fig3.window_length) == ("ReacherRearrangeGeom", 6, 3, 0)
     assert {"vae_rpl", "spair", "spair6"} <= set(fig3.learners)
     from bulbjax.learners import resolve_config
     assert (resolve_config("spair6").spair_grid, resolve_config("spair").spair_grid) == (6, 4)

@@ -109,6 +109,33 @@ def test_rearrange_run_has_the_object_probe(rearrange, tmp_path) -> None:
     assert rcells[2] != "–" and rcells[3] == rcells[4] == "–" and rcells[6].endswith("/ –")
 
 
+def test_rearrange_run_probes_major_axis_angles(rearrange, tmp_path) -> None:
+    """Issue 37: the probes regress the state and the objects' major-axis angles (derived targets,
+    the env's state unchanged); the reference spread covers them; the spheres' angle entries
+    (always (0, 0)) and the objects' static properties (one version) are excluded; records carry
+    per-object angle errors (rad), NaN for the spheres; table.md says "excluded", never nan."""
+    exp, m = rearrange
+    d = len(exp.env.state_spec)
+    assert d == 100 and len(exp.spec) == d + 8 and exp.spec[:d] == exp.env.state_spec
+    assert [e.group for e in exp.spec[d:]] == ["object_angle"] * 8
+    assert m["ref_spread"].shape == (SEEDS, d + 8)
+    for stream in ("curr", "rand"):
+        assert m["probes"]["vae_rpl"][stream]["mae"].shape == (SEEDS, d + 8)
+        a = m["probes"]["vae_rpl"][stream]["angle"]
+        assert a["mae"].shape == a["baseline"].shape == (SEEDS, 4)
+        assert np.isnan(a["mae"][:, 2:]).all()  # the spheres: no axis
+    recs = records.epoch_records(0, m, exp.spec)
+    r = recs[0]
+    assert set(r["angles"]["vae_rpl"]["rand"]) == {"obj0", "obj1", "obj2", "obj3"}
+    assert np.isnan(r["angles"]["vae_rpl"]["rand"]["obj2"]["mae"])
+    excl = set(r["probes"]["vae_rpl"]["rand"]["excluded"])
+    assert {"obj2_axis_cos2", "obj2_axis_sin2", "obj3_axis_cos2", "obj3_axis_sin2"} <= excl
+    assert records.excluded_groups(recs) >= {"object_static"}
+    report.write_reports(str(tmp_path), recs, exp.config, exp.spec)
+    text = (tmp_path / "table.md").read_text()
+    assert "object_angle" in text and "excluded" in text and "nan" not in text.split("## Objects")[0].lower()
+
+
 def test_spair_boxes_of_latents_match_boxes() -> None:
     learner = make_learner("spair", 8, {"spair_grid": 2, "spair_glimpse": 8, "spair_what_dim": 4,
                                          "conv_features": (8, 8, 8, 8), "hidden": 16})

@@ -128,7 +128,10 @@ from bulbjax.envs.rearrange_scene import (  # noqa: F401  (the domain's constant
     is_box_or_can,
     object_half_height,
     rearrange_state_spec,
-    rearrange_raw_state_spec)
+    rearrange_raw_state_spec,
+    ANGLE_GROUP,
+    angle_target_spec,
+    angle_targets)
 
 REARRANGE_CLASSES: tuple[type[Rearrange], ...] = (
     ReacherRearrangeGeom, ReacherRearrangeOneGeom, ReacherRearrangeYcb, ReacherRearrangeOneYcb,

@@ -187,3 +187,56 @@ def rearrange_raw_state_spec(joints: int, objects: int) -> tuple[StateEntry, ...
 
 def _normalise(x, lo, hi):
     return (x - lo) / (hi - lo) * 2.0 - 1.0
+
+
+ANGLE_GROUP = "object_angle"
+ANGLE_UNIT = "1 (cos 2θ, sin 2θ; θ the major axis's angle mod π)"
+
+
+def angle_target_spec(spec: tuple[StateEntry, ...]) -> tuple[StateEntry, ...]:
+    """The major-axis angle targets derived from a Rearrange state (`angle_targets`): per object
+    of `spec` (entries `obj<i>_rot0..8`), `obj<i>_axis_cos2` and `obj<i>_axis_sin2` in group
+    `object_angle`; () for a spec without rotation matrices."""
+    out = []
+    for i in range(_count_objects(spec)):
+        out += [StateEntry(f"obj{i}_axis_{t}", ANGLE_UNIT, ANGLE_GROUP) for t in ("cos2", "sin2")]
+    return tuple(out)
+
+
+def _count_objects(spec: tuple[StateEntry, ...]) -> int:
+    names = {e.name for e in spec}
+    i = 0
+    while f"obj{i}_rot0" in names and f"obj{i}_shape" in names:
+        i += 1
+    return i
+
+
+def angle_targets(spec: tuple[StateEntry, ...]):
+    """`states [..., D] -> [..., 2M]`: per object, (cos 2θ, sin 2θ) of its major axis's angle θ in
+    the table plane (`bulbjax.eval.angles`), read off the state itself: the rotation matrix
+    (`obj<i>_rot*`), the shape id and bulb's dims (`obj<i>_shape`, `_radius_a`, `_radius_b`,
+    `_height`: the half-extents along body x, y, z of the block, radius and half-height of the
+    cylinder), so it holds for every version, random ones included. Spheres and YCB meshes
+    (shape id 3: their dims are bulb's defaults, not the mesh's) have no axis: (0, 0), excluded
+    by the reference spread where constant over the run. Not part of the env's state: bulb's
+    state layout (and its parity tests) stays as it is; the probes add these (`angle_target_spec`)."""
+    import jax.numpy as jnp
+
+    from bulbjax.eval.angles import major_axis_c2s2
+
+    names = [e.name for e in spec]
+    m = _count_objects(spec)
+    rot_idx = np.array([[names.index(f"obj{i}_rot{k}") for k in range(9)] for i in range(m)])
+    shape_idx = np.array([names.index(f"obj{i}_shape") for i in range(m)])
+    dim_idx = np.array([[names.index(f"obj{i}_{p}") for p in ("radius_a", "radius_b", "height")] for i in range(m)])
+    k = PROP_NAMES.index("shape")
+    lo, hi = PROP_MIN[3:6], PROP_MAX[3:6]
+
+    def fn(states):
+        rot = states[..., rot_idx].reshape(states.shape[:-1] + (m, 3, 3))
+        shape = jnp.round((states[..., shape_idx] + 1.0) / 2.0 * (PROP_MAX[k] - PROP_MIN[k]) + PROP_MIN[k])
+        dims = (states[..., dim_idx] + 1.0) / 2.0 * (hi - lo) + lo
+        c2s2 = major_axis_c2s2(rot, shape.astype(jnp.int32), dims)  # [..., M, 2]
+        return c2s2.reshape(states.shape[:-1] + (2 * m,)).astype(states.dtype)
+
+    return fn

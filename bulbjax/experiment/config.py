@@ -303,12 +303,28 @@ def _fig2(env: str, learner_batches: int, ppo: PPOConfig | None = None) -> Exper
                             learner_batches=learner_batches)
 
 
-def _fig3(env: str) -> ExperimentConfig:
+# The paper's RearrangeGeom scene (Sec. V: objects simplified "to be simple single-color geometric
+# shapes" and "the scene background" removed): bulb's version 6, its first black-background version.
+# Versions 6-10 all hold bulb's object list 0 (cylinder r 6 cm x 12 cm, block 5 x 10 x 15 cm,
+# spheres of r 4 and 6 cm: the "objects of various sizes" of Sec. IV.C) and differ only in
+# colours; 11 has two blocks and two spheres (no cylinder). Version 6 keeps list 0 with its own
+# colours (blue cylinder, magenta block, red sphere, yellow large sphere): four saturated,
+# mutually distinct single colours on black, no texture.
+FIG3_VERSION = 6
+# RearrangeYcb on the black background, the same list-0 index: master chef can, gelatin box,
+# apple, pear (the paper's Fig. 5 also shows textured trays; `--version random` gives those).
+FIG5_VERSION = 6
+
+
+def _fig3(env: str, version: int | str = FIG3_VERSION,
+          learners: tuple[str, ...] = ("vae", "vae_rpl", "beta_vae", "spair", "spair6")) -> ExperimentConfig:
     """The paper's Fig. 3 setting (Sec. IV.C): SPAIR (4x4 and 6x6 grids, 64 frames per batch)
-    beside the frame VAEs on a Rearrange domain, every world drawing one of the 12 versions per
-    episode (objects, colours, tray), 3 seeds, 64 worlds per seed, lr 1e-4, 10 learner batches
-    per epoch as for the pendulums (the paper does not state the Rearrange count)."""
-    return ExperimentConfig(env=env, version="random", learners=("vae", "vae_rpl", "beta_vae", "spair", "spair6"),
+    beside the frame VAEs on a Rearrange domain, 3 seeds, 64 worlds per seed, lr 1e-4, 10 learner
+    batches per epoch as for the pendulums (the paper does not state the Rearrange count).
+    `version`: the fixed scene the paper describes (`FIG3_VERSION`, black background), or
+    "random" for one of the 12 versions per world and episode (objects, colours and tray all
+    change: a harder task than the paper's, `fig3-rearrange-geom-random`)."""
+    return ExperimentConfig(env=env, version=version, learners=learners,
                             seeds=3, epochs=1000, ppo_updates_per_epoch=2, learner=LearnerConfig(lr=1e-4),
                             learner_batches=10)
 
@@ -319,6 +335,10 @@ PRESETS: dict[str, ExperimentConfig] = {
     "fig2-halfcheetah": _fig2("HalfCheetah", 50, HALFCHEETAH_PPO),
     "fig2-ant": _fig2("Ant", 50),
     "fig3-rearrange-geom": _fig3("ReacherRearrangeGeom"),
+    "fig3-rearrange-geom-random": _fig3("ReacherRearrangeGeom", version="random"),
+    # Fig. 5: SPAIR 4x4 and 6x6 beside VAE_rpl on RearrangeYcb (YCB meshes: $BULBJAX_YCB_DIR)
+    "fig5-rearrange-ycb": _fig3("ReacherRearrangeYcb", version=FIG5_VERSION,
+                                learners=("vae_rpl", "spair", "spair6")),
 }
 
 

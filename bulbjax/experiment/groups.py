@@ -173,7 +173,8 @@ class SeedGroups:
             ref = np.concatenate([np.asarray(r) for r in jax.device_get(ref)], axis=1)  # [T, Sl*N, D]
             if self.processes > 1:
                 ref = _allgather(np.ascontiguousarray(ref.swapaxes(0, 1))).swapaxes(0, 1)
-            spread = jax.jit(probe.spread)(jnp.asarray(ref.reshape((-1, ref.shape[-1]))))
+            targets = self.exps[0].targets  # the probes' targets: the states and what derives from them
+            spread = jax.jit(lambda r: probe.spread(targets(r)))(jnp.asarray(ref.reshape((-1, ref.shape[-1]))))
             states = [rs.replace(ref_spread=jax.device_put(spread, e.devices.replicated))
                       for rs, e in zip(states, self.exps)]
         return self._wrap(states)

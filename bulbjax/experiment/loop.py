@@ -27,7 +27,7 @@ from bulbjax.experiment.config import ExperimentConfig
 from bulbjax.experiment.devices import Devices
 from bulbjax.experiment.learning import Learning
 from bulbjax.experiment.policy import Policy
-from bulbjax.experiment.probing import Probing, object_pixels
+from bulbjax.experiment.probing import Probing, object_pixels, probe_targets
 from bulbjax.experiment.seeds import SeedGroup, Team, resolve_seed_loop, with_seed_loop
 from bulbjax.experiment.state import EnvStage, PolicyHistory, RunState
 from bulbjax.experiment.streams import Streams
@@ -58,7 +58,9 @@ class Experiment:
         self.group = group = SeedGroup(c.seeds, c.num_envs, offset, total)
         self.devices = dev = Devices(c, devices, group)
         self.env, self.mesh, self.sharded = dev.env, dev.mesh, dev.sharded
-        self.spec = self.env.state_spec
+        # what the probes regress: the env's state and targets derived from it (`probe_targets`)
+        self.targets = probe_targets(self.env.state_spec)
+        self.spec = self.targets.spec
         self.seed_loop = resolve_seed_loop(c.learner_seed_loop, self.mesh)
         latent = c.latent_factor * self.env.state_dim
         action_dim = self.env.num_actions if self.env.discrete else self.env.action_size
@@ -73,7 +75,7 @@ class Experiment:
         # Object-level probe (multi-object domains): names and states -> image positions (px)
         # of the true objects, None for domains without objects in the state (nothing computed).
         self.probing = Probing(self.team, c.probe, c.probe_train_frames, c.resolution,
-                               object_pixels(self.env), objects.default_radius(c.resolution))
+                               object_pixels(self.env), objects.default_radius(c.resolution), self.targets)
         shapes = jax.eval_shape(self._init, jax.random.PRNGKey(0))
         self._state_sh = dev.state_shardings(shapes)
         rep = dev.replicated
@@ -142,7 +144,8 @@ class Experiment:
         # worlds run `reference_steps` steps (pooled over seeds); their π_rand stream goes on from there.
         (rand_env, _), (_, ref_states, _, _) = policy.rollout(ppo_state, rand_env, ke[3], c.reference_steps,
                                                               random=True)
-        ref_spread = probe.spread(ref_states.reshape((-1, ref_states.shape[-1])))
+        ref_targets = self.targets(ref_states)
+        ref_spread = probe.spread(ref_targets.reshape((-1, ref_targets.shape[-1])))
         # Fill replay with frames of the random policy; retained learners keep a share of them.
         buffers = self.streams.init_buffers(ppo_state, k_fill, k_keep)
         # Keys of the window buffers are folded in, so frame-only runs keep their random streams.

@@ -36,8 +36,8 @@ from bulbjax.experiment.config import OfflineConfig
 from bulbjax.experiment.devices import Devices, make_mesh
 from bulbjax.experiment.learning import train_learner
 from bulbjax.experiment.policy import Policy
-from bulbjax.experiment.probing import fit_and_score, probe_latents, probe_over_seeds
-from bulbjax.experiment.records import linear_summary, read_jsonl, write_jsonl, write_jsonl_atomic
+from bulbjax.experiment.probing import fit_and_score, probe_latents, probe_over_seeds, probe_targets
+from bulbjax.experiment.records import linear_summary, nanmean, read_jsonl, write_jsonl, write_jsonl_atomic
 from bulbjax.experiment.seeds import SeedGroup, Team, learner_loop, over_seeds, resolve_seed_loop, with_seed_loop
 from bulbjax.learners import check_finite, is_sequential, make_learner
 
@@ -127,7 +127,9 @@ class OfflineFit:
         self.seed_loop = resolve_seed_loop(b.learner_seed_loop, make_mesh(jax.devices()[:1], b.seeds, 1))
         self.learners = {n: with_seed_loop(make_learner(n, latent, b.learner, self.source.action_dim), self.seed_loop)
                          for n in b.learners}
-        self.spec = self.source.spec
+        # what the probes regress: the state and targets derived from it (`probing.probe_targets`)
+        self.targets = probe_targets(self.source.spec)
+        self.spec = self.targets.spec
         self.S = b.seeds
         per_call = c.updates_per_call or (1 if jax.default_backend() == "cpu" else c.probe_every)
         self.per_call = min(per_call, c.probe_every)
@@ -178,7 +180,7 @@ class OfflineFit:
                                      b.probe_train_frames, corrupt)
 
             def fit_seed(lat, k_f, k_s, st):
-                return fit_and_score(lat, {"rand": held}, k_f, b.probe)
+                return fit_and_score(lat, {"rand": held}, k_f, b.probe, targets=self.targets)
 
             keys = jax.random.split(jax.random.fold_in(key, i), self.S)
             k_s, k_p = jax.vmap(jax.random.split)(keys).swapaxes(0, 1)
@@ -266,7 +268,7 @@ def run(config: OfflineConfig, out_dir: str, cache_dir: str | None = None, max_m
         os.replace(tmp, os.path.join(out_dir, "config.json"))
     data, held_traj, cached = load_or_collect(c, fit.source, cache_dir)
     held = sequence.consecutive_windows(held_traj, c.eval_length)
-    ref_spread = np.asarray(jax.device_get(_ref_spread(held)))
+    ref_spread = np.asarray(jax.device_get(_ref_spread(held, fit.targets)))
     t_data = time.time() - t0
     log(f"data: {data.frames.shape[1]} worlds x {data.steps} steps for training, "
         f"{held.valid.size} held-out steps ({'cache' if cached else 'collected'}, {t_data:.1f} s)")
@@ -332,9 +334,10 @@ def run(config: OfflineConfig, out_dir: str, cache_dir: str | None = None, max_m
     return records
 
 
-def _ref_spread(held: Windows) -> jax.Array:
-    """The reference spread: held-out random-policy states, valid steps."""
-    return probe.spread(held.states.reshape((-1, held.states.shape[-1])), held.valid.reshape(-1))
+def _ref_spread(held: Windows, targets: Callable[[jax.Array], jax.Array] = lambda s: s) -> jax.Array:
+    """The reference spread: the probe targets of held-out random-policy states, valid steps."""
+    t = targets(held.states)
+    return probe.spread(t.reshape((-1, t.shape[-1])), held.valid.reshape(-1))
 
 
 def _accumulate(sums: dict, m: dict, n: int) -> dict:
@@ -347,14 +350,20 @@ def _accumulate(sums: dict, m: dict, n: int) -> dict:
     return out
 
 
+def _norm_text(v: float) -> str:
+    """A normalised error for the log line; "excluded" for a group none of whose entries can be
+    normalised (NaN: every entry constant in the data)."""
+    return f"{v:.2f}" if np.isfinite(v) else "excluded"
+
+
 def _summary(recs: list[dict]) -> str:
     parts = []
     for name in recs[0]["probes"]:
         g = recs[0]["probes"][name]["rand"]["groups"]
-        vals = {k: np.nanmean([r["probes"][name]["rand"]["groups"][k]["mae_norm"] for r in recs]) for k in g}
-        parts.append(f"{name} " + "/".join(f"{v:.2f}" for v in vals.values()))
+        vals = {k: nanmean([r["probes"][name]["rand"]["groups"][k]["mae_norm"] for r in recs]) for k in g}
+        parts.append(f"{name} " + "/".join(_norm_text(v) for v in vals.values()))
     base = recs[0]["probes"][next(iter(recs[0]["probes"]))]["rand"]["groups"]
-    parts.append("constant " + "/".join(f"{g['baseline_norm']:.2f}" for g in base.values()))
+    parts.append("constant " + "/".join(_norm_text(g["baseline_norm"]) for g in base.values()))
     return "; ".join(parts) + f"  ({'/'.join(base)})"
 
 

@@ -20,7 +20,8 @@ import numpy as np
 from bulbjax.data import replay, sequence
 from bulbjax.data.sequence import Windows
 from bulbjax.envs import rearrange
-from bulbjax.eval import linear, objects, probe
+from bulbjax.eval import angles, linear, objects, probe
+from bulbjax.eval.spec import StateEntry
 from bulbjax.experiment.seeds import Team, over_seeds, stack_members, switch_buffer, unstack_members
 from bulbjax.learners import is_sequential
 
@@ -60,33 +61,87 @@ def probe_latents(learner: Any, params: Any, train: Any, held: dict[str, Windows
     return {"tz": tz, "ts": ts, "groups": groups, "held": {st: enc(w) for st, w in held.items()}}
 
 
+@dataclass(frozen=True, eq=False)
+class ProbeTargets:
+    """What the probes regress: the env's state (`state_spec`, D entries) followed by targets
+    derived from it (`derive`: states `[..., D] -> [..., D']`, entries `derived`), e.g. the
+    Rearrange objects' major-axis angles (`rearrange_scene.angle_targets`). Derived here, in
+    the probing layer, and not in the env: the env's state keeps bulb's layout (its parity with
+    bulb's state is tested), replay and windows keep the env's states, and every probe, the
+    reference spread and the reports use `spec` (= state_spec + derived). `angle_pairs`: per
+    object with an angle target, its name and the indices (in `spec`) of its (cos 2θ, sin 2θ)
+    pair, scored as an angle error (`angles.mean_angle_error`)."""
+
+    state_spec: tuple[StateEntry, ...]
+    derived: tuple[StateEntry, ...] = ()
+    derive: Callable[[jax.Array], jax.Array] | None = None
+
+    @property
+    def spec(self) -> tuple[StateEntry, ...]:
+        return tuple(self.state_spec) + tuple(self.derived)
+
+    def __call__(self, states: jax.Array) -> jax.Array:
+        """`[..., D] -> [..., D + D']`; the states themselves without derived targets."""
+        if self.derive is None:
+            return states
+        return jnp.concatenate([states, self.derive(states).astype(states.dtype)], axis=-1)
+
+    @property
+    def angle_pairs(self) -> tuple[tuple[str, int, int], ...]:
+        names = [e.name for e in self.spec]
+        return tuple((n[: -len("_axis_cos2")], i, names.index(n[: -len("cos2")] + "sin2"))
+                     for i, n in enumerate(names) if n.endswith("_axis_cos2"))
+
+
+def probe_targets(spec: Sequence[StateEntry]) -> ProbeTargets:
+    """The probe targets of a state spec: a Rearrange state (objects with rotation matrices and
+    shape properties) gets its objects' major-axis angles (`rearrange.angle_targets`); other
+    states are probed as they are."""
+    spec = tuple(spec)
+    derived = rearrange.angle_target_spec(spec)
+    if not derived:
+        return ProbeTargets(spec)
+    return ProbeTargets(spec, derived, rearrange.angle_targets(spec))
+
+
 def fit_and_score(latents: dict[str, Any], held: dict[str, Windows], key: jax.Array,
                   config: probe.ProbeConfig,
                   score_objects: Callable[[jax.Array, Windows], dict] | None = None,
+                  targets: ProbeTargets | None = None,
                   ) -> dict[str, dict[str, jax.Array]]:
     """The probe's half (one seed; small MLPs, best vmapped over seeds): fit latent -> true state
     on `probe_latents`' training pairs and score it on every held-out stream's valid steps.
     `score_objects` (frame learners) maps a stream's per-step latents `[B, L, Z]` and its windows
-    to the object-level probe (`Probing.object_scorer`), kept as `"objects"`.
+    to the object-level probe (`Probing.object_scorer`), kept as `"objects"`. `targets`: what is
+    regressed (`ProbeTargets`; default the states as they are); with angle targets, each
+    stream also gets `"angle": {"mae", "baseline"}`, `[A]` mean angle errors (rad) of the probe
+    and of the constant predictor per object with an angle (`ProbeTargets.angle_pairs`).
     Beside the MLP, the linear (ridge) probe (`bulbjax.eval.linear`) on the same training pairs
     and the MLP's own validation split (`probe.validation_rows`, recomputed from the same key:
     no key drawn beyond the MLP's), scored on the same steps: `"linear_mae"` `[D]` and the
     regulariser it chose per entry, `"linear_log10_lambda"` `[D]`.
     Returns `{stream: {"mae", "baseline", "spread", "linear_mae", "linear_log10_lambda"
-    (, "objects")}}`, errors `[D]` in the states' units."""
-    tz, ts = latents["tz"], latents["ts"]
+    (, "objects", "angle")}}`, each `[D]` in the targets' units."""
+    targets = targets or ProbeTargets(())
+    tz, ts = latents["tz"], targets(latents["ts"])
     p = probe.fit(key, tz, ts, config, groups=latents["groups"])
     lin = linear.fit(tz, ts, probe.validation_rows(key, tz.shape[0], config, latents["groups"]))
+    pairs = np.array([(c, s) for _, c, s in targets.angle_pairs], int).reshape((-1, 2))
     res = {}
     for stream, w in held.items():
         zw = latents["held"][stream]
         z = zw.reshape((-1, tz.shape[-1]))
-        s, v = w.states.reshape((-1, ts.shape[-1])), w.valid.reshape(-1)
-        res[stream] = {"mae": probe.mae(probe.predict(p, z), s, v),
+        s, v = targets(w.states).reshape((-1, ts.shape[-1])), w.valid.reshape(-1)
+        pred = probe.predict(p, z)
+        res[stream] = {"mae": probe.mae(pred, s, v),
                        "baseline": probe.constant_baseline(ts, s, v),
                        "spread": probe.spread(s, v),
                        "linear_mae": probe.mae(linear.predict(lin, z), s, v),
                        "linear_log10_lambda": lin.log10_lambda}
+        if len(pairs):
+            const = jnp.broadcast_to(jnp.median(ts, axis=0), s.shape)
+            res[stream]["angle"] = {"mae": angles.mean_angle_error(pred[:, pairs], s[:, pairs], v),
+                                    "baseline": angles.mean_angle_error(const[:, pairs], s[:, pairs], v)}
         if score_objects is not None:
             res[stream]["objects"] = score_objects(zw, w)
     return res
@@ -96,12 +151,13 @@ def probe_learner(learner: Any, params: Any, train: Any, held: dict[str, Windows
                   config: probe.ProbeConfig, train_frames: int,
                   corrupt: Any = None,
                   score_objects: Callable[[jax.Array, Windows], dict] | None = None,
+                  targets: ProbeTargets | None = None,
                   ) -> dict[str, dict[str, jax.Array]]:
     """Fit a probe latent -> true state on `train` and score it on every held-out stream (one
     seed): `probe_latents` then `fit_and_score` (see them)."""
     k_c, k_f = jax.random.split(key)
     lat = probe_latents(learner, params, train, held, k_c, config, train_frames, corrupt)
-    return fit_and_score(lat, held, k_f, config, score_objects)
+    return fit_and_score(lat, held, k_f, config, score_objects, targets)
 
 
 def probe_over_seeds(loop: str, latents_seed: Callable[..., dict], fit_seed: Callable[..., dict],
@@ -144,7 +200,8 @@ def object_pixels(env) -> tuple[list[str], Callable[[jax.Array], jax.Array]] | N
 class Probing:
     """The probes of a run's learners (`team`) under `config` (the run's `ProbeConfig`), fitted
     on `train_frames` replay frames (or valid window steps) per seed. `objects`: the domain's
-    `object_pixels` (None without objects), `object_radius` (px) within which a box finds one."""
+    `object_pixels` (None without objects), `object_radius` (px) within which a box finds one;
+    `targets`: what the probes regress (`probe_targets`: the state and targets derived from it)."""
 
     team: Team
     config: probe.ProbeConfig
@@ -152,6 +209,7 @@ class Probing:
     resolution: int
     objects: tuple[list[str], Callable] | None = None
     object_radius: float = 0.0
+    targets: ProbeTargets | None = None  # what is regressed (default: the states as they are)
 
     def object_scorer(self, learner: Any) -> Callable[[jax.Array, Windows], dict] | None:
         """The object-level probe of one seed's held-out stream for a learner with boxes (SPAIR,
@@ -210,7 +268,7 @@ class Probing:
             return probe_latents(learner, lstate.params, train, held, k_c, cfg, frames)
 
         def fit_seed(lat, k_f, k_s, lstate, b, held):
-            return fit_and_score(lat, held, k_f, cfg, self.object_scorer(learner))
+            return fit_and_score(lat, held, k_f, cfg, self.object_scorer(learner), self.targets)
 
         keys = t.seed_keys(jax.random.fold_in(key, i))
         k_s, k_p = jax.vmap(jax.random.split)(keys).swapaxes(0, 1)
@@ -241,7 +299,7 @@ class Probing:
             return t.over_seeds(member, kc, ks, states, which)
 
         def fit_seed(lat, kf, held):
-            return jax.vmap(lambda l, k: fit_and_score(l, held, k, cfg, score))(lat, kf)
+            return jax.vmap(lambda l, k: fit_and_score(l, held, k, cfg, score, self.targets))(lat, kf)
 
         states = stack_members([learners[n] for n in group])
         lat = t.over_seeds(latents_seed, k_c, k_s, states, bufs, held_out)

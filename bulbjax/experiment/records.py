@@ -59,6 +59,9 @@ def epoch_records(epoch: int, metrics: Any, spec: Sequence[StateEntry]) -> list[
                 rec.setdefault("linear_probes", {})[name] = {
                     stream: linear_summary(d, s, m["ref_spread"][s], spec) for stream, d in streams.items()}
             for stream, d in streams.items():
+                if "angle" in d:
+                    rec.setdefault("angles", {}).setdefault(name, {})[stream] = angle_summary(
+                        {k: v[s] for k, v in d["angle"].items()}, spec)
                 if "objects" in d:
                     one = {k: v[s] for k, v in d["objects"].items()}
                     rec.setdefault("objects", {}).setdefault(name, {})[stream] = objects.summary_of(one, names)
@@ -76,6 +79,16 @@ def linear_summary(d: dict[str, Any], s: int, ref_spread_D: Any, spec: Sequence[
     out["entries"] = {name: {"mae": e["mae"], "mae_norm": e["mae_norm"], "log10_lambda": float(lam[i])}
                       for i, (name, e) in enumerate(out["entries"].items())}
     return out
+
+
+def angle_summary(angle: dict[str, Any], spec: Sequence[StateEntry]) -> dict[str, dict[str, float]]:
+    """Per object with a major-axis angle target (entries `<obj>_axis_cos2` in `spec`, in spec
+    order), the probe's and the constant predictor's mean angle error (rad) of one seed's stream
+    (`probing.fit_and_score`'s `"angle"`): `{obj: {"mae", "baseline"}}`, NaN where no held-out
+    step had a defined angle (a sphere: none ever)."""
+    objs = [e.name[: -len("_axis_cos2")] for e in spec if e.name.endswith("_axis_cos2")]
+    mae, base = (np.asarray(angle[k], np.float64).reshape(-1) for k in ("mae", "baseline"))
+    return {o: {"mae": _f(mae[i]), "baseline": _f(base[i])} for i, o in enumerate(objs)}
 
 
 def write_jsonl(path: str, records: Sequence[dict[str, Any]]) -> None:
@@ -235,8 +248,33 @@ def per_seed_error(records: Sequence[dict[str, Any]], learner: str, stream: str,
             x = x["overall"] if group is None else x["groups"][group]
             vals.append(x["baseline_norm" if learner == "constant" else "mae_norm"])
         if vals:
-            out[i] = float(np.nanmean(vals))
+            out[i] = float(nanmean(vals))
     return out
+
+
+def excluded_groups(records: Sequence[dict[str, Any]]) -> set[str]:
+    """The groups none of whose entries could be normalised in any probed record: every entry's
+    reference spread ~0 (`probe.normalisable`; e.g. `object_static` on one fixed version, whose
+    object properties never change, or a sphere's major-axis angle). Their normalised errors are
+    NaN by construction: reports say "excluded" instead of a number."""
+    out: set[str] | None = None
+    for r in probed(records):
+        for streams in r["probes"].values():
+            for x in streams.values():
+                gone = {g for g, v in x["groups"].items() if not np.isfinite(v.get("mae_norm", np.nan))
+                        and all(x["entries"][n]["group"] != g or n in x["excluded"] for n in x["entries"])}
+                out = gone if out is None else out & gone
+    return out or set()
+
+
+def band(mean: float, half: float, seeds: int, digits: int = 3) -> str:
+    """A mean and its 90% band over seeds as table text: "m ± h"; "m (1 seed)" for one seed (no
+    band: a "± 0.000" would claim a certainty one seed cannot give); "–" for no value."""
+    if not np.isfinite(mean):
+        return "–"
+    if seeds < 2:
+        return f"{mean:.{digits}f} (1 seed)"
+    return f"{mean:.{digits}f} ± {half:.{digits}f}"
 
 
 def scalars(record: dict[str, Any]) -> dict[str, float]:

@@ -15,9 +15,9 @@ from bulbjax.eval import objects
 from bulbjax.eval.spec import StateEntry
 from bulbjax.experiment import findings
 from bulbjax.experiment.config import read_run_config, run_options_of
-from bulbjax.experiment.records import (NORM_NOTE, STREAMS, ci90, curves, epochs_to_reach, groups_of, has_linear,
-                                        has_objects, last_returns, metrics_path, nanmean, object_curves, per_seed_error,
-                                        probed, read_jsonl, rl_curve, write_jsonl)
+from bulbjax.experiment.records import (NORM_NOTE, STREAMS, band, ci90, curves, epochs_to_reach, excluded_groups,
+                                        groups_of, has_linear, has_objects, last_returns, metrics_path, nanmean,
+                                        object_curves, per_seed_error, probed, read_jsonl, rl_curve, write_jsonl)
 
 def plot(records: Sequence[dict[str, Any]], spec: Sequence[StateEntry], path: str, title: str,
          solved_return: float | None = None, x_key: str = "epoch",
@@ -40,9 +40,15 @@ def plot(records: Sequence[dict[str, Any]], spec: Sequence[StateEntry], path: st
     fig, axes = plt.subplots(rows, len(groups), figsize=(4.2 * len(groups), 2.9 * rows + 0.6),
                              squeeze=False, sharex=True)
     colours = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+    gone = excluded_groups(records)
     for row, (stream, label) in enumerate(streams):
         for col, group in enumerate(groups):
             ax = axes[row, col]
+            if group in gone:
+                ax.set_title(f"{label}: {group}")
+                ax.text(0.5, 0.5, "excluded\n(constant over the run:\nnothing to predict)", ha="center",
+                        va="center", transform=ax.transAxes, color="0.4")
+                continue
             for i, name in enumerate(learners):
                 ep, v = curves(records, name, stream, group, x_key=x_key)
                 mean, half = ci90(v)
@@ -53,7 +59,7 @@ def plot(records: Sequence[dict[str, Any]], spec: Sequence[StateEntry], path: st
                     ax.plot(ep, nanmean(v, 0), color=colours[i % len(colours)], ls="--", lw=1.0,
                             label=f"{name} (linear)")
             ep, b = curves(records, learners[0], stream, group, key="baseline_norm", x_key=x_key)
-            ax.plot(ep, np.nanmean(b, 0), "k:", label="constant predictor")
+            ax.plot(ep, nanmean(b, 0), "k:", label="constant predictor")
             ax.set_title(f"{label}: {group}")
             ax.set_ylabel("MAE / π_rand reference spread")
             ax.set_ylim(bottom=0)
@@ -106,7 +112,7 @@ def plot_objects(records: Sequence[dict[str, Any]], path: str, title: str,
             ax.plot(ep, mean, color=colour[name], label=name)
             ax.fill_between(ep, mean - half, mean + half, color=colour[name], alpha=0.2)
         ep, b = curves(records, learners[0], stream, "object_position", key="baseline_norm")
-        ax.plot(ep, np.nanmean(b, 0), "k:", label="constant predictor")
+        ax.plot(ep, nanmean(b, 0), "k:", label="constant predictor")
         ax.set_title(f"{label}: MLP probe, object_position")
         ax.set_ylabel("MAE / π_rand reference spread")
         ax.set_ylim(bottom=0)
@@ -156,13 +162,16 @@ def table(records: Sequence[dict[str, Any]], spec: Sequence[StateEntry], last: i
     head = "| learner | stream | " + " | ".join(f"{g} (norm. MAE)" for g in groups) + " | overall |"
     lines = [head, "|" + "---|" * (3 + len(groups))]
     seeds = sorted({r["seed"] for r in recs})
+    gone = excluded_groups(recs)
 
     linear = has_linear(recs)
 
     def cell(name: str, stream: str, g: str, probes: str = "probes") -> str:
+        if g in gone:
+            return "excluded"
         v = per_seed_error(recs, name, stream, None if g == "overall" else g, epochs, x_key, probes)
         mean, half = ci90(v)
-        return f"{mean:.3f} ± {half:.3f}"
+        return band(mean, half, int(np.isfinite(v).sum()))
 
     for stream, label in streams:
         for name in learners + ["constant"]:
@@ -172,14 +181,19 @@ def table(records: Sequence[dict[str, Any]], spec: Sequence[StateEntry], last: i
             cells = [cell(name, stream, g, "linear_probes") for g in groups + ["overall"]]
             lines.append(f"| {name} (linear) | {label} | " + " | ".join(cells) + " |")
     lines.append("")
-    lines.append(f"{x_key} {', '.join(str(e) for e in epochs)}; mean ± 90% CI over {len(seeds)} seeds.")
+    lines.append(f"{x_key} {', '.join(str(e) for e in epochs)}; "
+                 + (f"mean ± 90% CI over {len(seeds)} seeds." if len(seeds) > 1 else "1 seed: no band over seeds."))
+    if gone:
+        lines.append(f"excluded: {', '.join(g for g in groups if g in gone)} (every entry constant over the run, "
+                     "reference spread ~0: nothing to predict, no normalised error).")
     if "rl_return" in recs[0]:
         ret, fell_back = last_returns(records, epochs, x_key)
         mean, half = ci90(ret)
+        shown = band(mean, half, len(seeds), digits=1)
         where = (f"the last {len(epochs)} probed epoch(s)" if not fell_back else
                  f"the last {len(epochs)} probed epoch(s), or a seed's latest finished episode up to "
                  "the last of them where none ended in them")
-        lines.append(f"PPO return over {where}: {mean:.1f} ± {half:.1f} (90% CI over {len(seeds)} seeds)")
+        lines.append(f"PPO return over {where}: {shown}" + (f" (90% CI over {len(seeds)} seeds)" if len(seeds) > 1 else ""))
     lines.append("")
     if linear:
         lines.append("Rows `<learner>`: the MLP probe; `<learner> (linear)`: closed-form ridge regression on the "
@@ -218,11 +232,29 @@ def write_reports(run_dir: str, records: Sequence[dict[str, Any]], cfg: Any,
         plot_objects(records, os.path.join(run_dir, "objects.png"), title)
     with open(os.path.join(run_dir, "table.md"), "w") as f:
         f.write(f"# {title}\n\n{tab}\n" + (f"\n{footer}\n" if footer else ""))
-    verdicts, epochs = findings.check(records, spec, cfg.env, last=last)
+    if "Rearrange" in cfg.env:  # the multi-object scenes of Figs. 3 and 5: their claims
+        from bulbjax.experiment import findings_objects
+
+        verdicts, epochs = findings_objects.check_objects(records, cfg.env, cfg.version, last=last)
+        body = findings_objects.markdown(verdicts, epochs, len(seeds))
+        which = "Figs. 3 and 5"
+    else:
+        verdicts, epochs = findings.check(records, spec, cfg.env, last=last)
+        body, which = findings.markdown(verdicts, epochs, len(seeds)), "Fig. 2"
     with open(os.path.join(run_dir, "findings.md"), "w") as f:
-        f.write(f"# {title}: the paper's Fig. 2 findings\n\n"
-                f"{findings.markdown(verdicts, epochs, len(seeds))}\n")
+        f.write(f"# {title}: the paper's {which} findings\n\n{body}\n")
     return tab
+
+
+def report_spec(state_spec: Sequence[StateEntry], records: Sequence[dict]) -> tuple[StateEntry, ...]:
+    """The entries a run's probes regressed: the state and its derived targets
+    (`probing.probe_targets`), or the state alone for records written before the derived
+    targets existed (their `ref_spread` has one number per state entry)."""
+    from bulbjax.experiment.probing import probe_targets
+
+    spec = probe_targets(state_spec).spec
+    widths = {len(r["ref_spread"]) for r in records if "ref_spread" in r}
+    return tuple(state_spec) if widths == {len(state_spec)} else spec
 
 
 def redraw(run_dir: str) -> str:
@@ -233,7 +265,7 @@ def redraw(run_dir: str) -> str:
     cfg, _ = read_run_config(run_dir)
     records = read_jsonl(metrics_path(run_dir), tolerate_partial=True)
     cls = env_class(cfg.env)
-    return write_reports(run_dir, records, cfg, cls.state_spec, cls.solved_return,
+    return write_reports(run_dir, records, cfg, report_spec(cls.state_spec, records), cls.solved_return,
                          footer=f"redrawn by `bulbjax report` from {len(records)} records")
 
 
@@ -289,7 +321,7 @@ def merge_seeds(run_dirs: Sequence[str], out_dir: str) -> str:
     write_jsonl(os.path.join(out_dir, "metrics.jsonl"), merged)
     cls = env_class(cfg.env)
     names = ", ".join(f"{s['run_dir']} (seed {s['base_seed']}: {s['seeds']} seeds)" for s in sources)
-    return write_reports(out_dir, merged, cfg, cls.state_spec, cls.solved_return,
+    return write_reports(out_dir, merged, cfg, report_spec(cls.state_spec, merged), cls.solved_return,
                          footer=f"seeds of {len(runs)} runs merged by `bulbjax report --merge-seeds`: {names}")
 
 

@@ -461,5 +461,5 @@ def _postfix(recs: list[dict], records: list[dict]) -> dict[str, str]:
     for name in recs[0]["probes"]:
         for stream in ("curr", "rand"):
             v = nanmean([r["probes"][name][stream]["overall"]["mae_norm"] for r in recs])
-            out[f"{name}/{stream}"] = f"{v:.2f}"
+            out[f"{name}/{stream}"] = f"{v:.2f}" if v == v else "excluded"  # NaN: every group excluded
     return out
