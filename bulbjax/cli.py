@@ -132,6 +132,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     with log_to_file(os.path.join(out, log_name(jax.process_index())), fresh=args.overwrite, header=" ".join(argv)):
         run(cfg, opts, out, resume=bool(args.resume), overwrite=args.overwrite, devices=devices, argv=argv,
             compiler_options=compiler_options, layout="groups" if args.layout == "processes" else args.layout)
+    distributed.shutdown()
     return 0
 
 

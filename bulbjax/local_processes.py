@@ -92,16 +92,20 @@ def run_per_gpu(argv: Sequence[str], gpus: Sequence[str], out_dir: str, poll_s: 
     old = {s: signal.signal(s, forward) for s in (signal.SIGINT, signal.SIGTERM)}
     try:
         failed = None
-        while any(p.poll() is None for p in procs):
+        while True:
+            running = any(p.poll() is None for p in procs)
             bad = [(i, p.returncode) for i, p in enumerate(procs) if p.returncode not in (None, 0)]
             if bad and failed is None:
                 failed = bad[0]
                 i, rc = failed
                 log = os.path.join(out_dir, "log.txt" if i == 0 else f"log_process{i}.txt")
-                print(f"process {i} (GPU {gpus[i]}) exited with code {rc} (its log: {log}); stopping the others",
+                print(f"process {i} (GPU {gpus[i]}) exited with code {rc} (its log: {log})"
+                      + ("; stopping the others" if running else ""),
                       file=sys.stderr, flush=True)
                 forward(signal.SIGTERM, None)
                 deadline = time.monotonic() + 120  # time to checkpoint, then kill
+            if not running:
+                break
             if failed is not None and time.monotonic() > deadline:
                 for p in procs:
                     if p.poll() is None:

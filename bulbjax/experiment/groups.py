@@ -144,6 +144,11 @@ class SeedGroups:
             p.prepare(*which)
         return self
 
+    def settle(self) -> None:
+        """Wait for every group's compiles still running (`Programs.settle`)."""
+        for p in self._programs:
+            p.settle()
+
     def compiled(self, which: str) -> list[Any]:
         """Every group's compiled program `which` (`Programs.compiled`: waits for its compile)."""
         return [p.compiled(which) for p in self._programs]

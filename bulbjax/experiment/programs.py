@@ -241,6 +241,16 @@ class Programs:
         self.compile_spans[name] = (t, time.perf_counter() - self._t0)
         return out
 
+    def settle(self) -> None:
+        """Wait for the compiles still running, their results unused (e.g. a resume of a run that
+        has no epoch left): a process that exits while XLA compiles in a daemon thread is aborted
+        by the C++ runtime ("FATAL: exception not rethrown", exit -6; benchmarks/kill_resume.py)."""
+        for fut in self._compiled.values():
+            try:
+                fut.result()
+            except BaseException:  # noqa: BLE001  (a compile nobody asked for: its error is moot)
+                pass
+
     def compiled(self, which: str) -> Any:
         """The compiled program, waiting for (or starting) its compile; for a group's name, every
         member compiled, as `{name: executable}`."""

@@ -428,6 +428,7 @@ def run(cfg: ExperimentConfig, opts: RunOptions, run_dir: str, *, resume: bool =
     if records and writer:
         tab = report.write_reports(run_dir, records, cfg, exp.spec, exp.env.solved_return, footer=timing)
         log(f"\n{tab}\n\n{timing}\nplot: {os.path.join(run_dir, 'fig2.png')}\nmetrics: {metrics_path}")
+    groups.settle()  # no compile may still run in a daemon thread when the process exits
     # the other processes wait while process 0 writes the reports (else they would reach JAX's
     # shutdown barrier first and time out there on a slow report)
     distributed.barrier("bulbjax-run-end")
