@@ -21,7 +21,7 @@ demo: $(STAMP)
 	$(BIN)/bulbjax run --env CartPole --learners vae,vae_rpl,beta_vae --seeds 2 --epochs 6 --out runs/demo --small --overwrite
 
 test: $(STAMP)
-	$(BIN)/python -m pytest -q -n 2 --dist loadfile tests
+	$(BIN)/python -m pytest -q -n 2 --dist loadfile --durations=25 tests
 
 bench: $(STAMP)
 	$(BIN)/python benchmarks/bench_throughput.py
