@@ -32,12 +32,21 @@ class Verdict:
     detail: str
 
 
+def paired_verdict(lower: np.ndarray, higher: np.ndarray) -> tuple[str, float, float]:
+    """The rule every claim row uses: "`lower` below `higher`" from their per-seed differences
+    (seeds where both are finite), mean ± 90% band; holds when the band lies above 0, does not
+    hold when below, undecided when it contains 0 (or fewer than two seeds give a band)."""
+    diff = higher - lower
+    diff = diff[np.isfinite(diff)]
+    mean, half = ci90(diff) if diff.size >= 2 else (float(np.mean(diff)) if diff.size else np.nan, np.inf)
+    verdict = "holds" if mean - half > 0 else "does not hold" if mean + half < 0 else "undecided"
+    return verdict, mean, half
+
+
 def _lower(records, a: str, b: str, stream: str, group: str | None, epochs) -> tuple[str, str]:
     """Verdict and numbers for "a's error is lower than b's" (paired over seeds)."""
     ea, eb = (per_seed_error(records, x, stream, group, epochs) for x in (a, b))
-    diff = (eb - ea)[np.isfinite(eb - ea)]
-    mean, half = ci90(diff) if diff.size >= 2 else (float(np.mean(diff)) if diff.size else np.nan, np.inf)
-    verdict = "holds" if mean - half > 0 else "does not hold" if mean + half < 0 else "undecided"
+    verdict, mean, half = paired_verdict(ea, eb)
     what = group or "overall"
     return verdict, (f"{what}, {stream_label(stream)}: {a} {np.nanmean(ea):.3f}, {b} {np.nanmean(eb):.3f}; "
                      f"{b} - {a} = {mean:+.3f} ± {half:.3f}")

@@ -26,7 +26,7 @@ from typing import Any, Callable, Sequence
 
 import numpy as np
 
-from bulbjax.experiment.findings import Verdict, _combine, stream_label
+from bulbjax.experiment.findings import Verdict, _combine, paired_verdict, stream_label
 from bulbjax.experiment.records import ci90, nanmean, probed
 
 # Approximate YCB sizes (cm; the YCB object set's published dimensions) before bulb's scale:
@@ -125,10 +125,7 @@ def box_error(records, learner: str, stream: str, obj: str, epochs) -> np.ndarra
 
 def _paired(lower: np.ndarray, higher: np.ndarray, a: str, b: str, what: str, unit: str = "") -> tuple[str, str]:
     """Verdict of "a (errors `lower`) below b (errors `higher`)" paired over seeds, and numbers."""
-    diff = higher - lower
-    diff = diff[np.isfinite(diff)]
-    mean, half = ci90(diff) if diff.size >= 2 else (float(np.mean(diff)) if diff.size else np.nan, np.inf)
-    verdict = "holds" if mean - half > 0 else "does not hold" if mean + half < 0 else "undecided"
+    verdict, mean, half = paired_verdict(lower, higher)
     return verdict, (f"{what}: {a} {nanmean(lower):.3f}{unit}, {b} {nanmean(higher):.3f}{unit}; "
                      f"{b} - {a} = {mean:+.3f} ± {half:.3f}")
 
