@@ -32,7 +32,6 @@ import datetime as dt
 import json
 import os
 import re
-import socket
 import statistics
 import subprocess
 import sys
@@ -47,6 +46,7 @@ from bulbjax import compile_cache  # noqa: E402
 from bulbjax.experiment.groups import SeedGroups  # noqa: E402
 from bulbjax.experiment.resolve import resolve  # noqa: E402
 from bulbjax.experiment.run import provenance  # noqa: E402
+from bulbjax.local_processes import free_port  # noqa: E402
 
 
 def measure(cfg, devices, epochs: int, probe: bool = True) -> dict:
@@ -81,16 +81,10 @@ def _gpu_name() -> str:
         return "processes"
 
 
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("localhost", 0))
-        return s.getsockname()[1]
-
-
 def in_processes(argv: list[str], seeds: int, n: int) -> dict:
     """The case (`seeds`, `n` devices) as n worker processes of this script, one GPU each; the run's
     epoch is as slow as its slowest process (they gather metrics every epoch)."""
-    port = _free_port()
+    port = free_port()
     procs = []
     for i in range(n):
         env = dict(os.environ)

@@ -47,7 +47,8 @@ def process_count(seeds: int, gpus: int) -> int:
     return max(g for g in range(1, max(1, min(seeds, gpus)) + 1) if seeds % g == 0)
 
 
-def _free_port() -> int:
+def free_port() -> int:
+    """A TCP port free on localhost now (for a coordinator started right after)."""
     with socket.socket() as s:
         s.bind(("localhost", 0))
         return int(s.getsockname()[1])
@@ -74,7 +75,7 @@ def _worker_argv(argv: Sequence[str], port: int, count: int, index: int) -> list
 def run_per_gpu(argv: Sequence[str], gpus: Sequence[str], out_dir: str, poll_s: float = 0.5) -> int:
     """Run `bulbjax <argv>` as one process per GPU of `gpus` and wait for all; returns the first
     non-zero exit code (0 when every process succeeded)."""
-    port = _free_port()
+    port = free_port()
     n = len(gpus)
     print(f"{n} GPUs: one process per GPU (jax.distributed on localhost:{port}); process 0 reports here, "
           f"the others log to {os.path.join(out_dir, 'log_process<i>.txt')}", flush=True)
