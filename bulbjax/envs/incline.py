@@ -116,6 +116,21 @@ def geom_object(version: int, scale: float) -> mjcf.RootElement:
     return model
 
 
+def _subtree_matrix(parent: np.ndarray) -> np.ndarray:
+    """`[nbody, nbody]` 0/1 matrix, entry (j, i) 1 where body j is body i or below it: masses
+    `[..., nbody]` times it are the subtree masses (MuJoCo's `body_subtreemass`)."""
+    n = len(parent)
+    inside = np.eye(n)
+    for j in range(1, n):
+        i = parent[j]
+        while True:
+            inside[j, i] = 1.0
+            if i == 0:
+                break
+            i = parent[i]
+    return inside
+
+
 def _rpy_quat(roll: jax.Array, pitch: jax.Array, yaw: jax.Array) -> jax.Array:
     """MuJoCo (w, x, y, z) quaternion of PyBullet's Euler angles (R = Rz(yaw) Ry(pitch) Rx(roll))."""
     cr, sr = jnp.cos(roll / 2), jnp.sin(roll / 2)
@@ -189,6 +204,7 @@ class Incline(MjxPixelEnv):
                                     and m.geom_contype[g]])
         self._incline_geom = self._geom_id("incline_surface")
         self._mass0 = jnp.asarray(m.body_mass[self._obj_bodies], jnp.float32)
+        self._in_subtree = jnp.asarray(_subtree_matrix(m.body_parentid), jnp.float32)
         self._qpos_park = jnp.asarray(np.concatenate([
             [0.5 + 2.0 * i, 0.2, PARK_HEIGHT, 1.0, 0.0, 0.0, 0.0] for i in range(len(self.versions))]), jnp.float32)
 
@@ -317,11 +333,19 @@ class Incline(MjxPixelEnv):
             ratio[..., None])
         gravcomp = jnp.broadcast_to(mx.body_gravcomp, (n, *mx.body_gravcomp.shape)).at[:, self._obj_bodies].set(
             1.0 - active)
+        # MuJoCo's subtree COM divides the mass-weighted positions by the model's subtree mass,
+        # a constant computed at compile time (mj_setConst): with the masses changed per world it
+        # must follow them. Left at the compiled masses, every object's subtree COM lands at
+        # mass/mass0 times its position (a parked object at 50 m: hundreds of metres off), and
+        # the float32 mass matrix built about that point loses the object's rotational inertia
+        # (Cholesky of a non-positive block: NaN in the first step; issue 40, docs/soak.md).
+        subtreemass = body_mass @ self._in_subtree
         mu = params["friction"] ** 2  # Bullet multiplies the two coefficients; MuJoCo takes the max
         friction = jnp.broadcast_to(mx.geom_friction, (n, *mx.geom_friction.shape))
         friction = friction.at[:, self._obj_geoms, 0].set(mu[:, None]).at[:, self._incline_geom, 0].set(mu)
         return mx.tree_replace({"body_mass": body_mass, "body_inertia": body_inertia,
-                                "body_gravcomp": gravcomp, "geom_friction": friction})
+                                "body_subtreemass": subtreemass, "body_gravcomp": gravcomp,
+                                "geom_friction": friction})
 
     def physics(self, data: mjx.Data, action: jax.Array, params: dict[str, jax.Array] | None = None) -> mjx.Data:
         """One env step: 4 of bulb's stepSimulation calls (8 MuJoCo steps) with the push applied
