@@ -117,17 +117,14 @@ def geom_object(version: int, scale: float) -> mjcf.RootElement:
 
 
 def _subtree_matrix(parent: np.ndarray) -> np.ndarray:
-    """`[nbody, nbody]` 0/1 matrix, entry (j, i) 1 where body j is body i or below it: masses
-    `[..., nbody]` times it are the subtree masses (MuJoCo's `body_subtreemass`)."""
-    n = len(parent)
-    inside = np.eye(n)
-    for j in range(1, n):
-        i = parent[j]
-        while True:
-            inside[j, i] = 1.0
-            if i == 0:
-                break
+    """0/1 matrix, (j, i) 1 where body j is body i or below it: masses times it are MuJoCo's
+    `body_subtreemass`."""
+    inside = np.eye(len(parent))
+    for j in range(1, len(parent)):
+        i = j
+        while i:
             i = parent[i]
+            inside[j, i] = 1.0
     return inside
 
 
@@ -333,12 +330,9 @@ class Incline(MjxPixelEnv):
             ratio[..., None])
         gravcomp = jnp.broadcast_to(mx.body_gravcomp, (n, *mx.body_gravcomp.shape)).at[:, self._obj_bodies].set(
             1.0 - active)
-        # MuJoCo's subtree COM divides the mass-weighted positions by the model's subtree mass,
-        # a constant computed at compile time (mj_setConst): with the masses changed per world it
-        # must follow them. Left at the compiled masses, every object's subtree COM lands at
-        # mass/mass0 times its position (a parked object at 50 m: hundreds of metres off), and
-        # the float32 mass matrix built about that point loses the object's rotational inertia
-        # (Cholesky of a non-positive block: NaN in the first step; issue 40, docs/soak.md).
+        # the subtree masses must follow the masses: MuJoCo divides by them for the subtree COM,
+        # and left compiled, the float32 mass matrix about a COM at mass/mass0 times the object's
+        # position went NaN (issue 40, docs/soak.md)
         subtreemass = body_mass @ self._in_subtree
         mu = params["friction"] ** 2  # Bullet multiplies the two coefficients; MuJoCo takes the max
         friction = jnp.broadcast_to(mx.geom_friction, (n, *mx.geom_friction.shape))
