@@ -103,9 +103,8 @@ class EnvConfig:
     # Draw the task's targets as visual-only marks (Rearrange: bulb's two target areas on the
     # tray floor). Off by default: bulb's frames show none.
     show_targets: bool = False
-    # Worlds reset per chunk inside `step` (`MjxPixelEnv.reset_chunk`): None takes the domain's
-    # default (`reset_chunk_fraction` of num_envs), 0 resets the full batch and keeps the ended
-    # worlds' part (the path every domain took before chunks; for timing comparisons).
+    # Ended worlds reset per chunk in `step` (`MjxPixelEnv.reset_chunk`): None, the domain's
+    # default (`reset_chunk_fraction`); 0, every world's reset computed and the ended ones kept.
     reset_chunk: int | None = None
 
 
@@ -140,10 +139,8 @@ class MjxPixelEnv:
     supports_multicolour: bool = True  # a `<Name>Multicolour` variant exists
     supports_targets: bool = False  # `show_targets` draws something
     num_versions: int = 0  # object versions (multi-object domains); 0: one scene, `version` must stay 0
-    # Resets inside `step` (`_reset_done`): domains whose reset simulates (Incline's fall,
-    # Rearrange's settle) reset only the worlds that ended, this fraction of num_envs at a time
-    # (chunks repeat until every ended world is reset). 0: the whole batch is reset and the ended
-    # worlds' part kept, right where the reset is a few cheap draws (pendulums, locomotion).
+    # Resets in `step` (`_reset_done`): domains whose reset simulates reset the ended worlds only,
+    # this fraction of num_envs per chunk; 0: the full-batch reset (cheap draws: pendulums, locomotion).
     reset_chunk_fraction: float = 0.0
     # Per-world draws that a domain's `reset_with` fixes (`[num_envs, ...]`, gathered per chunk).
     _fixed: dict[str, jax.Array] = {}
@@ -182,10 +179,8 @@ class MjxPixelEnv:
             self.mj_model, self.num_envs, [f"pan{i}" for i in range(len(PAN_CAMERAS))],
             config.num_points, self.pointcloud_box) if pan else None
         self._renders_steps = config.render and config.render_steps
-        chunk = config.reset_chunk
-        if chunk is None:
-            chunk = math.ceil(self.reset_chunk_fraction * self.num_envs)
-        # worlds per reset chunk in `step`; 0: the full-batch reset
+        chunk = config.reset_chunk  # worlds per reset chunk in `step`; 0: the full-batch reset
+        chunk = math.ceil(self.reset_chunk_fraction * self.num_envs) if chunk is None else chunk
         self.reset_chunk = min(int(chunk), self.num_envs)
         self._base_rgba = jnp.asarray(self.mj_model.geom_rgba)
         ids, rgb = self._scheme_colours()
