@@ -36,7 +36,7 @@ sys.path.insert(0, os.path.dirname(HERE))  # run from a checkout without install
 sys.path.insert(0, HERE)
 
 import frames_bench  # noqa: E402
-from frames_bench import device_info, log, measure_env, time_bulbjax, time_pybullet  # noqa: E402
+from frames_bench import device_info, log, measure_env, parse_reset_chunks, time_bulbjax, time_pybullet  # noqa: E402
 
 
 @dataclass(frozen=True)
@@ -59,6 +59,8 @@ class Settings:
     skip_bulbjax: bool
     skip_cache: bool
     seed: int = 0
+    # worlds per reset chunk in `step` (None: the domain's default, 0: the full-batch reset)
+    reset_chunks: tuple[int | None, ...] = (None,)
 
     @property
     def mjx_version(self) -> int | str:
@@ -104,10 +106,11 @@ def bench_pybullet(name: str, s: Settings) -> dict[str, Any]:
                          s.resolution, s.seed, meta={"versions": versions})
 
 
-def bench_bulbjax(name: str, worlds: int, s: Settings) -> dict[str, Any]:
+def bench_bulbjax(name: str, worlds: int, s: Settings, reset_chunk: int | None = None) -> dict[str, Any]:
     """Frames/s of one bulbjax Incline env of `worlds` worlds, `s.steps` rendered steps per jitted scan."""
-    return time_bulbjax(name, worlds, 1, s.steps, s.repeats, s.resolution, s.seed, meta={"version": s.mjx_version},
-                        version=s.mjx_version, ycb_dir=s.ycb_dir)
+    return time_bulbjax(name, worlds, 1, s.steps, s.repeats, s.resolution, s.seed,
+                        meta={"version": s.mjx_version, "reset_chunk": reset_chunk},
+                        version=s.mjx_version, ycb_dir=s.ycb_dir, reset_chunk=reset_chunk)
 
 
 def parse_args(argv: list[str] | None = None) -> Settings:
@@ -126,6 +129,9 @@ def parse_args(argv: list[str] | None = None) -> Settings:
                    help="empty folder to build the YCB cache in (default: a new temporary folder, removed at the end)")
     p.add_argument("--keep-cache", action="store_true", help="keep the temporary cache folder")
     p.add_argument("--small", action="store_true", help="CPU smoke test sizes")
+    p.add_argument("--reset-chunk", default="default",
+                   help="worlds per reset chunk in step, comma-separated: 'default' (the domain's), 0 (the "
+                        "full-batch reset, the path before chunks); 'default,0' times both")
     p.add_argument("--skip-pybullet", action="store_true")
     p.add_argument("--skip-bulbjax", action="store_true")
     p.add_argument("--skip-cache", action="store_true", help="no cache build timing (use the existing cache)")
@@ -139,7 +145,8 @@ def parse_args(argv: list[str] | None = None) -> Settings:
                     seconds=pick(a.seconds, 20.0, 3.0), steps=pick(a.steps, 50, 5), repeats=pick(a.repeats, 5, 2),
                     resolution=a.resolution, out=a.out, ycb_dir=a.ycb_dir or os.environ.get("BULBJAX_YCB_DIR"),
                     build_cache_dir=a.build_cache_dir, keep_cache=a.keep_cache, skip_pybullet=a.skip_pybullet,
-                    skip_bulbjax=a.skip_bulbjax, skip_cache=a.skip_cache)
+                    skip_bulbjax=a.skip_bulbjax, skip_cache=a.skip_cache,
+                    reset_chunks=parse_reset_chunks(a.reset_chunk))
 
 
 def main(argv: list[str] | None = None) -> str:
@@ -165,10 +172,11 @@ def main(argv: list[str] | None = None) -> str:
             f"cache hits {c['cache_hit_total_s']:.2f} s")
     try:
         for name in s.envs:
-            row = measure_env(name, s.procs, s.worlds,
-                              None if s.skip_pybullet else (lambda: bench_pybullet(name, s)),
-                              None if s.skip_bulbjax else (lambda w: bench_bulbjax(name, w, s)))
-            results["rows"].append(row)
+            for i, rc in enumerate(s.reset_chunks):  # PyBullet once per env
+                row = measure_env(name, s.procs, s.worlds,
+                                  None if s.skip_pybullet or i else (lambda: bench_pybullet(name, s)),
+                                  None if s.skip_bulbjax else (lambda w: bench_bulbjax(name, w, s, rc)))
+                results["rows"].append({**row, "reset_chunk": rc})
     finally:
         if made_tmp and not s.keep_cache:
             shutil.rmtree(made_tmp, ignore_errors=True)

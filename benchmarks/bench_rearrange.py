@@ -32,7 +32,7 @@ sys.path.insert(0, os.path.dirname(HERE))  # run from a checkout without install
 sys.path.insert(0, HERE)
 
 import frames_bench  # noqa: E402
-from frames_bench import device_info, log, measure_env, time_bulbjax, time_pybullet  # noqa: E402
+from frames_bench import device_info, log, measure_env, parse_reset_chunks, time_bulbjax, time_pybullet  # noqa: E402
 
 NUM_VERSIONS = 12
 
@@ -53,6 +53,8 @@ class Settings:
     ycb_dir: str | None
     skip_pybullet: bool
     skip_bulbjax: bool
+    # worlds per reset chunk in `step` (None: the domain's default, 0: the full-batch reset)
+    reset_chunks: tuple[int | None, ...] = (None,)
     seed: int = 0
 
     @property
@@ -76,12 +78,13 @@ def bench_pybullet(name: str, s: Settings) -> dict[str, Any]:
                          s.seconds, s.resolution, s.seed, meta={"versions": versions})
 
 
-def bench_bulbjax(name: str, worlds: int, s: Settings) -> dict[str, Any]:
+def bench_bulbjax(name: str, worlds: int, s: Settings, reset_chunk: int | None = None) -> dict[str, Any]:
     """Frames/s of one bulbjax Rearrange env of `worlds` worlds, `s.steps` rendered steps per jitted scan."""
     from pybullet_compat.rearrange_env import rearrange_domain
 
     return time_bulbjax(name, worlds, rearrange_domain(name).action_size, s.steps, s.repeats, s.resolution, s.seed,
-                        meta={"version": s.mjx_version}, version=s.mjx_version, ycb_dir=s.ycb_dir)
+                        meta={"version": s.mjx_version, "reset_chunk": reset_chunk}, version=s.mjx_version,
+                        ycb_dir=s.ycb_dir, reset_chunk=reset_chunk)
 
 
 def parse_args(argv: list[str] | None = None) -> Settings:
@@ -98,6 +101,9 @@ def parse_args(argv: list[str] | None = None) -> Settings:
     p.add_argument("--out", default=os.path.join(HERE, "results"))
     p.add_argument("--ycb-dir", default=None, help="YCB models (default $BULBJAX_YCB_DIR)")
     p.add_argument("--small", action="store_true", help="CPU smoke test sizes")
+    p.add_argument("--reset-chunk", default="default",
+                   help="worlds per reset chunk in step, comma-separated: 'default' (the domain's), 0 (the "
+                        "full-batch reset, the path before chunks); 'default,0' times both")
     p.add_argument("--skip-pybullet", action="store_true")
     p.add_argument("--skip-bulbjax", action="store_true")
     p.add_argument("--seed", type=int, default=0)
@@ -110,7 +116,7 @@ def parse_args(argv: list[str] | None = None) -> Settings:
                     procs=pick(a.procs, 16, 2), worlds=worlds, seconds=pick(a.seconds, 20.0, 3.0),
                     steps=pick(a.steps, 50, 3), repeats=pick(a.repeats, 5, 2), resolution=a.resolution, out=a.out,
                     ycb_dir=a.ycb_dir or os.environ.get("BULBJAX_YCB_DIR"), skip_pybullet=a.skip_pybullet,
-                    skip_bulbjax=a.skip_bulbjax, seed=a.seed)
+                    skip_bulbjax=a.skip_bulbjax, seed=a.seed, reset_chunks=parse_reset_chunks(a.reset_chunk))
 
 
 def main(argv: list[str] | None = None) -> str:
@@ -126,9 +132,11 @@ def main(argv: list[str] | None = None) -> str:
     log(f"device: {info.get('device')} ({info.get('platform')}), {info['cpu_count']} CPU cores")
     results: dict[str, Any] = {"settings": asdict(s), "device": info, "rows": []}
     for name in s.envs:
-        results["rows"].append(measure_env(
-            name, s.procs, s.worlds, None if s.skip_pybullet else (lambda: bench_pybullet(name, s)),
-            None if s.skip_bulbjax else (lambda w: bench_bulbjax(name, w, s))))
+        for i, rc in enumerate(s.reset_chunks):  # PyBullet once per env
+            row = measure_env(name, s.procs, s.worlds,
+                              None if s.skip_pybullet or i else (lambda: bench_pybullet(name, s)),
+                              None if s.skip_bulbjax else (lambda w: bench_bulbjax(name, w, s, rc)))
+            results["rows"].append({**row, "reset_chunk": rc})
     frames_bench.print_table(results)
     path = frames_bench.write(results, s.out, "rearrange")
     print(path)

@@ -116,6 +116,22 @@ def time_bulbjax(name: str, worlds: int, action_size: int, steps: int, repeats: 
             "finite_worlds": int(np.isfinite(np.asarray(state.lowdim)).all(1).sum())}
 
 
+def parse_reset_chunks(text: str) -> tuple[int | None, ...]:
+    """`--reset-chunk` values: comma-separated worlds per reset chunk in `step`, "default" for the
+    domain's default, 0 for the full-batch reset (the path before chunks): "default,0" times
+    both in one run."""
+    out = []
+    for part in text.split(","):
+        part = part.strip()
+        if part == "default":
+            out.append(None)
+        elif part.isdigit():
+            out.append(int(part))
+        else:
+            raise ValueError(f"--reset-chunk takes 'default' or worlds >= 0 (comma-separated), got {part!r}")
+    return tuple(out)
+
+
 def measure_env(name: str, procs: int, worlds: Sequence[int], pybullet: Callable[[], dict[str, Any]] | None,
                 bulbjax: Callable[[int], dict[str, Any]] | None) -> dict[str, Any]:
     """One table row: PyBullet (`pybullet()`, unless None), bulbjax at each world count
@@ -157,7 +173,9 @@ def print_table(results: dict[str, Any]) -> None:
         pb = f"{row['pybullet']['frames_per_s']:,.0f}" if "pybullet" in row else row.get("pybullet_error", "-")
         bj = ", ".join(f"{r['worlds']}: {r['frames_per_s']:,.0f}" for r in row.get("bulbjax", []) if "frames_per_s" in r)
         ratio = row.get("ratio_best_bulbjax_to_pybullet")
-        print(f"| {row['env']} | {pb} | {bj or row.get('bulbjax_error', '-')} | {f'{ratio:.3g}x' if ratio else '-'} |")
+        rc = row.get("reset_chunk")
+        env = row["env"] + (f" (reset chunk {rc})" if rc is not None else "")
+        print(f"| {env} | {pb} | {bj or row.get('bulbjax_error', '-')} | {f'{ratio:.3g}x' if ratio else '-'} |")
 
 
 def write(results: dict[str, Any], out: str, prefix: str) -> str:

@@ -8,6 +8,7 @@ file, camera, reset distribution, state, reward and termination.
 
 from __future__ import annotations
 
+import math
 import os
 from dataclasses import dataclass
 from typing import Any, Sequence
@@ -23,6 +24,7 @@ from bulbjax.envs import warp_graphs
 from bulbjax.envs.camera import PAN_CAMERAS, CameraConfig, add_bulb_camera, pan_cameras
 from bulbjax.envs.colours import NUM_SCHEMES, scheme_table
 from bulbjax.envs.render import PointCloudRenderer, Renderer, exclude_from_pointcloud
+from bulbjax.envs.resets import reset_in_chunks
 from bulbjax.eval.spec import StateEntry
 
 ASSET_DIR_ENV = "BULBJAX_MJCF_DIR"
@@ -101,6 +103,9 @@ class EnvConfig:
     # Draw the task's targets as visual-only marks (Rearrange: bulb's two target areas on the
     # tray floor). Off by default: bulb's frames show none.
     show_targets: bool = False
+    # Ended worlds reset per chunk in `step` (`MjxPixelEnv.reset_chunk`): None, the domain's
+    # default (`reset_chunk_fraction`); 0, every world's reset computed and the ended ones kept.
+    reset_chunk: int | None = None
 
 
 class MjxPixelEnv:
@@ -134,6 +139,11 @@ class MjxPixelEnv:
     supports_multicolour: bool = True  # a `<Name>Multicolour` variant exists
     supports_targets: bool = False  # `show_targets` draws something
     num_versions: int = 0  # object versions (multi-object domains); 0: one scene, `version` must stay 0
+    # Resets in `step` (`_reset_done`): domains whose reset simulates reset the ended worlds only,
+    # this fraction of num_envs per chunk; 0: the full-batch reset (cheap draws: pendulums, locomotion).
+    reset_chunk_fraction: float = 0.0
+    # Per-world draws that a domain's `reset_with` fixes (`[num_envs, ...]`, gathered per chunk).
+    _fixed: dict[str, jax.Array] = {}
 
     def __init__(self, config: EnvConfig):
         _check_config(config)
@@ -169,6 +179,9 @@ class MjxPixelEnv:
             self.mj_model, self.num_envs, [f"pan{i}" for i in range(len(PAN_CAMERAS))],
             config.num_points, self.pointcloud_box) if pan else None
         self._renders_steps = config.render and config.render_steps
+        chunk = config.reset_chunk  # worlds per reset chunk in `step`; 0: the full-batch reset
+        chunk = math.ceil(self.reset_chunk_fraction * self.num_envs) if chunk is None else chunk
+        self.reset_chunk = min(int(chunk), self.num_envs)
         self._base_rgba = jnp.asarray(self.mj_model.geom_rgba)
         ids, rgb = self._scheme_colours()
         self._colour_ids, self._scheme_rgb = jnp.asarray(ids, jnp.int32), jnp.asarray(rgb, jnp.float32)
@@ -293,9 +306,7 @@ class MjxPixelEnv:
         ep_return = state.episode_return + reward
 
         split = jax.vmap(jax.random.split)(state.key)
-        fresh, fresh_scheme, fresh_params, _ = self._reset_batch(split[:, 1], done, forward=False)
-        data = _where_tree(done, fresh, data)
-        params = _where_tree(done, fresh_params, state.params)
+        data, scheme, params = self._reset_done(split[:, 1], done, data, state.scheme, state.params)
         # `mjx.step` computes positions before integrating, so geom and camera poses lag the new
         # qpos by one step. A frame must show the new state: run the forward pass when frames are
         # rendered; otherwise only the worlds just reset need it (for contacts and the next
@@ -306,7 +317,6 @@ class MjxPixelEnv:
             data = forward(data)
         else:
             data = jax.lax.cond(done.any(), forward, lambda d: d, data)
-        scheme = jnp.where(done, fresh_scheme, state.scheme)
         obs_lowdim = jnp.where(done[:, None], self._lowdim_batch(data, params), lowdim)
         info = {"episode_return": jnp.where(done, ep_return, 0.0),
                 "episode_length": jnp.where(done, step_count, 0),
@@ -382,6 +392,20 @@ class MjxPixelEnv:
         per-world parameters and the advanced keys."""
         data, scheme, keys = jax.vmap(self._reset_one, in_axes=(0, None))(keys, forward)
         return data, scheme, {}, keys
+
+    def _reset_done(self, keys: jax.Array, done: jax.Array, data: mjx.Data, scheme: jax.Array,
+                    params: dict[str, jax.Array]) -> tuple[mjx.Data, jax.Array, dict[str, jax.Array]]:
+        """Data, colour scheme and parameters with the worlds in `done` reset from their `keys`
+        (without the forward pass) and the others as given.
+
+        With `reset_chunk` K > 0 only the ended worlds are reset, K at a time
+        (`resets.reset_in_chunks`); no work when none is done. K = 0 resets every world and keeps
+        the done ones (right for resets without simulation)."""
+        if not self.reset_chunk:
+            fresh, fresh_scheme, fresh_params, _ = self._reset_batch(keys, done, forward=False)
+            return (_where_tree(done, fresh, data), jnp.where(done, fresh_scheme, scheme),
+                    _where_tree(done, fresh_params, params))
+        return reset_in_chunks(self, keys, done, data, scheme, params)
 
     def _reset_one(self, key: jax.Array, forward: bool = True) -> tuple[mjx.Data, jax.Array, jax.Array]:
         key, k_state, k_colour = jax.random.split(key, 3)
@@ -482,6 +506,11 @@ def _check_config(config: EnvConfig) -> None:
         raise ValueError(f"num_points must be a positive integer, got {config.num_points!r}")
     if not isinstance(config.num_envs, (int, np.integer)) or config.num_envs < 1:
         raise ValueError(f"num_envs must be a positive integer, got {config.num_envs!r}")
+    chunk = config.reset_chunk
+    if chunk is not None and (isinstance(chunk, (bool, np.bool_)) or not isinstance(chunk, (int, np.integer))
+                              or chunk < 0):
+        raise ValueError(f"reset_chunk must be None (the domain's default), 0 (full-batch resets) or a "
+                         f"positive number of worlds, got {chunk!r}")
     res = config.resolution
     if not isinstance(res, (int, np.integer)) or not MIN_RES <= res <= MAX_RES:
         raise ValueError(f"resolution must be an integer side length in [{MIN_RES}, {MAX_RES}] "

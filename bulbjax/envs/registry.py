@@ -30,7 +30,8 @@ def env_names(with_variants: bool = True) -> list[str]:
 
 def make(name: str, num_envs: int = 64, resolution: int = 64, render: bool | str = True,
          multicolour: bool = False, render_steps: bool = True, version: int | str = 0,
-         ycb_dir: str | None = None, num_points: int = 1024, show_targets: bool = False) -> MjxPixelEnv:
+         ycb_dir: str | None = None, num_points: int = 1024, show_targets: bool = False,
+         reset_chunk: int | None = None) -> MjxPixelEnv:
     """A batched environment of `num_envs` worlds with `resolution`x`resolution` RGB frames.
 
     `name` is a registered domain (see `env_names()`); a `Multicolour` suffix, or
@@ -42,7 +43,9 @@ def make(name: str, num_envs: int = 64, resolution: int = 64, render: bool | str
     frames out of `reset`/`step` (the experiment renders only the steps it stores).
     Multi-object domains take `version` (an int, or "random": one drawn per world and episode)
     and `ycb_dir` (the YCB models; default `$BULBJAX_YCB_DIR`). `show_targets=True` draws the
-    Rearrange targets as visual-only discs on the tray floor (bulb's frames have none)."""
+    Rearrange targets as visual-only discs on the tray floor (bulb's frames have none).
+    `reset_chunk` is how many ended worlds `step` resets at a time (None: the domain's default,
+    0: the full-batch reset; see `EnvConfig.reset_chunk`)."""
     base = name
     if name.endswith(MULTICOLOUR_SUFFIX):
         base, multicolour = name[: -len(MULTICOLOUR_SUFFIX)], True
@@ -55,7 +58,7 @@ def make(name: str, num_envs: int = 64, resolution: int = 64, render: bool | str
     cfg = EnvConfig(num_envs=num_envs, resolution=resolution, render=bool(render),
                     render_steps=render_steps and observation != "pointcloud", multicolour=multicolour,
                     observation=observation, num_points=num_points, version=version, ycb_dir=ycb_dir,
-                    show_targets=show_targets)
+                    show_targets=show_targets, reset_chunk=reset_chunk)
     return _REGISTRY[base](cfg)
 
 
