@@ -177,6 +177,7 @@ def main(argv: list[str] | None = None) -> str:
                                   None if s.skip_pybullet or i else (lambda: bench_pybullet(name, s)),
                                   None if s.skip_bulbjax else (lambda w: bench_bulbjax(name, w, s, rc)))
                 results["rows"].append({**row, "reset_chunk": rc})
+                frames_bench.save_progress(results, s.out, "incline")
     finally:
         if made_tmp and not s.keep_cache:
             shutil.rmtree(made_tmp, ignore_errors=True)

@@ -137,6 +137,7 @@ def main(argv: list[str] | None = None) -> str:
                               None if s.skip_pybullet or i else (lambda: bench_pybullet(name, s)),
                               None if s.skip_bulbjax else (lambda w: bench_bulbjax(name, w, s, rc)))
             results["rows"].append({**row, "reset_chunk": rc})
+            frames_bench.save_progress(results, s.out, "rearrange")
     frames_bench.print_table(results)
     path = frames_bench.write(results, s.out, "rearrange")
     print(path)

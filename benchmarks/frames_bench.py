@@ -151,7 +151,9 @@ def measure_env(name: str, procs: int, worlds: Sequence[int], pybullet: Callable
             try:
                 r = bulbjax(w)
                 row["bulbjax"].append(r)
-                log(f"{name}: bulbjax {w} worlds: {r['frames_per_s']:,.0f} frames/s (compile {r['compile_s']:.0f} s)")
+                chunk = r.get("reset_chunk")  # which reset path the row timed (None: the domain's default)
+                log(f"{name}: bulbjax {w} worlds, reset_chunk {'default' if chunk is None else chunk}: {r['frames_per_s']:,.0f} frames/s "
+                    f"(compile {r['compile_s']:.0f} s)")
             except Exception as err:
                 row["bulbjax"].append({"worlds": w, "error": repr(err)})
                 log(f"{name}: bulbjax {w} worlds failed: {err!r}")
@@ -176,6 +178,14 @@ def print_table(results: dict[str, Any]) -> None:
         rc = row.get("reset_chunk")
         env = row["env"] + (f" (reset chunk {rc})" if rc is not None else "")
         print(f"| {env} | {pb} | {bj or row.get('bulbjax_error', '-')} | {f'{ratio:.3g}x' if ratio else '-'} |")
+
+
+def save_progress(results: dict[str, Any], out: str, prefix: str) -> None:
+    """`<out>/<prefix>_latest.json` after each row, so a call cut short (a device time limit)
+    keeps the rows it measured; `write` gives the final, timestamped file."""
+    os.makedirs(out, exist_ok=True)
+    with open(os.path.join(out, f"{prefix}_latest.json"), "w") as f:
+        json.dump(results, f, indent=1, default=str)
 
 
 def write(results: dict[str, Any], out: str, prefix: str) -> str:

@@ -21,6 +21,12 @@ Results go to `<out-dir>/soak_<device>[_gpu<I>]_<timestamp>.json`, rewritten aft
 environment (a run cut short keeps what it had). An environment that cannot be built (e.g. the
 YCB models are not installed) is recorded as skipped with the reason, and the soak goes on.
 
+Each environment runs in a child process of its own (its console lines pass through): a Warp
+error in one (a failed build, or the "Warp error: unknown stream" that FrankaRearrangeYcb met
+after FrankaRearrangeOneGeom had run in the same process) cannot break the next, and is recorded
+as that environment's failure (exit status and the child's last lines). `--in-process` runs them
+all in this process instead.
+
 Two GPUs, two processes (the 24 names split between them):
   python benchmarks/soak.py --device-index 0 --envs CartPole,...  &
   python benchmarks/soak.py --device-index 1 --envs Ant,...
@@ -70,6 +76,9 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     ap.add_argument("--out-dir", default=os.path.join(HERE, "results"))
     ap.add_argument("--tag", default="", help="added to the file name")
     ap.add_argument("--list", action="store_true", help="print the environments and their step counts, then exit")
+    ap.add_argument("--in-process", action="store_true",
+                    help="every environment in this process (default: one child process per environment)")
+    ap.add_argument("--child-json", default=None, help=argparse.SUPPRESS)  # a child: soak --envs, write its record
     a = ap.parse_args(argv)
     base = SMALL if a.small else dict(worlds=4096, steps=1_000_000, long_steps=10_000_000, chunk=250, envs=None)
     for k in ("worlds", "steps", "long_steps", "chunk"):
@@ -206,6 +215,53 @@ def soak_one(name: str, a: argparse.Namespace, log) -> dict[str, Any]:
     return rec
 
 
+def child_argv(name: str, a: argparse.Namespace, record: str) -> list[str]:
+    """This script's command line for one environment in a child (sizes as given here; the
+    child inherits CUDA_VISIBLE_DEVICES, so no --device-index)."""
+    argv = [sys.executable, os.path.abspath(__file__), "--envs", name, "--worlds", str(a.worlds),
+            "--steps", str(a.steps), "--long-steps", str(a.long_steps), "--chunk", str(a.chunk),
+            "--seed", str(a.seed), "--print-every", str(a.print_every), "--child-json", record]
+    return argv + (["--render"] if a.render else [])
+
+
+def soak_in_child(name: str, a: argparse.Namespace, path: str, log) -> dict[str, Any]:
+    """`soak_one` of `name` in a child process, its console lines passed through; a child that
+    dies without its record is this environment's failure (exit status, last lines)."""
+    import collections
+    import subprocess
+
+    record = f"{path}.{name}.child.json"
+    tail: collections.deque[str] = collections.deque(maxlen=20)
+    t0 = time.perf_counter()
+    with subprocess.Popen(child_argv(name, a, record), stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+                          text=True, bufsize=1) as p:
+        for line in p.stdout:
+            line = line.rstrip("\n")
+            tail.append(line)
+            if not line.startswith(("Warning: EPA horizon", "To disable the print warning")):
+                log(line)
+        rc = p.wait()
+    if rc == 0 and os.path.exists(record):
+        with open(record) as f:
+            rec = json.load(f)
+        os.remove(record)
+        return rec
+    log(f"{name:<28} FAILED in its child process (exit {rc}); the soak goes on")
+    return {"env": name, "failed": f"exit {rc}", "last_lines": list(tail), "wall_s": round(time.perf_counter() - t0, 2)}
+
+
+def device_kind_in_child() -> tuple[str, str]:
+    """The first JAX device's kind and platform, asked in a short child process, so that this
+    process never starts a GPU client (it would take the memory the soak's children need)."""
+    import subprocess
+
+    code = "import jax; d = jax.devices()[0]; print(getattr(d, 'device_kind', d.platform)); print(d.platform)"
+    env = {**os.environ, "XLA_PYTHON_CLIENT_PREALLOCATE": "false"}
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, timeout=600)
+    lines = r.stdout.strip().splitlines()
+    return (lines[-2], lines[-1]) if r.returncode == 0 and len(lines) >= 2 else ("unknown", "unknown")
+
+
 def write_json(path: str, obj: Any) -> None:
     tmp = path + ".tmp"
     with open(tmp, "w") as f:
@@ -241,8 +297,15 @@ def main(argv: Sequence[str] | None = None) -> int:
         for n in names:
             print(f"{n:<28} {steps_for(n, a):>12,} steps")
         return 0
-    dev = jax.devices()[0]
-    kind = getattr(dev, "device_kind", dev.platform)
+    if a.child_json:  # one environment, its record to the parent
+        write_json(a.child_json, soak_one(names[0], a, lambda msg: print(msg, flush=True)))
+        return 0
+    isolate = not a.in_process
+    if isolate:  # the parent leaves the GPU to its children: a short child names the device
+        kind, platform = device_kind_in_child()
+    else:
+        dev = jax.devices()[0]
+        kind, platform = getattr(dev, "device_kind", dev.platform), dev.platform
     stamp = dt.datetime.now(dt.timezone.utc).strftime("%Y%m%d_%H%M%S")
     gpu = f"_gpu{a.device_index}" if a.device_index is not None else ""
     tag = f"_{a.tag}" if a.tag else ""
@@ -251,17 +314,18 @@ def main(argv: Sequence[str] | None = None) -> int:
     log = lambda msg: print(msg, flush=True)  # noqa: E731
     out: dict[str, Any] = {
         "what": "benchmarks/soak.py: random actions, counts of non-finite physics (EnvState.counts)",
-        "argv": sys.argv[1:] if argv is None else list(argv), "device": {"kind": kind, "platform": dev.platform,
+        "argv": sys.argv[1:] if argv is None else list(argv), "device": {"kind": kind, "platform": platform,
                                                                           "index": a.device_index},
         "jax": jax.__version__, "worlds": a.worlds, "render": a.render, "seed": a.seed,
-        "started": stamp, "envs": []}
+        "started": stamp, "isolated": isolate, "envs": []}
     log(f"soak: {len(names)} environments, {a.worlds} worlds, {a.steps:,} steps ({a.long_steps:,} for "
         f"{', '.join(LONG)}), {'rendered' if a.render else 'physics only'}, on {kind}; results: {path}")
     for n in names:
-        out["envs"].append(soak_one(n, a, log))
+        out["envs"].append(soak_in_child(n, a, path, log) if isolate else soak_one(n, a, log))
         write_json(path, out)
-    ran = [r for r in out["envs"] if "skipped" not in r]
+    ran = [r for r in out["envs"] if "skipped" not in r and "failed" not in r]
     out["summary"] = {"envs": len(ran), "skipped": [r["env"] for r in out["envs"] if "skipped" in r],
+                      "failed": [r["env"] for r in out["envs"] if "failed" in r],
                       "steps": sum(r["steps"] for r in ran),
                       "nonfinite_resets": sum(r["nonfinite_resets"] for r in ran),
                       "with_nonfinite": [r["env"] for r in ran if r["nonfinite_resets"]],
@@ -270,8 +334,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     s = out["summary"]
     log(f"soak done: {s['envs']} environments, {s['steps']:,} steps, {s['nonfinite_resets']} non-finite resets "
         f"({', '.join(s['with_nonfinite']) or 'none'}), leaked {s['leaked_nonfinite']}, skipped "
-        f"{', '.join(s['skipped']) or 'none'}; {path}")
-    return 1 if s["leaked_nonfinite"] else 0
+        f"{', '.join(s['skipped']) or 'none'}, failed {', '.join(s['failed']) or 'none'}; {path}")
+    return 1 if s["leaked_nonfinite"] or s["failed"] else 0
 
 
 if __name__ == "__main__":

@@ -39,6 +39,9 @@ def test_small_soak_counts_and_writes_json(tmp_path, capsys):
     assert rec["actions_fixed"] == 0
     assert rec["steps_per_s"] > 0 and rec["run_s"] > 0
     assert res["summary"]["steps"] == rec["steps"] and res["summary"]["with_nonfinite"] == []
+    # the environment ran in a child process of its own, its record handed back, nothing failed
+    assert res["isolated"] is True and res["summary"]["failed"] == [] and res["device"]["platform"] == "cpu"
+    assert not [f for f in os.listdir(tmp_path) if f.endswith(".child.json")]
     assert "CartPole" in out and "non-finite resets" in out  # one line per environment
 
 
