@@ -8,7 +8,6 @@ file, camera, reset distribution, state, reward and termination.
 
 from __future__ import annotations
 
-import math
 import os
 from dataclasses import dataclass
 from typing import Any, Sequence
@@ -24,7 +23,7 @@ from bulbjax.envs import warp_graphs
 from bulbjax.envs.camera import PAN_CAMERAS, CameraConfig, add_bulb_camera, pan_cameras
 from bulbjax.envs.colours import NUM_SCHEMES, scheme_table
 from bulbjax.envs.render import PointCloudRenderer, Renderer, exclude_from_pointcloud
-from bulbjax.envs.resets import reset_in_chunks
+from bulbjax.envs.resets import chunk_size, reset_in_chunks
 from bulbjax.eval.spec import StateEntry
 
 ASSET_DIR_ENV = "BULBJAX_MJCF_DIR"
@@ -147,6 +146,7 @@ class MjxPixelEnv:
 
     def __init__(self, config: EnvConfig):
         _check_config(config)
+        self.reset_chunk = chunk_size(config.reset_chunk, self.reset_chunk_fraction, config.num_envs)
         if config.show_targets and not self.supports_targets:
             raise ValueError(f"{self.name} has no targets to draw; show_targets is for the Rearrange domains")
         if not self.num_versions and config.version != 0:
@@ -179,9 +179,6 @@ class MjxPixelEnv:
             self.mj_model, self.num_envs, [f"pan{i}" for i in range(len(PAN_CAMERAS))],
             config.num_points, self.pointcloud_box) if pan else None
         self._renders_steps = config.render and config.render_steps
-        chunk = config.reset_chunk  # worlds per reset chunk in `step`; 0: the full-batch reset
-        chunk = math.ceil(self.reset_chunk_fraction * self.num_envs) if chunk is None else chunk
-        self.reset_chunk = min(int(chunk), self.num_envs)
         self._base_rgba = jnp.asarray(self.mj_model.geom_rgba)
         ids, rgb = self._scheme_colours()
         self._colour_ids, self._scheme_rgb = jnp.asarray(ids, jnp.int32), jnp.asarray(rgb, jnp.float32)
@@ -506,11 +503,6 @@ def _check_config(config: EnvConfig) -> None:
         raise ValueError(f"num_points must be a positive integer, got {config.num_points!r}")
     if not isinstance(config.num_envs, (int, np.integer)) or config.num_envs < 1:
         raise ValueError(f"num_envs must be a positive integer, got {config.num_envs!r}")
-    chunk = config.reset_chunk
-    if chunk is not None and (isinstance(chunk, (bool, np.bool_)) or not isinstance(chunk, (int, np.integer))
-                              or chunk < 0):
-        raise ValueError(f"reset_chunk must be None (the domain's default), 0 (full-batch resets) or a "
-                         f"positive number of worlds, got {chunk!r}")
     res = config.resolution
     if not isinstance(res, (int, np.integer)) or not MIN_RES <= res <= MAX_RES:
         raise ValueError(f"resolution must be an integer side length in [{MIN_RES}, {MAX_RES}] "

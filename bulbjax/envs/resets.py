@@ -17,6 +17,19 @@ from typing import Any
 
 import jax
 import jax.numpy as jnp
+import numpy as np
+
+
+def chunk_size(chunk: Any, fraction: float, num_envs: int) -> int:
+    """Worlds per reset chunk in `step`: `chunk` (EnvConfig.reset_chunk) if given, else the
+    domain's `fraction` of `num_envs`; at most `num_envs`; 0 is the full-batch reset. A value that
+    is not None or a non-negative int is a ValueError naming the choices."""
+    if chunk is not None and (isinstance(chunk, (bool, np.bool_)) or not isinstance(chunk, (int, np.integer))
+                              or chunk < 0):
+        raise ValueError(f"reset_chunk must be None (the domain's default), 0 (full-batch resets) or a "
+                         f"positive number of worlds, got {chunk!r}")
+    chunk = math.ceil(fraction * num_envs) if chunk is None else chunk
+    return min(int(chunk), num_envs)
 
 
 def reset_in_chunks(env: Any, keys: jax.Array, done: jax.Array, data: Any, scheme: jax.Array,
