@@ -36,7 +36,7 @@ sys.path.insert(0, os.path.dirname(HERE))  # run from a checkout without install
 sys.path.insert(0, HERE)
 
 import frames_bench  # noqa: E402
-from frames_bench import device_info, log, measure_env, parse_reset_chunks, time_bulbjax, time_pybullet  # noqa: E402
+from frames_bench import device_info, log, parse_reset_chunks, time_bulbjax, time_pybullet  # noqa: E402
 
 
 @dataclass(frozen=True)
@@ -171,13 +171,7 @@ def main(argv: list[str] | None = None) -> str:
         log(f"YCB cache: 6 objects built in {c['build_total_s']:.1f} s from an empty cache, "
             f"cache hits {c['cache_hit_total_s']:.2f} s")
     try:
-        for name in s.envs:
-            for i, rc in enumerate(s.reset_chunks):  # PyBullet once per env
-                row = measure_env(name, s.procs, s.worlds,
-                                  None if s.skip_pybullet or i else (lambda: bench_pybullet(name, s)),
-                                  None if s.skip_bulbjax else (lambda w: bench_bulbjax(name, w, s, rc)))
-                results["rows"].append({**row, "reset_chunk": rc})
-                frames_bench.save_progress(results, s.out, "incline")
+        frames_bench.measure_rows(results, s, "incline", bench_pybullet, bench_bulbjax)
     finally:
         if made_tmp and not s.keep_cache:
             shutil.rmtree(made_tmp, ignore_errors=True)

@@ -32,7 +32,7 @@ sys.path.insert(0, os.path.dirname(HERE))  # run from a checkout without install
 sys.path.insert(0, HERE)
 
 import frames_bench  # noqa: E402
-from frames_bench import device_info, log, measure_env, parse_reset_chunks, time_bulbjax, time_pybullet  # noqa: E402
+from frames_bench import device_info, log, parse_reset_chunks, time_bulbjax, time_pybullet  # noqa: E402
 
 NUM_VERSIONS = 12
 
@@ -131,13 +131,7 @@ def main(argv: list[str] | None = None) -> str:
     info = device_info()
     log(f"device: {info.get('device')} ({info.get('platform')}), {info['cpu_count']} CPU cores")
     results: dict[str, Any] = {"settings": asdict(s), "device": info, "rows": []}
-    for name in s.envs:
-        for i, rc in enumerate(s.reset_chunks):  # PyBullet once per env
-            row = measure_env(name, s.procs, s.worlds,
-                              None if s.skip_pybullet or i else (lambda: bench_pybullet(name, s)),
-                              None if s.skip_bulbjax else (lambda w: bench_bulbjax(name, w, s, rc)))
-            results["rows"].append({**row, "reset_chunk": rc})
-            frames_bench.save_progress(results, s.out, "rearrange")
+    frames_bench.measure_rows(results, s, "rearrange", bench_pybullet, bench_bulbjax)
     frames_bench.print_table(results)
     path = frames_bench.write(results, s.out, "rearrange")
     print(path)

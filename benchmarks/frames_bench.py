@@ -180,6 +180,22 @@ def print_table(results: dict[str, Any]) -> None:
         print(f"| {env} | {pb} | {bj or row.get('bulbjax_error', '-')} | {f'{ratio:.3g}x' if ratio else '-'} |")
 
 
+def measure_rows(results: dict[str, Any], s: Any, prefix: str,
+                 pybullet: Callable[[str, Any], dict[str, Any]],
+                 bulbjax: Callable[[str, int, Any, int | None], dict[str, Any]]) -> None:
+    """One `measure_env` row per environment of `s.envs` and reset path of `s.reset_chunks`
+    (PyBullet only with the first: it has one reset), appended to `results["rows"]` and saved
+    after each (`save_progress`). `s`: a family bench's settings (envs, procs, worlds,
+    reset_chunks, skip_pybullet, skip_bulbjax, out)."""
+    for name in s.envs:
+        for i, rc in enumerate(s.reset_chunks):
+            row = measure_env(name, s.procs, s.worlds,
+                              None if s.skip_pybullet or i else (lambda: pybullet(name, s)),
+                              None if s.skip_bulbjax else (lambda w: bulbjax(name, w, s, rc)))
+            results["rows"].append({**row, "reset_chunk": rc})
+            save_progress(results, s.out, prefix)
+
+
 def save_progress(results: dict[str, Any], out: str, prefix: str) -> None:
     """`<out>/<prefix>_latest.json` after each row, so a call cut short (a device time limit)
     keeps the rows it measured; `write` gives the final, timestamped file."""
