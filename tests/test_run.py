@@ -138,6 +138,38 @@ def test_sigterm_stops_at_epoch_end_with_a_checkpoint(exp, tmp_path):
     assert len(_lines(d)) == 2  # one epoch of two seeds
 
 
+def test_max_minutes_stops_after_the_epoch_that_ran_late(exp, tmp_path, monkeypatch):
+    """--max-minutes: checked before the first epoch and after each; the last epoch is "done"."""
+    import bulbjax.experiment.run as run_module
+
+    clock = [0.0]
+    monkeypatch.setattr(run_module.time, "time", lambda: clock[0])
+
+    def late_after(n: int):
+        def on_epoch(done: int) -> None:
+            if done == n:
+                clock[0] += 3600.0  # an hour passes during epoch n
+        return on_epoch
+
+    opts = RunOptions(max_minutes=30)
+    res = run(exp.config, opts, str(tmp_path / "a"), experiment=exp, progress=False,
+              log=lambda s: None, on_epoch=late_after(1))
+    assert (res.epochs_done, res.stopped, res.checkpoint) == (1, "max-minutes", 1)
+    res = run(exp.config, opts, str(tmp_path / "b"), experiment=exp, progress=False,
+              log=lambda s: None, on_epoch=late_after(exp.config.epochs))
+    assert (res.epochs_done, res.stopped) == (exp.config.epochs, "done")  # late after the last epoch: nothing was cut
+    clock[0] = 0.0
+
+    def late_before(*args, **kwargs):  # the build and compile took longer than the budget
+        clock[0] += 3600.0
+        return real_check(*args, **kwargs)
+
+    real_check = run_module.rundir.check_out_dir
+    monkeypatch.setattr(run_module.rundir, "check_out_dir", late_before)
+    res = run(exp.config, opts, str(tmp_path / "c"), experiment=exp, progress=False, log=lambda s: None)
+    assert (res.epochs_done, res.stopped, res.checkpoint) == (0, "max-minutes", 0)
+
+
 def test_config_mismatch_on_resume_is_an_error(exp, straight):
     d, _ = straight
     with pytest.raises(ValueError, match=r"learners: saved \('vae_rpl', 'svae'\), given \('vae',\)"):

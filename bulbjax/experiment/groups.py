@@ -16,7 +16,7 @@ graph mode (WARP, NONE, WARP_STAGED_EX), under `jax.pmap` (in this JAX a shard_m
 one GPU per process under `jax.distributed`; the same reset, render and six-learner init run on
 either GPU alone and on both side by side. With several processes (`bulbjax.distributed`), each
 process runs the groups of its own devices and the metrics and reference states are gathered
-over processes (`multihost_utils.process_allgather`, programs without Warp).
+over processes (`distributed.allgather`: one packed all-gather, a program without Warp).
 
 `form`: "groups" (the default wherever more than one device is given), "sharded" (one program over
 a mesh of the devices: the CPU's host devices in tests; on GPUs it is refused in one line and the
@@ -34,6 +34,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from bulbjax import distributed
 from bulbjax.eval import probe
 from bulbjax.experiment.config import ExperimentConfig
 from bulbjax.experiment.loop import Experiment
@@ -177,7 +178,7 @@ class SeedGroups:
             ref = [jax.jit(e.reference_states)(e.put_key(key)) for e in self.exps]
             ref = np.concatenate([np.asarray(r) for r in jax.device_get(ref)], axis=1)  # [T, Sl*N, D]
             if self.processes > 1:
-                ref = _allgather(np.ascontiguousarray(ref.swapaxes(0, 1))).swapaxes(0, 1)
+                ref = distributed.allgather(np.ascontiguousarray(ref.swapaxes(0, 1))).swapaxes(0, 1)
             targets = self.exps[0].targets  # the probes' targets: the states and what derives from them
             spread = jax.jit(lambda r: probe.spread(targets(r)))(jnp.asarray(ref.reshape((-1, ref.shape[-1]))))
             states = [rs.replace(ref_spread=jax.device_put(spread, e.devices.replicated))
@@ -194,21 +195,12 @@ class SeedGroups:
         m = metrics[0] if len(metrics) == 1 else jax.tree.map(lambda *xs: np.concatenate(xs, 0), *metrics)
         if self.processes > 1:
             m = jax.tree.map(np.asarray, m)
-            m = _allgather(m)
+            m = distributed.allgather(m)
         return self._wrap([rs for rs, _ in outs]), m
 
     def group_state(self, state: Any, index: int = 0) -> RunState:
         """The RunState of local group `index` (e.g. for the reconstruction figures of seed 0)."""
         return self._unwrap(state)[index]
-
-
-def _allgather(tree: Any) -> Any:
-    """Every process's host arrays, concatenated over processes along their first axis (process
-    order: the seed order of the groups)."""
-    from jax.experimental import multihost_utils
-
-    return jax.tree.map(np.asarray, multihost_utils.process_allgather(tree, tiled=True))
-
 
 
 def _side_by_side(calls: list[Callable[[], Any]]) -> list[Any]:

@@ -368,13 +368,17 @@ def run(cfg: ExperimentConfig, opts: RunOptions, run_dir: str, *, resume: bool =
                disable=not progress)
     if progress:
         stages.log = bar.write  # the first epoch's lines above the bar
+
+    def late() -> bool:
+        return bool(opts.max_minutes) and time.time() - t0 > 60 * opts.max_minutes
+
     try:
         with StopSignal(bar.write) as stop:
-            while epoch < cfg.epochs:
-                # every process takes process 0's decision: their clocks differ
-                if distributed.broadcast_flag(bool(opts.max_minutes) and time.time() - t0 > 60 * opts.max_minutes):
-                    stopped = "max-minutes"
-                    break
+            # every process takes process 0's decisions (their clocks and signals differ): one
+            # collective before the first epoch, then one after each
+            if epoch < cfg.epochs and distributed.broadcast_flag(late()):
+                stopped = "max-minutes"
+            while epoch < cfg.epochs and stopped == "done":
                 if opts.stop_after and epoch - start >= opts.stop_after:
                     stopped = "stop-after"
                     break
@@ -406,9 +410,11 @@ def run(cfg: ExperimentConfig, opts: RunOptions, run_dir: str, *, resume: bool =
                     drawn = epoch
                 if on_epoch is not None:
                     on_epoch(epoch)
-                if distributed.broadcast_flag(stop.signum is not None):
+                signalled, over = distributed.broadcast_flags(stop.signum is not None, late())
+                if signalled:
                     stopped = f"signal {signal.Signals(stop.signum).name}" if stop.signum else "signal (process 0)"
-                    break
+                elif over and epoch < cfg.epochs:
+                    stopped = "max-minutes"
             if saved != epoch:
                 _save(ckpt, run_dir, epoch, rs, key)
                 saved = epoch
