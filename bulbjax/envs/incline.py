@@ -45,8 +45,9 @@ import mujoco
 import numpy as np
 from mujoco import mjx
 
-from bulbjax.envs.base import EnvConfig, EnvState, MjxPixelEnv, _finite_rows, _where_tree
+from bulbjax.envs.base import EnvState, MjxPixelEnv, _finite_rows, _where_tree
 from bulbjax.envs.camera import CameraConfig
+from bulbjax.envs.env_config import EnvConfig
 from bulbjax.envs.locomotion import _quiet_solver_limits
 from bulbjax.eval.spec import StateEntry
 

@@ -5,7 +5,8 @@ from __future__ import annotations
 import dataclasses
 from typing import Any
 
-from bulbjax.envs.base import EnvConfig, MjxPixelEnv
+from bulbjax.envs.base import MjxPixelEnv
+from bulbjax.envs.env_config import EnvConfig
 from bulbjax.envs.incline import (GeomOnIncline, GeomOnInclineMd, GeomOnInclineSm, YcbOnIncline,
                                   YcbOnInclineMd, YcbOnInclineSm)
 from bulbjax.envs.locomotion import Ant, HalfCheetah
