@@ -9,7 +9,6 @@ file, camera, reset distribution, state, reward and termination.
 from __future__ import annotations
 
 import os
-from dataclasses import dataclass
 from typing import Any, Sequence
 
 import jax
@@ -22,12 +21,12 @@ from mujoco import mjx
 from bulbjax.envs import warp_graphs
 from bulbjax.envs.camera import PAN_CAMERAS, CameraConfig, add_bulb_camera, pan_cameras
 from bulbjax.envs.colours import NUM_SCHEMES, scheme_table
+from bulbjax.envs.env_config import EnvConfig, check_config
 from bulbjax.envs.render import PointCloudRenderer, Renderer, exclude_from_pointcloud
 from bulbjax.envs.resets import chunk_size, reset_in_chunks
 from bulbjax.eval.spec import StateEntry
 
 ASSET_DIR_ENV = "BULBJAX_MJCF_DIR"
-MIN_RES, MAX_RES = 8, 1024
 
 
 def asset_dir() -> str:
@@ -82,31 +81,6 @@ class EnvState:
 COUNTS = ("nonfinite_resets", "nonfinite_entries", "actions_fixed")
 
 
-@dataclass(frozen=True)
-class EnvConfig:
-    """Construction options shared by all domains."""
-
-    num_envs: int = 64
-    resolution: int = 64
-    render: bool = True  # make a renderer; `render_frames` needs it
-    render_steps: bool = True  # put frames in every `reset`/`step` state (else pixels are [N,0,0,3])
-    multicolour: bool = False
-    # What `reset`/`step` observe besides the state: "rgb" (uint8 frames in `pixels`), "depth"
-    # (float32 metres in `depth`, with the frames) or "pointcloud" (`points`, bulb's PT mode).
-    observation: str = "rgb"
-    num_points: int = 1024  # points per cloud ("pointcloud")
-    # Multi-object domains: the object version (an int, or "random" to draw one per world and
-    # episode) and the folder of the YCB models (default: $BULBJAX_YCB_DIR).
-    version: int | str = 0
-    ycb_dir: str | None = None
-    # Draw the task's targets as visual-only marks (Rearrange: bulb's two target areas on the
-    # tray floor). Off by default: bulb's frames show none.
-    show_targets: bool = False
-    # Ended worlds reset per chunk in `step` (`MjxPixelEnv.reset_chunk`): None, the domain's
-    # default (`reset_chunk_fraction`); 0, every world's reset computed and the ended ones kept.
-    reset_chunk: int | None = None
-
-
 class MjxPixelEnv:
     """Base class; subclasses set the class attributes and the `_` methods below."""
 
@@ -145,7 +119,7 @@ class MjxPixelEnv:
     _fixed: dict[str, jax.Array] = {}
 
     def __init__(self, config: EnvConfig):
-        _check_config(config)
+        check_config(config)
         self.reset_chunk = chunk_size(config.reset_chunk, self.reset_chunk_fraction, config.num_envs)
         if config.show_targets and not self.supports_targets:
             raise ValueError(f"{self.name} has no targets to draw; show_targets is for the Rearrange domains")
@@ -487,23 +461,3 @@ def _nonfinite(x: jax.Array) -> jax.Array:
 def _add_counts(counts: dict[str, jax.Array], **step: jax.Array) -> dict[str, jax.Array]:
     """`EnvState.counts` after a step (a state without counts, e.g. built by hand, starts at 0)."""
     return {k: counts.get(k, jnp.zeros_like(v)) + v for k, v in step.items()}
-
-
-OBSERVATIONS = ("rgb", "depth", "pointcloud")
-
-
-def _check_config(config: EnvConfig) -> None:
-    if not isinstance(config.show_targets, (bool, np.bool_)):
-        raise ValueError(f"show_targets must be True or False, got {config.show_targets!r}")
-    if config.observation not in OBSERVATIONS:
-        raise ValueError(f"observation must be one of {OBSERVATIONS}, got {config.observation!r}")
-    if config.observation == "depth" and not config.render:
-        raise ValueError('observation "depth" needs render=True (depth comes from the frame renderer)')
-    if not isinstance(config.num_points, (int, np.integer)) or config.num_points < 1:
-        raise ValueError(f"num_points must be a positive integer, got {config.num_points!r}")
-    if not isinstance(config.num_envs, (int, np.integer)) or config.num_envs < 1:
-        raise ValueError(f"num_envs must be a positive integer, got {config.num_envs!r}")
-    res = config.resolution
-    if not isinstance(res, (int, np.integer)) or not MIN_RES <= res <= MAX_RES:
-        raise ValueError(f"resolution must be an integer side length in [{MIN_RES}, {MAX_RES}] "
-                         f"(frames are square; 64 is the paper's), got {res!r}")

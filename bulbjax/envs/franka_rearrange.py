@@ -9,8 +9,8 @@ import jax.numpy as jnp
 import numpy as np
 from mujoco import mjx
 
-from bulbjax.envs.base import EnvConfig
 from bulbjax.envs.camera import CameraConfig
+from bulbjax.envs.env_config import EnvConfig
 from bulbjax.envs.incline import _quat_mat
 
 os.environ.setdefault("MUJOCO_GL", "disable")  # dm_control needs no GL context to build models

@@ -61,8 +61,9 @@ import mujoco
 import numpy as np
 from mujoco import mjx
 
-from bulbjax.envs.base import EnvConfig, MjxPixelEnv
+from bulbjax.envs.base import MjxPixelEnv
 from bulbjax.envs.camera import CameraConfig
+from bulbjax.envs.env_config import EnvConfig
 from bulbjax.eval.spec import StateEntry
 
 SCENE_DT = 0.0165  # PyBullet's scene.dt = timestep 0.0165/4 * frame_skip 4

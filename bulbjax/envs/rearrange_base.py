@@ -13,7 +13,8 @@ import mujoco
 import numpy as np
 from mujoco import mjx
 
-from bulbjax.envs.base import EnvConfig, EnvState, MjxPixelEnv, _finite_rows, _where_tree
+from bulbjax.envs.base import EnvState, MjxPixelEnv, _finite_rows, _where_tree
+from bulbjax.envs.env_config import EnvConfig
 from bulbjax.envs.incline import _quat_mat
 from bulbjax.envs.locomotion import _quiet_solver_limits
 from bulbjax.envs.render import SCENERY_GROUP

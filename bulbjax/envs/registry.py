@@ -5,7 +5,8 @@ from __future__ import annotations
 import dataclasses
 from typing import Any
 
-from bulbjax.envs.base import EnvConfig, MjxPixelEnv
+from bulbjax.envs.base import MjxPixelEnv
+from bulbjax.envs.env_config import EnvConfig
 from bulbjax.envs.incline import (GeomOnIncline, GeomOnInclineMd, GeomOnInclineSm, YcbOnIncline,
                                   YcbOnInclineMd, YcbOnInclineSm)
 from bulbjax.envs.locomotion import Ant, HalfCheetah
@@ -74,7 +75,7 @@ def ppo_config_for(name: str, base: Any = None) -> Any:
     """PPO settings for a domain: `base` (default `PPOConfig()`) with the domain's
     `ppo_overrides` applied (locomotion needs longer rollouts and more epochs than the pendulums,
     whose settings are PPO's defaults)."""
-    from bulbjax.rl.ppo import PPOConfig
+    from bulbjax.rl.ppo_config import PPOConfig
 
     base = PPOConfig() if base is None else base
     return dataclasses.replace(base, **env_class(name).ppo_overrides)

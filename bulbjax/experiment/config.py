@@ -13,7 +13,7 @@ from typing import Any
 from bulbjax.data import synthetic
 from bulbjax.eval.probe import ProbeConfig
 from bulbjax.learners import LearnerConfig, is_sequential_name, learner_names
-from bulbjax.rl.ppo import PPOConfig
+from bulbjax.rl.ppo_config import PPOConfig
 
 # How learner work may run over the seed axis (`ExperimentConfig.learner_seed_loop`).
 SEED_LOOPS = ("auto", "vmap", "map", "hybrid")

@@ -2,19 +2,17 @@
 
 from bulbjax.rl.networks import DiscreteActorCritic, GaussianActorCritic
 from bulbjax.rl.ppo import (
-    LR_SCHEDULES,
     PPO,
-    PPOConfig,
     PPOState,
     RunningStats,
     Transition,
     compute_gae,
     floor_log_std,
-    lr_factor,
     mean_log_std,
     rollout,
     train,
 )
+from bulbjax.rl.ppo_config import LR_SCHEDULES, PPOConfig, lr_factor
 
 __all__ = [
     "PPO",

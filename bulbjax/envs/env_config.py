@@ -1,0 +1,59 @@
+"""`EnvConfig`, the construction options shared by all domains, and the checks they must pass.
+
+Kept apart from the environment base class (`base.MjxPixelEnv`, which runs `check_config` first
+thing in its constructor) so that the options and their limits read in one place. The checks
+that depend on the domain (targets, object versions, the reset chunk) stay with the domain's
+constructor and `resets.chunk_size`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+MIN_RES, MAX_RES = 8, 1024
+OBSERVATIONS = ("rgb", "depth", "pointcloud")
+
+
+@dataclass(frozen=True)
+class EnvConfig:
+    """Construction options shared by all domains."""
+
+    num_envs: int = 64
+    resolution: int = 64
+    render: bool = True  # make a renderer; `render_frames` needs it
+    render_steps: bool = True  # put frames in every `reset`/`step` state (else pixels are [N,0,0,3])
+    multicolour: bool = False
+    # What `reset`/`step` observe besides the state: "rgb" (uint8 frames in `pixels`), "depth"
+    # (float32 metres in `depth`, with the frames) or "pointcloud" (`points`, bulb's PT mode).
+    observation: str = "rgb"
+    num_points: int = 1024  # points per cloud ("pointcloud")
+    # Multi-object domains: the object version (an int, or "random" to draw one per world and
+    # episode) and the folder of the YCB models (default: $BULBJAX_YCB_DIR).
+    version: int | str = 0
+    ycb_dir: str | None = None
+    # Draw the task's targets as visual-only marks (Rearrange: bulb's two target areas on the
+    # tray floor). Off by default: bulb's frames show none.
+    show_targets: bool = False
+    # Ended worlds reset per chunk in `step` (`MjxPixelEnv.reset_chunk`): None, the domain's
+    # default (`reset_chunk_fraction`); 0, every world's reset computed and the ended ones kept.
+    reset_chunk: int | None = None
+
+
+def check_config(config: EnvConfig) -> None:
+    """Raise a ValueError naming the first option of `config` that no domain accepts."""
+    if not isinstance(config.show_targets, (bool, np.bool_)):
+        raise ValueError(f"show_targets must be True or False, got {config.show_targets!r}")
+    if config.observation not in OBSERVATIONS:
+        raise ValueError(f"observation must be one of {OBSERVATIONS}, got {config.observation!r}")
+    if config.observation == "depth" and not config.render:
+        raise ValueError('observation "depth" needs render=True (depth comes from the frame renderer)')
+    if not isinstance(config.num_points, (int, np.integer)) or config.num_points < 1:
+        raise ValueError(f"num_points must be a positive integer, got {config.num_points!r}")
+    if not isinstance(config.num_envs, (int, np.integer)) or config.num_envs < 1:
+        raise ValueError(f"num_envs must be a positive integer, got {config.num_envs!r}")
+    res = config.resolution
+    if not isinstance(res, (int, np.integer)) or not MIN_RES <= res <= MAX_RES:
+        raise ValueError(f"resolution must be an integer side length in [{MIN_RES}, {MAX_RES}] "
+                         f"(frames are square; 64 is the paper's), got {res!r}")
