@@ -166,8 +166,9 @@ def test_presets_carry_the_domain_settings():
 
     for name in ("fig2-invpend", "fig2-cartpole"):
         p = resolve(name).ppo
-        assert (p.anneal_updates, p.lr_floor, p.min_log_std, p.lr) == (2000, 0.1, -2.0, 1e-3)
+        assert (p.anneal_updates, p.lr_floor, p.min_log_std, p.lr, p.obs_norm_updates) == (2000, 0.1, -2.0, 1e-3, 400)
     hc = resolve("fig2-halfcheetah").ppo
+    assert hc.obs_norm_updates == 0  # measured only on the pendulums
     assert (hc.lr, hc.num_steps, hc.min_log_std, hc.anneal_updates) == (3e-4, 128, -1.5, 2000)
     assert resolve("fig2-ant").ppo.min_log_std is None  # no measurements there: PPO's defaults
     # a run saved before the options reads back with them off (its config.json lacks them)
@@ -177,7 +178,8 @@ def test_presets_carry_the_domain_settings():
     for f in ("lr_schedule", "lr_floor", "min_log_std", "target_kl", "obs_norm_updates"):
         del saved["ppo"][f]
     saved["ppo"]["anneal_updates"] = 0
-    assert config_from_dict(saved).ppo.min_log_std is None
+    old = config_from_dict(saved).ppo
+    assert old.min_log_std is None and old.obs_norm_updates == 0
 
 
 def _bench():
