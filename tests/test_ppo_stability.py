@@ -169,6 +169,9 @@ def test_presets_carry_the_domain_settings():
         assert (p.anneal_updates, p.lr_floor, p.min_log_std, p.lr, p.obs_norm_updates) == (2000, 0.1, -2.0, 1e-3, 400)
     hc = resolve("fig2-halfcheetah").ppo
     assert hc.obs_norm_updates == 0  # measured only on the pendulums
+    # from latents or pixels the inputs move as the learners train: the normaliser keeps following
+    for rl_input in ("latent:vae_rpl", "pixels"):
+        assert resolve("fig2-invpend", overrides={"rl_input": rl_input}).ppo.obs_norm_updates == 0
     assert (hc.lr, hc.num_steps, hc.min_log_std, hc.anneal_updates) == (3e-4, 128, -1.5, 2000)
     assert resolve("fig2-ant").ppo.min_log_std is None  # no measurements there: PPO's defaults
     # a run saved before the options reads back with them off (its config.json lacks them)

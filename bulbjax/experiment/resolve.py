@@ -118,6 +118,10 @@ def resolve(preset: str | None = None, *, base: ExperimentConfig | None = None,
         cfg = cfg.replace(**given)
     if domain_ppo:
         cfg = cfg.replace(ppo=registry.ppo_config_for(cfg.env, cfg.ppo))
+    if cfg.rl_input != "state" and cfg.ppo.obs_norm_updates:
+        # the presets' normaliser freeze was measured from the true state; latents and pixels
+        # keep moving as the learners train, so the normaliser keeps following them
+        cfg = cfg.replace(ppo=dataclasses.replace(cfg.ppo, obs_norm_updates=0))
     if small:
         cfg = small_config(cfg)
         if given:  # what the user set wins over --small's sizes (e.g. --ppo-updates, --sequence-length)
