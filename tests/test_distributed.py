@@ -84,6 +84,7 @@ def test_distributed_settings():
 def test_two_processes_equal_one(tmp_path):
     env = {**os.environ, "JAX_PLATFORMS": "cpu", "BULBJAX_COMPILE_CACHE": "off", "PYTHONUNBUFFERED": "1"}
     env.pop("XLA_FLAGS", None)
+    env.pop("JAX_COMPILATION_CACHE_DIR", None)  # off means off: not the test session's cache (conftest.py) either
     one_dir, two_dir = tmp_path / "one", tmp_path / "two"
     one = _cli([*RUN, "--out", str(one_dir)], env)
     port = _free_port()
