@@ -14,7 +14,9 @@ several run in one call), so every saved state is a state the run loop itself he
 
 from __future__ import annotations
 
+import json
 import os
+import shutil
 from typing import Any
 
 import jax
@@ -40,27 +42,28 @@ class Checkpointer:
         if keep < 1:
             raise ValueError(f"--keep must be >= 1 (checkpoints kept), got {keep}")
         self.directory = os.path.abspath(os.path.join(run_dir, CHECKPOINT_DIR))
-        mp = ocp.options.MultiprocessingOptions()
-        if process is not None:
-            # one process of a multi-process run: it saves the states of its own devices' seed
-            # groups (single-device arrays) in a folder of its own, coordinating with no other
-            self.directory = os.path.join(self.directory, f"process_{process}")
-            os.makedirs(self.directory, exist_ok=True)  # orbax will not create it for a process subset
-            mp = ocp.options.MultiprocessingOptions(primary_host=process, active_processes={process},
-                                                    barrier_sync_key_prefix=f"bulbjax_p{process}")
         self.keep = keep
-        # orbax refuses arrays of one process's devices in a multi-process run: they go as numpy
+        self._files: ProcessFiles | None = None
+        self._mngr: Any = None
+        # one process of a multi-process run saves the states of its own devices' seed groups in
+        # a folder of its own, as host copies in plain files (`ProcessFiles`: orbax writes numpy
+        # arrays on process 0 only and refuses one process's device arrays there)
         self.host_arrays = process is not None
-        opts = ocp.CheckpointManagerOptions(max_to_keep=keep, create=process is None, cleanup_tmp_directories=cleanup_tmp,
-                                            enable_async_checkpointing=False, multiprocessing_options=mp)
+        if process is not None:
+            self.directory = os.path.join(self.directory, f"process_{process}")
+            self._files = ProcessFiles(self.directory, keep, cleanup_tmp)
+            return
+        opts = ocp.CheckpointManagerOptions(max_to_keep=keep, create=True, cleanup_tmp_directories=cleanup_tmp,
+                                            enable_async_checkpointing=False)
         self._mngr = ocp.CheckpointManager(self.directory, options=opts)
 
     def steps(self) -> list[int]:
         """Epoch counts of the checkpoints on disk, oldest first."""
-        return sorted(self._mngr.all_steps())
+        return self._files.steps() if self._files else sorted(self._mngr.all_steps())
 
     def latest(self) -> int | None:
-        return self._mngr.latest_step()
+        steps = self.steps()
+        return steps[-1] if steps else None
 
     def save(self, epoch: int, state: Any, host: dict[str, Any] | None = None) -> None:
         """Write the checkpoint of `epoch` epochs done (atomically: orbax writes a temporary
@@ -74,6 +77,9 @@ class Checkpointer:
                 "shapes": [list(np.shape(x)) for x in leaves],
                 "dtypes": [str(x.dtype) for x in leaves],
                 "host": host or {}}
+        if self._files:
+            self._files.save(int(epoch), flat, meta)
+            return
         self._mngr.save(int(epoch), args=ocp.args.Composite(state=ocp.args.StandardSave(flat),
                                                             meta=ocp.args.JsonSave(meta)), force=True)
         self._mngr.wait_until_finished()
@@ -86,7 +92,10 @@ class Checkpointer:
         if epoch is None:
             raise ValueError(f"no checkpoint in {self.directory}: the run was never checkpointed "
                              "(start it again without --resume)")
-        meta = self._mngr.restore(epoch, args=ocp.args.Composite(meta=ocp.args.JsonRestore()))["meta"]
+        if self._files:
+            got, meta = self._files.restore(epoch)
+        else:
+            meta = self._mngr.restore(epoch, args=ocp.args.Composite(meta=ocp.args.JsonRestore()))["meta"]
         leaves, treedef = jax.tree.flatten(like)
         paths = _paths(like)
         shapes = [list(x.shape) for x in leaves]
@@ -97,14 +106,11 @@ class Checkpointer:
                              "device count. Resume with the run's own config.json on the same number "
                              "of devices, or start a new run")
         if self.host_arrays:  # numpy on the host, then onto the devices the state lives on
-            abstract = {f"{i:05d}": np.zeros(x.shape, x.dtype) for i, x in enumerate(leaves) if int(np.prod(x.shape))}
+            got = {k: jax.device_put(v, getattr(leaves[int(k)], "sharding", None)) for k, v in got.items()}
         else:
             abstract = {f"{i:05d}": jax.ShapeDtypeStruct(x.shape, x.dtype, sharding=getattr(x, "sharding", None))
                         for i, x in enumerate(leaves) if int(np.prod(x.shape))}
-        got = self._mngr.restore(epoch, args=ocp.args.Composite(state=ocp.args.StandardRestore(abstract)))
-        got = got["state"]
-        if self.host_arrays:
-            got = {k: jax.device_put(v, getattr(leaves[int(k)], "sharding", None)) for k, v in got.items()}
+            got = self._mngr.restore(epoch, args=ocp.args.Composite(state=ocp.args.StandardRestore(abstract)))["state"]
 
         def leaf(i: int, x: Any) -> jax.Array:
             if f"{i:05d}" in got:
@@ -116,7 +122,60 @@ class Checkpointer:
         return jax.tree.unflatten(treedef, [leaf(i, x) for i, x in enumerate(leaves)]), meta["host"], epoch
 
     def close(self) -> None:
-        self._mngr.close()
+        if self._mngr is not None:
+            self._mngr.close()
+
+
+class ProcessFiles:
+    """One process's checkpoints in a multi-process run, as plain files: `<dir>/<epoch>/arrays.npz`
+    (each array's bytes) and `meta.json` (the checkpoint's metadata, with every leaf's dtype and
+    shape), written under `<epoch>.partial` and renamed once complete and synced, so a kill
+    mid-write leaves the previous checkpoints and a partial folder that is never read.
+
+    Why not orbax here: its numpy handler writes on process 0 only (process 1's checkpoints held
+    commit markers and no data), and it refuses arrays of one process's devices in a
+    multi-process run. Each process writes only its own folder, so no coordination is needed."""
+
+    PARTIAL = ".partial"
+
+    def __init__(self, directory: str, keep: int, cleanup_tmp: bool = False):
+        self.directory, self.keep = directory, keep
+        os.makedirs(directory, exist_ok=True)
+        if cleanup_tmp:
+            for name in os.listdir(directory):
+                if name.endswith(self.PARTIAL):
+                    shutil.rmtree(os.path.join(directory, name), ignore_errors=True)
+
+    def steps(self) -> list[int]:
+        return sorted(int(n) for n in os.listdir(self.directory)
+                      if n.isdigit() and os.path.exists(os.path.join(self.directory, n, "meta.json")))
+
+    def save(self, step: int, flat: dict[str, Any], meta: dict[str, Any]) -> None:
+        final = os.path.join(self.directory, str(step))
+        tmp = final + self.PARTIAL
+        shutil.rmtree(tmp, ignore_errors=True)
+        os.makedirs(tmp)
+        arrays = {k: np.ascontiguousarray(np.asarray(v)).reshape(-1).view(np.uint8) for k, v in flat.items()}
+        meta = {**meta, "arrays": {k: [str(np.asarray(v).dtype), list(np.shape(v))] for k, v in flat.items()}}
+        for name, write in (("arrays.npz", lambda f: np.savez(f, **arrays)),
+                            ("meta.json", lambda f: f.write(json.dumps(meta).encode()))):
+            with open(os.path.join(tmp, name), "wb") as f:
+                write(f)
+                f.flush()
+                os.fsync(f.fileno())
+        if os.path.exists(final):  # the same epoch saved again (force)
+            shutil.rmtree(final)
+        os.rename(tmp, final)
+        for old in self.steps()[:-self.keep]:
+            shutil.rmtree(os.path.join(self.directory, str(old)), ignore_errors=True)
+
+    def restore(self, step: int) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
+        folder = os.path.join(self.directory, str(step))
+        with open(os.path.join(folder, "meta.json")) as f:
+            meta = json.load(f)
+        with np.load(os.path.join(folder, "arrays.npz")) as z:
+            arrays = {k: z[k].view(jnp.dtype(dtype)).reshape(shape) for k, (dtype, shape) in meta["arrays"].items()}
+        return arrays, meta
 
 
 def _first_difference(p0: list, s0: list, p1: list, s1: list) -> str:
