@@ -1,6 +1,7 @@
 """Checkpoints of a whole run with orbax: the `RunState` (PPO, learners, optimisers, replay and
 window buffers, env states with their mjx.Data, keys, epoch counter, reference spread) and the
-host-side PRNG key chain of the run loop, written atomically, the last K kept.
+host-side PRNG key chain of the run loop, written atomically, the last K kept. Each process of
+a multi-process run keeps its own groups' states in plain files instead (`ProcessFiles`).
 
 The pytree is saved as a flat dict of its leaves, named by their index in `jax.tree.flatten`
 order, because orbax refuses zero-size arrays (mjx.Data has many, e.g. `act` of a model

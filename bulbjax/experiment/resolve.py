@@ -8,6 +8,7 @@ The order (`resolve`):
   1. the base: a saved config (`base`), else the preset named, else `ExperimentConfig()`;
   2. `overrides`: ExperimentConfig fields (env, seeds, epochs, learners, version, ...);
   3. the domain's PPO settings (`envs.registry.ppo_config_for`: locomotion's longer rollouts);
+     a preset's observation-normaliser freeze only from the true state (`rl_input="state"`);
   4. `small`: CPU sizes (`small_config`); the overrides given win over its sizes;
   5. `learner`, then `learner_options`: LearnerConfig fields (lr, compute_dtype, ...).
 """
