@@ -83,22 +83,10 @@ def old_ppo(ppo: Any) -> Any:
 
 
 def parse_sets(items: list[str]) -> dict[str, Any]:
-    """`["target_kl=0.02", "min_log_std=none"]` -> PPOConfig field values."""
-    from bulbjax.rl.ppo import PPOConfig
+    """`["target_kl=0.02", "min_log_std=none"]` -> PPOConfig field values (`--new`)."""
+    from bulbjax.rl.ppo_config import parse_ppo_options
 
-    fields = {f.name: f for f in dataclasses.fields(PPOConfig)}
-    out: dict[str, Any] = {}
-    for item in items:
-        k, sep, v = item.partition("=")
-        if not sep or k not in fields:
-            raise ValueError(f"--new {item!r}: KEY=VALUE with KEY a PPOConfig field ({', '.join(fields)})")
-        if v.lower() == "none":
-            out[k] = None
-        else:
-            cur = getattr(PPOConfig(), k)
-            out[k] = v if isinstance(cur, str) else int(v) if isinstance(cur, int) and not isinstance(cur, bool) \
-                else float(v)
-    return out
+    return parse_ppo_options(items)
 
 
 class Variant:

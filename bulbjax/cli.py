@@ -28,7 +28,7 @@ def _settings(args: argparse.Namespace) -> dict:
     if getattr(args, "rnn_unroll", None) is not None:
         learner["rnn_unroll"] = args.rnn_unroll
     return dict(overrides=overrides, learner=learner, learner_options=getattr(args, "learner_option", None) or (),
-                small=bool(getattr(args, "small", False)))
+                small=bool(getattr(args, "small", False)), ppo_options=getattr(args, "ppo_option", None) or ())
 
 
 def _parse_ids(text: str | None) -> tuple[int, ...] | None:
@@ -312,6 +312,9 @@ def main(argv: Sequence[str] | None = None) -> int:
                         "dsa: of the current step in the window of the last L steps ending at it), or "
                         "pixels (the frame through a conv encoder PPO trains end to end)")
     r.add_argument("--ppo-updates", type=int, default=None, help="PPO updates per epoch")
+    r.add_argument("--ppo-option", action="append", default=None, metavar="KEY=VALUE",
+                   help="set a PPOConfig field (repeatable; applied last, over the preset's and the "
+                        "domain's PPO settings), e.g. ent_coef=0.01 or min_log_std=none")
     r.add_argument("--lr", type=float, default=None, help="learners' Adam learning rate (paper: 1e-4)")
     r.add_argument("--max-minutes", type=float, default=0.0,
                    help="stop after this wall time, checkpoint and report the epochs done (0: no limit)")

@@ -60,6 +60,20 @@ def test_overrides_and_learner_options_apply():
     assert parse_learners(" vae,, svae ") == ("vae", "svae") and parse_version(3) == 3
 
 
+def test_ppo_options_apply_last():
+    # from a latent the preset's normaliser freeze is off (step 3); an option given wins over it
+    # and over the preset's and domain's PPO settings; `none` clears an optional field
+    latent = resolve("fig2-invpend", overrides={"rl_input": "latent:vae_rpl"})
+    assert latent.ppo.obs_norm_updates == 0 and latent.ppo.min_log_std == -2.0
+    cfg = resolve("fig2-invpend", overrides={"rl_input": "latent:vae_rpl"},
+                  ppo_options=["ent_coef=0.01", "min_log_std=none", "obs_norm_updates=300", "hidden=32,32",
+                               "normalize_obs=false", "lr_schedule=cosine"])
+    assert (cfg.ppo.ent_coef, cfg.ppo.min_log_std, cfg.ppo.obs_norm_updates, cfg.ppo.hidden) == (0.01, None, 300, (32, 32))
+    assert cfg.ppo.normalize_obs is False and cfg.ppo.lr_schedule == "cosine"
+    assert cfg.ppo.anneal_updates == latent.ppo.anneal_updates  # the rest as resolved before
+    assert resolve("fig2-invpend", small=True, ppo_options=["lr=5e-4"]).ppo.lr == 5e-4
+
+
 def test_small_is_cpu_sized_and_the_flags_given_win():
     base = resolve("fig2-halfcheetah")
     small = resolve("fig2-halfcheetah", small=True)
@@ -83,6 +97,10 @@ def test_small_is_cpu_sized_and_the_flags_given_win():
     (dict(learner={"learning_rate": 1e-3}), "LearnerConfig has no fields \\['learning_rate'\\]; its fields: .*lr"),
     (dict(learner_options=["channelpad=1"]), "KEY one of"),
     (dict(learner_options=["batch_size=big"]), "'big' is not a int"),
+    (dict(ppo_options=["entropy=0.01"]), "PPO option 'entropy=0.01' must be KEY=VALUE with KEY one of: .*ent_coef"),
+    (dict(ppo_options=["num_steps=none"]), "does not fit num_steps .*only the optional fields take none"),
+    (dict(ppo_options=["lr=fast"]), "'fast' does not fit lr"),
+    (dict(ppo_options=["lr_schedule=step"]), "lr_schedule must be one of"),
     (dict(preset="fig2-ant", base=ExperimentConfig()), "a preset .* or a base config, not both"),
 ])
 def test_bad_settings_are_clear_errors(kw, match):

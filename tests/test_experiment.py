@@ -407,6 +407,7 @@ def test_presets_and_cli_overrides():
     assert (opt.learner.channel_pad, opt.learner.bias_grad, opt.learner.compute_dtype) == (1, "reduce", "bfloat16")
     with pytest.raises(ValueError, match="KEY one of"):
         build_config(argparse.Namespace(**{**ns, "learner_option": ["channelpad=1"]}))
+    assert build_config(argparse.Namespace(**{**ns, "ppo_option": ["ent_coef=0.02"]})).ppo.ent_coef == 0.02
     with pytest.raises(ValueError, match="version"):
         dataclasses.replace(cart, version="all")
     assert main(["run", "--preset", "nope", "--out", "/tmp/bulbjax_nope"]) == 2

@@ -10,7 +10,9 @@ The order (`resolve`):
   3. the domain's PPO settings (`envs.registry.ppo_config_for`: locomotion's longer rollouts);
      a preset's observation-normaliser freeze only from the true state (`rl_input="state"`);
   4. `small`: CPU sizes (`small_config`); the overrides given win over its sizes;
-  5. `learner`, then `learner_options`: LearnerConfig fields (lr, compute_dtype, ...).
+  5. `learner`, then `learner_options`: LearnerConfig fields (lr, compute_dtype, ...);
+  6. `ppo_options`: PPOConfig fields (`KEY=VALUE` text), last, so they win over the preset's and
+     the domain's PPO settings and over step 3's freeze rule.
 """
 
 from __future__ import annotations
@@ -23,6 +25,7 @@ from bulbjax.envs import registry
 from bulbjax.experiment.config import (ExperimentConfig, OfflineConfig, RunOptions, preset as named_preset,
                                        read_run_config, run_options_of, small_config)
 from bulbjax.learners import LearnerConfig, parse_learner_options
+from bulbjax.rl.ppo_config import parse_ppo_options
 
 # `bulbjax fit --small`: a CPU-sized dataset (worlds, steps per world, held-out steps per world).
 SMALL_DATASET: dict[str, int] = {"data_worlds": 32, "data_steps": 128, "heldout_steps": 32}
@@ -104,13 +107,13 @@ def _learner(base: LearnerConfig, learner: Mapping[str, Any], options: Sequence[
 def resolve(preset: str | None = None, *, base: ExperimentConfig | None = None,
             overrides: Mapping[str, Any] | None = None, learner: Mapping[str, Any] | None = None,
             learner_options: Sequence[str] = (), small: bool = False,
-            domain_ppo: bool = True) -> ExperimentConfig:
+            domain_ppo: bool = True, ppo_options: Sequence[str] = ()) -> ExperimentConfig:
     """A run's ExperimentConfig, in the order of the module doc: `base` or the preset named
     (unknown names list the presets) or the defaults; `overrides` (ExperimentConfig fields; text
     accepted for `learners` and `version`); the domain's PPO settings unless `domain_ppo` is
     False (an unknown env is an error naming the registered ones); `small`'s CPU sizes, under
-    the overrides; `learner` (LearnerConfig fields), then `learner_options` (`KEY=VALUE` text).
-    Every step's config checks itself: a bad value is a ValueError that names it."""
+    the overrides; `learner` (LearnerConfig fields), then `learner_options` (`KEY=VALUE` text);
+    `ppo_options` (`KEY=VALUE` PPOConfig fields, e.g. `ent_coef=0.01`). Every step's config checks itself: a bad value is a ValueError that names it."""
     if base is not None and preset:
         raise ValueError(f"give a preset ({preset!r}) or a base config, not both")
     cfg = base if base is not None else named_preset(preset) if preset else ExperimentConfig()
@@ -128,13 +131,17 @@ def resolve(preset: str | None = None, *, base: ExperimentConfig | None = None,
         if given:  # what the user set wins over --small's sizes (e.g. --ppo-updates, --sequence-length)
             cfg = cfg.replace(**given)
     lc = _learner(cfg.learner, learner or {}, learner_options)
-    return cfg if lc == cfg.learner else cfg.replace(learner=lc)
+    if lc != cfg.learner:
+        cfg = cfg.replace(learner=lc)
+    if ppo_options:
+        cfg = cfg.replace(ppo=dataclasses.replace(cfg.ppo, **parse_ppo_options(ppo_options)))
+    return cfg
 
 
 def resolve_resume(run_dir: str, preset: str | None = None, *, overrides: Mapping[str, Any] | None = None,
                    learner: Mapping[str, Any] | None = None, learner_options: Sequence[str] = (),
                    small: bool = False, seed: int | None = None, probe_every: int | None = None,
-                   **stretch: Any) -> tuple[ExperimentConfig, RunOptions]:
+                   ppo_options: Sequence[str] = (), **stretch: Any) -> tuple[ExperimentConfig, RunOptions]:
     """Config and options of a resumed run (`bulbjax run --resume RUN_DIR`): the run's own
     config.json with what was given on top, as a fresh run would apply it to the saved
     settings (a `preset` builds the config anew; the domain's PPO settings only with a new
@@ -143,7 +150,8 @@ def resolve_resume(run_dir: str, preset: str | None = None, *, overrides: Mappin
     `run.check_resume` then refuses whatever changes what the run computes."""
     saved, raw = read_run_config(run_dir)
     overrides = dict(overrides or {})
-    kw = dict(overrides=overrides, learner=learner, learner_options=learner_options, small=small)
+    kw = dict(overrides=overrides, learner=learner, learner_options=learner_options, small=small,
+              ppo_options=ppo_options)
     cfg = resolve(preset, **kw) if preset else resolve(base=saved, domain_ppo="env" in overrides, **kw)
     if "epochs" not in overrides:
         cfg = cfg.replace(epochs=saved.epochs)
@@ -156,6 +164,7 @@ def resolve_resume(run_dir: str, preset: str | None = None, *, overrides: Mappin
 def resolve_offline(preset: str | None = None, *, overrides: Mapping[str, Any] | None = None,
                     learner: Mapping[str, Any] | None = None, learner_options: Sequence[str] = (),
                     small: bool = False, dataset: Mapping[str, int] | None = None,
+                    ppo_options: Sequence[str] = (),
                     **schedule: Any) -> OfflineConfig:
     """An offline fit's config (`bulbjax fit`): the run settings as `resolve` gives them, from a
     preset or an `env` among the overrides (a registered one, or SyntheticMovers: 32x32 frames
@@ -170,6 +179,6 @@ def resolve_offline(preset: str | None = None, *, overrides: Mapping[str, Any] |
     if synth:  # SyntheticMovers' own defaults, under what was given
         overrides = {"resolution": 32, "sequence_length": 8, **overrides, "multicolour": False}
     base = resolve(preset, overrides=overrides, learner=learner, learner_options=learner_options,
-                   small=small, domain_ppo=not synth)
+                   small=small, domain_ppo=not synth, ppo_options=ppo_options)
     sizes = {**(SMALL_DATASET if small else {}), **(dataset or {})}
     return OfflineConfig(base=base, **sizes, **schedule)

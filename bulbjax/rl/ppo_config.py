@@ -8,7 +8,7 @@ Kept apart from the learner (`ppo.PPO`) so that the settings and their meaning r
 from __future__ import annotations
 
 import dataclasses
-from typing import Optional
+from typing import Any, Optional, Sequence
 
 import jax
 import jax.numpy as jnp
@@ -68,6 +68,42 @@ class PPOConfig:
             raise ValueError("anneal_updates and obs_norm_updates must be >= 0")
         if self.target_kl is not None and self.target_kl <= 0:
             raise ValueError(f"target_kl must be > 0 (or None), got {self.target_kl}")
+
+
+def parse_ppo_options(items: Sequence[str]) -> dict[str, Any]:
+    """`KEY=VALUE` strings (a command line's `--ppo-option`s) -> `PPOConfig` field values, each
+    converted to the field's type (`none` for the optional fields, e.g. `min_log_std=none`;
+    `hidden=128,128`). An unknown key or a value of the wrong type is a ValueError naming them."""
+    defaults = PPOConfig()
+    fields = {f.name: f for f in dataclasses.fields(PPOConfig)}
+    out: dict[str, Any] = {}
+    for item in items:
+        key, sep, value = item.partition("=")
+        key, value = key.strip(), value.strip()
+        if not sep or key not in fields:
+            raise ValueError(f"PPO option {item!r} must be KEY=VALUE with KEY one of: {', '.join(sorted(fields))}")
+        default = getattr(defaults, key)
+        optional = "Optional" in str(fields[key].type)
+        try:
+            if value.lower() == "none":
+                if not optional:
+                    raise ValueError("only the optional fields take none")
+                out[key] = None
+            elif isinstance(default, bool):
+                if value.lower() not in ("true", "false", "1", "0"):
+                    raise ValueError("not a boolean")
+                out[key] = value.lower() in ("true", "1")
+            elif isinstance(default, tuple):
+                out[key] = tuple(int(v) for v in value.split(",") if v.strip())
+            elif isinstance(default, int):
+                out[key] = int(value)
+            elif isinstance(default, str):
+                out[key] = value
+            else:  # float, or an optional float that defaults to None
+                out[key] = float(value)
+        except ValueError as err:
+            raise ValueError(f"PPO option {item!r}: {value!r} does not fit {key} ({err})") from None
+    return out
 
 
 def lr_factor(config: PPOConfig, updates: jax.Array) -> jax.Array:
