@@ -40,6 +40,21 @@ if _cache.strip().lower() not in ("", "0", "off", "false", "no"):  # compile_cac
         compile_cache.enable(os.environ["JAX_COMPILATION_CACHE_DIR"], float(MIN_COMPILE_SECS))
 
 
+# XLA's CPU backend at LLVM -O0 for the test session (and its subprocesses, which inherit the
+# variable). The suite is compile-bound (tiny programs, run a few times); the back end's LLVM
+# optimisation is most of a compile. Measured on this 2-core machine, tests/test_extending.py
+# (one experiment epoch compiled and run): 118 s -> 70 s; `--xla_llvm_disable_expensive_passes`
+# alone gave 107 s. -O0 changes float results in the last bits against the default build (exp,
+# tanh: a small jitted function's output hash differs), so the suite runs one build throughout:
+# every comparison in a test (bit for bit across resume, subprocesses, seed loops) is between
+# programs compiled with the same flags. `BULBJAX_TEST_XLA_OPT=default` runs the suite with
+# XLA's default optimisation instead; flags already in $XLA_FLAGS win.
+TEST_XLA_FLAGS = ("--xla_backend_optimization_level=0", "--xla_llvm_disable_expensive_passes=true")
+if os.environ.get("BULBJAX_TEST_XLA_OPT", "").strip().lower() != "default":
+    _flags = os.environ.get("XLA_FLAGS", "")
+    os.environ["XLA_FLAGS"] = " ".join([_flags, *(f for f in TEST_XLA_FLAGS if f.split("=")[0] not in _flags)]).strip()
+
+
 def pytest_unconfigure(config) -> None:
     """The process that made the session's cache removes it (under xdist: the controller, after
     its workers have finished)."""

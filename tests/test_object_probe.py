@@ -6,6 +6,8 @@ boxes placed on the projected objects score 0 px and all found, boxes far away n
 
 from __future__ import annotations
 
+import os
+
 import dataclasses
 
 import jax
@@ -107,6 +109,25 @@ def test_rearrange_run_has_the_object_probe(rearrange, tmp_path) -> None:
     assert float(cells[6].split("/")[1]) == pytest.approx(o["per_object"]["obj0"]["error"], abs=0.006)
     rcells = [c.strip() for c in rpl_row[0].split("|")[1:-1]]
     assert rcells[2] != "–" and rcells[3] == rcells[4] == "–" and rcells[6].endswith("/ –")
+
+
+def test_figures_of_a_rearrange_run_write_region_errors(rearrange, tmp_path) -> None:
+    """`RunFigures.draw` in a domain with objects also writes every seed's per-object
+    reconstruction error (`regions_<epoch>.json`), which the YCB claim reads."""
+    from bulbjax.eval import regions
+    from bulbjax.experiment.recon import REGION_FRAMES, RunFigures
+
+    exp, _ = rearrange
+    rs = exp.init(jax.random.PRNGKey(0))
+    paths = RunFigures(exp).draw(rs, str(tmp_path), 3)
+    assert sorted(os.path.basename(p) for p in paths) == ["boxes_3.png", "recon_3.png", "regions_3.json"]
+    got = regions.newest(str(tmp_path))
+    assert got["epoch"] == 3 and got["objects"] == ["obj0", "obj1", "obj2", "obj3"] and got["seeds"] == SEEDS
+    assert got["radius_px"] == pytest.approx(3.2) and 0 < got["frames"] <= REGION_FRAMES
+    for name in ("spair", "vae_rpl"):
+        r = np.asarray(got["learners"][name]["ratio"], np.float64)
+        assert r.shape == (SEEDS, 4) and np.isfinite(r).any()
+        assert np.all(r[np.isfinite(r)] > 0)  # untrained learners reconstruct nothing exactly
 
 
 def test_rearrange_run_probes_major_axis_angles(rearrange, tmp_path) -> None:

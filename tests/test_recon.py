@@ -51,6 +51,7 @@ def test_recon_every_writes_figures(exp, runs) -> None:
     names = sorted(f for f in os.listdir(d) if f.endswith(".png") and f != "fig2.png")
     assert names == ["boxes_1.png", "boxes_2.png", "recon_1.png", "recon_2.png"]
     assert not [f for f in os.listdir(plain) if f.startswith(("recon_", "boxes_"))]
+    assert not [f for f in os.listdir(d) if f.startswith("regions_")]  # CartPole: no objects, no region errors
     # drawing figures leaves the run alone: the metrics are those of the run without them
     assert open(os.path.join(plain, "metrics.jsonl")).read() == open(os.path.join(d, "metrics.jsonl")).read()
     # the recon grid's top row is the held-out frames it was drawn from; rows: true, vae_rpl, spair

@@ -8,11 +8,17 @@ each of the current policy's held-out worlds, rolled out from `rs.curr_env` by a
 call whose result is thrown away, so drawing figures leaves the run's state and key chain (and
 so its metrics and resumes) unchanged. The rollout's key depends only on the run's seed and the
 epoch: a figure redrawn from a checkpoint (`redraw`) is the figure the run drew at that epoch.
+
+In the domains with objects (Rearrange) each drawing also writes `regions_<epoch>.json`: every
+reconstructing learner's error per object region (`bulbjax.eval.regions`) on `REGION_FRAMES`
+held-out frames of every seed the drawing process holds (one process: all seeds), which the
+Fig. 5 claim "on YCB no learner's reconstruction is clear" reads (`findings_objects`).
 """
 
 from __future__ import annotations
 
 import glob
+import json
 import math
 import os
 from typing import Any, Callable, Sequence
@@ -20,21 +26,28 @@ from typing import Any, Callable, Sequence
 import jax
 import jax.numpy as jnp
 
+import numpy as np
+
 from bulbjax.data.sequence import Windows
+from bulbjax.eval import objects, regions
 from bulbjax.experiment import figures
 from bulbjax.experiment.checkpoint import CHECKPOINT_DIR, Checkpointer
 from bulbjax.experiment.config import read_run_config
 from bulbjax.experiment.loop import Experiment
+from bulbjax.experiment.probing import object_pixels
 from bulbjax.experiment.state import RunState
 
 RECON = "recon_{epoch}.png"
 BOXES = "boxes_{epoch}.png"
+REGIONS = regions.FILE
+REGION_FRAMES = 64  # held-out frames per seed of the per-object reconstruction error
 _FIGURE_TAG = 0x5EC0  # folded into the run's seed: a key stream of its own
 
 
 def figure_files(run_dir: str) -> list[str]:
-    """The figure PNGs in `run_dir` (removed when a fresh run starts there)."""
-    return sorted(glob.glob(os.path.join(run_dir, "recon_*.png")) + glob.glob(os.path.join(run_dir, "boxes_*.png")))
+    """The figure PNGs and region errors in `run_dir` (removed when a fresh run starts there)."""
+    return sorted(glob.glob(os.path.join(run_dir, "recon_*.png")) + glob.glob(os.path.join(run_dir, "boxes_*.png"))
+                  + glob.glob(os.path.join(run_dir, "regions_*.json")))
 
 
 class RunFigures:
@@ -61,11 +74,15 @@ class RunFigures:
         if blind:
             raise ValueError(f"learners {blind} do not reconstruct frames: no reconstruction figure for them")
         self.learners = {n: exp.learners[n] for n in names}
+        self.objects = object_pixels(exp.env)
+        le = exp.eval_length
+        self._k_figure = min(exp.N, math.ceil(config.frames / le))
+        self._k = max(self._k_figure, min(exp.N, math.ceil(REGION_FRAMES / le)) if self.objects else 0)
         self._held = jax.jit(self._held_out)
 
     def _held_out(self, rs: RunState, key: jax.Array) -> Windows:
         """One window of `eval_length` steps per held-out world of the current policy (from
-        `rs.curr_env`, which is not updated), the figure seed's first few windows."""
+        `rs.curr_env`, which is not updated), every seed's first few windows `[S, k, ...]`."""
         exp, le = self.exp, self.exp.eval_length
         # Experiment's own rollout and window cutting (as its eval phase), one round only.
         extra = {"learners": rs.learners} if exp.policy.rl_learner else {}  # PPO on a latent
@@ -74,20 +91,47 @@ class RunFigures:
         _, steps = exp.policy.rollout(rs.ppo, rs.curr_env, key, le, random=False, **extra)
         starts = jnp.zeros((1, exp.S * exp.N), jnp.int32)
         w = exp.streams.windows(steps, starts, le)  # [S, N, L, ...]
-        k = min(exp.N, math.ceil(self.config.frames / le))
-        return jax.tree.map(lambda x: x[self.config.seed, :k], w)
+        return jax.tree.map(lambda x: x[:, : self._k], w)
 
     def key(self, epoch: int) -> jax.Array:
         return jax.random.fold_in(jax.random.fold_in(jax.random.PRNGKey(self.run_seed), _FIGURE_TAG), epoch)
 
     def held_out(self, rs: RunState, epoch: int) -> Windows:
         """Host copy of the held-out windows the figures of `epoch` show."""
+        return jax.tree.map(lambda x: x[self.config.seed, : self._k_figure], self._held_all(rs, epoch))
+
+    def _held_all(self, rs: RunState, epoch: int) -> Windows:
         return jax.device_get(self._held(rs, self.exp.put_key(self.key(epoch))))
+
+    def regions(self, rs: RunState, windows: Windows) -> dict[str, Any]:
+        """Each learner's reconstruction error per object region (`bulbjax.eval.regions`) on the
+        first `REGION_FRAMES` held-out frames of every seed (`windows` `[S, k, L, ...]`):
+        `{"objects", "radius_px", "frames", "learners": {name: {"ratio"|"error"|"baseline":
+        [S][M]}}}`."""
+        names, pixels = self.objects
+        radius = objects.default_radius(self.exp.config.resolution)
+        seeds = jax.tree.leaves(windows)[0].shape[0]
+        out: dict[str, dict[str, list]] = {n: {"ratio": [], "error": [], "baseline": []} for n in self.learners}
+        frames_n = 0
+        for s in range(seeds):
+            w = jax.tree.map(lambda x: x[s], windows)
+            params = jax.device_get(figures.seed_params({n: rs.learners[n] for n in self.learners}, s))
+            frames, recons = figures.reconstructions(self.learners, params, w, REGION_FRAMES)
+            frames_n = frames.shape[0]
+            states = np.asarray(w.states).reshape((-1, w.states.shape[-1]))[:frames_n]
+            pos = np.asarray(pixels(states))
+            for n, rec in recons.items():
+                sc = regions.region_scores(frames, rec, pos, radius)
+                for k in ("ratio", "error", "baseline"):
+                    out[n][k].append(sc[k])
+        return {"objects": list(names), "radius_px": radius, "frames": frames_n, "seeds": seeds,
+                "clear_below": regions.CLEAR, "learners": out}
 
     def draw(self, rs: RunState, out_dir: str, epoch: int) -> list[str]:
         """Write `recon_<epoch>.png` (and `boxes_<epoch>.png` per SPAIR learner) into
         `out_dir`; returns their paths."""
-        w = self.held_out(rs, epoch)
+        every = self._held_all(rs, epoch)
+        w = jax.tree.map(lambda x: x[self.config.seed, : self._k_figure], every)
         params = figures.seed_params({n: rs.learners[n] for n in self.learners}, self.config.seed)
         params = jax.device_get(params)
         what = f"{self.exp.config.env}, epoch {epoch}, seed {self.config.seed}: held-out frames (current policy)"
@@ -100,6 +144,11 @@ class RunFigures:
             suffix = "" if len(spairs) == 1 else f"_{name}"
             p = os.path.join(out_dir, BOXES.format(epoch=epoch).replace(".png", f"{suffix}.png"))
             figures.boxes_figure(p, self.learners[name], params[name], w, self.config, title=f"{name}: {what}")
+            paths.append(p)
+        if self.objects is not None:
+            p = os.path.join(out_dir, REGIONS.format(epoch=epoch))
+            with open(p, "w") as f:
+                json.dump({"epoch": epoch, **self.regions(rs, every)}, f)
             paths.append(p)
         return paths
 

@@ -235,7 +235,10 @@ def write_reports(run_dir: str, records: Sequence[dict[str, Any]], cfg: Any,
     if "Rearrange" in cfg.env:  # the multi-object scenes of Figs. 3 and 5: their claims
         from bulbjax.experiment import findings_objects
 
-        verdicts, epochs = findings_objects.check_objects(records, cfg.env, cfg.version, last=last)
+        from bulbjax.eval import regions
+
+        verdicts, epochs = findings_objects.check_objects(records, cfg.env, cfg.version, last=last,
+                                                          regions=regions.newest(run_dir))
         body = findings_objects.markdown(verdicts, epochs, len(seeds))
         which = "Figs. 3 and 5"
     else:
