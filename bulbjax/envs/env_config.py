@@ -2,8 +2,8 @@
 
 Kept apart from the environment base class (`base.MjxPixelEnv`, which runs `check_config` first
 thing in its constructor) so that the options and their limits read in one place. The checks
-that depend on the domain (targets, object versions, the reset chunk and pool) stay with the domain's
-constructor and `resets.chunk_size` / `resets.pool_multiple`.
+that depend on the domain (targets, object versions, the reset chunk and pool) stay with the
+domain's constructor and `resets.chunk_size` / `resets.pool_multiple`.
 """
 
 from __future__ import annotations
