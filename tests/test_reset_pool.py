@@ -192,3 +192,37 @@ def test_step_takes_from_the_pool_and_the_pool_off_resets_from_each_worlds_keys(
         break
     else:
         pytest.fail("no episode ended in 25 steps")
+
+
+def test_rearrange_worlds_take_settled_pool_states():
+    """ReacherRearrangeGeom (its settle: 30 steps of the arm and four objects): the pool is made
+    at `reset` from draws of its own keys, ended worlds take its entries in order, and a refill
+    (every world ending with fewer entries left) settles new states, finite and on the table."""
+    n = 4
+    env = bulbjax.make("ReacherRearrangeGeom", num_envs=n, version="random", render=False)
+    assert (env.reset_pool, env.pool_size) == (2, 2 * n)
+    state = jax.jit(env.reset)(jax.random.PRNGKey(3))
+    keys = resets.pool_keys_at_reset(jax.random.split(jax.random.PRNGKey(3), n), 2)
+    np.testing.assert_array_equal(np.asarray(state.pool["params"]["version"]).reshape(-1),
+                                  np.asarray(jax.vmap(env._draws)(keys)["version"]))
+    take = jax.jit(lambda k, done, pool: resets.reset_from_pool(
+        env, k, done, state.data, state.scheme, state.params, pool))
+    pool, seen = state.pool, [_entries(state.pool)]
+    done = np.array([True, False, True, True])
+    for i in range(3):  # 3 + 3 of 8 entries, then 3 more: a refill first
+        data, _, params, pool = take(jax.random.split(jax.random.PRNGKey(10 + i), n), jnp.asarray(done), pool)
+        entries = _entries(pool)
+        if i == 2:
+            assert not (entries[:, None] == seen[0][None]).all(-1).any(), "the refill's states are new"
+            start = 0
+        else:
+            start = 3 * i
+        np.testing.assert_array_equal(np.asarray(data.qpos)[done], entries[start:start + 3])
+        np.testing.assert_array_equal(np.asarray(params["version"])[done],
+                                      np.asarray(pool["params"]["version"]).reshape(-1)[start:start + 3])
+        assert int(pool["cursor"][0]) == start + 3
+    assert np.isfinite(entries).all()
+    for v, q in zip(np.asarray(pool["params"]["version"]).reshape(-1), entries):
+        slots = np.asarray(env._version_slots[v])
+        z = q[np.asarray(env._slot_qadr)[slots] + 2]
+        assert (z > 0.0).all() and (z < 0.3).all(), f"settled objects rest on the table: z {z}"
