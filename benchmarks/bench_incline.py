@@ -61,6 +61,8 @@ class Settings:
     seed: int = 0
     # worlds per reset chunk in `step` (None: the domain's default, 0: the full-batch reset)
     reset_chunks: tuple[int | None, ...] = (None,)
+    # reset pool sizes in `step`, multiples of the worlds (None: the domain's default, 0: no pool)
+    reset_pools: tuple[int | None, ...] = (None,)
 
     @property
     def mjx_version(self) -> int | str:
@@ -106,11 +108,12 @@ def bench_pybullet(name: str, s: Settings) -> dict[str, Any]:
                          s.resolution, s.seed, meta={"versions": versions})
 
 
-def bench_bulbjax(name: str, worlds: int, s: Settings, reset_chunk: int | None = None) -> dict[str, Any]:
+def bench_bulbjax(name: str, worlds: int, s: Settings, reset_chunk: int | None = None,
+                  reset_pool: int | None = None) -> dict[str, Any]:
     """Frames/s of one bulbjax Incline env of `worlds` worlds, `s.steps` rendered steps per jitted scan."""
     return time_bulbjax(name, worlds, 1, s.steps, s.repeats, s.resolution, s.seed,
-                        meta={"version": s.mjx_version, "reset_chunk": reset_chunk},
-                        version=s.mjx_version, ycb_dir=s.ycb_dir, reset_chunk=reset_chunk)
+                        meta={"version": s.mjx_version, "reset_chunk": reset_chunk, "reset_pool": reset_pool},
+                        version=s.mjx_version, ycb_dir=s.ycb_dir, reset_chunk=reset_chunk, reset_pool=reset_pool)
 
 
 def parse_args(argv: list[str] | None = None) -> Settings:
@@ -132,6 +135,9 @@ def parse_args(argv: list[str] | None = None) -> Settings:
     p.add_argument("--reset-chunk", default="default",
                    help="worlds per reset chunk in step, comma-separated: 'default' (the domain's), 0 (the "
                         "full-batch reset, the path before chunks); 'default,0' times both")
+    p.add_argument("--reset-pool", default="default",
+                   help="reset pool size in step as a multiple of the worlds, comma-separated: 'default' (the "
+                        "domain's), 0 (no pool: the chunked resets); '0,default' times both")
     p.add_argument("--skip-pybullet", action="store_true")
     p.add_argument("--skip-bulbjax", action="store_true")
     p.add_argument("--skip-cache", action="store_true", help="no cache build timing (use the existing cache)")
@@ -146,7 +152,8 @@ def parse_args(argv: list[str] | None = None) -> Settings:
                     resolution=a.resolution, out=a.out, ycb_dir=a.ycb_dir or os.environ.get("BULBJAX_YCB_DIR"),
                     build_cache_dir=a.build_cache_dir, keep_cache=a.keep_cache, skip_pybullet=a.skip_pybullet,
                     skip_bulbjax=a.skip_bulbjax, skip_cache=a.skip_cache,
-                    reset_chunks=parse_reset_chunks(a.reset_chunk))
+                    reset_chunks=parse_reset_chunks(a.reset_chunk),
+                    reset_pools=parse_reset_chunks(a.reset_pool, "--reset-pool"))
 
 
 def main(argv: list[str] | None = None) -> str:

@@ -55,6 +55,8 @@ class Settings:
     skip_bulbjax: bool
     # worlds per reset chunk in `step` (None: the domain's default, 0: the full-batch reset)
     reset_chunks: tuple[int | None, ...] = (None,)
+    # reset pool sizes in `step`, multiples of the worlds (None: the domain's default, 0: no pool)
+    reset_pools: tuple[int | None, ...] = (None,)
     seed: int = 0
 
     @property
@@ -78,13 +80,14 @@ def bench_pybullet(name: str, s: Settings) -> dict[str, Any]:
                          s.seconds, s.resolution, s.seed, meta={"versions": versions})
 
 
-def bench_bulbjax(name: str, worlds: int, s: Settings, reset_chunk: int | None = None) -> dict[str, Any]:
+def bench_bulbjax(name: str, worlds: int, s: Settings, reset_chunk: int | None = None,
+                  reset_pool: int | None = None) -> dict[str, Any]:
     """Frames/s of one bulbjax Rearrange env of `worlds` worlds, `s.steps` rendered steps per jitted scan."""
     from pybullet_compat.rearrange_env import rearrange_domain
 
     return time_bulbjax(name, worlds, rearrange_domain(name).action_size, s.steps, s.repeats, s.resolution, s.seed,
-                        meta={"version": s.mjx_version, "reset_chunk": reset_chunk}, version=s.mjx_version,
-                        ycb_dir=s.ycb_dir, reset_chunk=reset_chunk)
+                        meta={"version": s.mjx_version, "reset_chunk": reset_chunk, "reset_pool": reset_pool},
+                        version=s.mjx_version, ycb_dir=s.ycb_dir, reset_chunk=reset_chunk, reset_pool=reset_pool)
 
 
 def parse_args(argv: list[str] | None = None) -> Settings:
@@ -104,6 +107,9 @@ def parse_args(argv: list[str] | None = None) -> Settings:
     p.add_argument("--reset-chunk", default="default",
                    help="worlds per reset chunk in step, comma-separated: 'default' (the domain's), 0 (the "
                         "full-batch reset, the path before chunks); 'default,0' times both")
+    p.add_argument("--reset-pool", default="default",
+                   help="reset pool size in step as a multiple of the worlds, comma-separated: 'default' (the "
+                        "domain's), 0 (no pool: the chunked resets); '0,default' times both")
     p.add_argument("--skip-pybullet", action="store_true")
     p.add_argument("--skip-bulbjax", action="store_true")
     p.add_argument("--seed", type=int, default=0)
@@ -116,7 +122,8 @@ def parse_args(argv: list[str] | None = None) -> Settings:
                     procs=pick(a.procs, 16, 2), worlds=worlds, seconds=pick(a.seconds, 20.0, 3.0),
                     steps=pick(a.steps, 50, 3), repeats=pick(a.repeats, 5, 2), resolution=a.resolution, out=a.out,
                     ycb_dir=a.ycb_dir or os.environ.get("BULBJAX_YCB_DIR"), skip_pybullet=a.skip_pybullet,
-                    skip_bulbjax=a.skip_bulbjax, seed=a.seed, reset_chunks=parse_reset_chunks(a.reset_chunk))
+                    skip_bulbjax=a.skip_bulbjax, seed=a.seed, reset_chunks=parse_reset_chunks(a.reset_chunk),
+                    reset_pools=parse_reset_chunks(a.reset_pool, "--reset-pool"))
 
 
 def main(argv: list[str] | None = None) -> str:

@@ -116,10 +116,11 @@ def time_bulbjax(name: str, worlds: int, action_size: int, steps: int, repeats: 
             "finite_worlds": int(np.isfinite(np.asarray(state.lowdim)).all(1).sum())}
 
 
-def parse_reset_chunks(text: str) -> tuple[int | None, ...]:
+def parse_reset_chunks(text: str, flag: str = "--reset-chunk") -> tuple[int | None, ...]:
     """`--reset-chunk` values: comma-separated worlds per reset chunk in `step`, "default" for the
     domain's default, 0 for the full-batch reset (the path before chunks): "default,0" times
-    both in one run."""
+    both in one run. Also `--reset-pool`'s values (`flag`): the pool's size as a multiple of the
+    worlds, "default" the domain's, 0 no pool (the chunked resets)."""
     out = []
     for part in text.split(","):
         part = part.strip()
@@ -128,7 +129,7 @@ def parse_reset_chunks(text: str) -> tuple[int | None, ...]:
         elif part.isdigit():
             out.append(int(part))
         else:
-            raise ValueError(f"--reset-chunk takes 'default' or worlds >= 0 (comma-separated), got {part!r}")
+            raise ValueError(f"{flag} takes 'default' or integers >= 0 (comma-separated), got {part!r}")
     return tuple(out)
 
 
@@ -151,8 +152,10 @@ def measure_env(name: str, procs: int, worlds: Sequence[int], pybullet: Callable
             try:
                 r = bulbjax(w)
                 row["bulbjax"].append(r)
-                chunk = r.get("reset_chunk")  # which reset path the row timed (None: the domain's default)
-                log(f"{name}: bulbjax {w} worlds, reset_chunk {'default' if chunk is None else chunk}: {r['frames_per_s']:,.0f} frames/s "
+                # which reset path the row timed (None: the domain's default)
+                chunk, pool = r.get("reset_chunk"), r.get("reset_pool")
+                log(f"{name}: bulbjax {w} worlds, reset_chunk {'default' if chunk is None else chunk}, "
+                    f"reset_pool {'default' if pool is None else pool}: {r['frames_per_s']:,.0f} frames/s "
                     f"(compile {r['compile_s']:.0f} s)")
             except Exception as err:
                 row["bulbjax"].append({"worlds": w, "error": repr(err)})
@@ -175,24 +178,26 @@ def print_table(results: dict[str, Any]) -> None:
         pb = f"{row['pybullet']['frames_per_s']:,.0f}" if "pybullet" in row else row.get("pybullet_error", "-")
         bj = ", ".join(f"{r['worlds']}: {r['frames_per_s']:,.0f}" for r in row.get("bulbjax", []) if "frames_per_s" in r)
         ratio = row.get("ratio_best_bulbjax_to_pybullet")
-        rc = row.get("reset_chunk")
-        env = row["env"] + (f" (reset chunk {rc})" if rc is not None else "")
+        rc, rp = row.get("reset_chunk"), row.get("reset_pool")
+        env = row["env"] + (f" (reset chunk {rc})" if rc is not None else "") + (
+            f" (reset pool {rp})" if rp is not None else "")
         print(f"| {env} | {pb} | {bj or row.get('bulbjax_error', '-')} | {f'{ratio:.3g}x' if ratio else '-'} |")
 
 
 def measure_rows(results: dict[str, Any], s: Any, prefix: str,
                  pybullet: Callable[[str, Any], dict[str, Any]],
-                 bulbjax: Callable[[str, int, Any, int | None], dict[str, Any]]) -> None:
-    """One `measure_env` row per environment of `s.envs` and reset path of `s.reset_chunks`
-    (PyBullet only with the first: it has one reset), appended to `results["rows"]` and saved
-    after each (`save_progress`). `s`: a family bench's settings (envs, procs, worlds,
-    reset_chunks, skip_pybullet, skip_bulbjax, out)."""
+                 bulbjax: Callable[[str, int, Any, int | None, int | None], dict[str, Any]]) -> None:
+    """One `measure_env` row per environment of `s.envs` and reset path (each of `s.reset_chunks`
+    with each of `s.reset_pools`; PyBullet only with the first: it has one reset), appended to
+    `results["rows"]` and saved after each (`save_progress`). `s`: a family bench's settings
+    (envs, procs, worlds, reset_chunks, reset_pools, skip_pybullet, skip_bulbjax, out)."""
+    paths = [(rc, rp) for rc in s.reset_chunks for rp in s.reset_pools]
     for name in s.envs:
-        for i, rc in enumerate(s.reset_chunks):
+        for i, (rc, rp) in enumerate(paths):
             row = measure_env(name, s.procs, s.worlds,
                               None if s.skip_pybullet or i else (lambda: pybullet(name, s)),
-                              None if s.skip_bulbjax else (lambda w: bulbjax(name, w, s, rc)))
-            results["rows"].append({**row, "reset_chunk": rc})
+                              None if s.skip_bulbjax else (lambda w: bulbjax(name, w, s, rc, rp)))
+            results["rows"].append({**row, "reset_chunk": rc, "reset_pool": rp})
             save_progress(results, s.out, prefix)
 
 

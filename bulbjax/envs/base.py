@@ -23,7 +23,8 @@ from bulbjax.envs.camera import PAN_CAMERAS, CameraConfig, add_bulb_camera, pan_
 from bulbjax.envs.colours import NUM_SCHEMES, scheme_table
 from bulbjax.envs.env_config import EnvConfig, check_config
 from bulbjax.envs.render import PointCloudRenderer, Renderer, exclude_from_pointcloud
-from bulbjax.envs.resets import chunk_size, reset_in_chunks
+from bulbjax.envs.resets import (chunk_size, make_pool, pool_keys_at_reset, pool_multiple, reset_from_pool,
+                                 reset_in_chunks)
 from bulbjax.eval.spec import StateEntry
 
 ASSET_DIR_ENV = "BULBJAX_MJCF_DIR"
@@ -70,6 +71,9 @@ class EnvState:
     counts: dict[str, jax.Array] = struct.field(default_factory=dict)
     depth: jax.Array | None = None  # [N, H, W] float32 metres (observation "depth"), else None
     points: jax.Array | None = None  # [N, P, 3] float32 world points (observation "pointcloud")
+    # Pre-settled initial states for `step`'s resets (`resets.make_pool`: fields `[N, f, ...]`,
+    # cursor `[N]`); {} for domains without a pool (EnvConfig.reset_pool).
+    pool: dict[str, Any] = struct.field(default_factory=dict)
 
     @property
     def render_input(self) -> RenderInput:
@@ -115,12 +119,17 @@ class MjxPixelEnv:
     # Resets in `step` (`_reset_done`): domains whose reset simulates reset the ended worlds only,
     # this fraction of num_envs per chunk; 0: the full-batch reset (cheap draws: pendulums, locomotion).
     reset_chunk_fraction: float = 0.0
+    # ... unless they draw from a pool of pre-settled states (`resets.reset_from_pool`) of this
+    # many times num_envs entries (EnvConfig.reset_pool); 0: no pool.
+    reset_pool_multiple: int = 0
     # Per-world draws that a domain's `reset_with` fixes (`[num_envs, ...]`, gathered per chunk).
     _fixed: dict[str, jax.Array] = {}
 
     def __init__(self, config: EnvConfig):
         check_config(config)
         self.reset_chunk = chunk_size(config.reset_chunk, self.reset_chunk_fraction, config.num_envs)
+        self.reset_pool = pool_multiple(config.reset_pool, self.reset_pool_multiple)
+        self.pool_size = self.reset_pool * config.num_envs
         if config.show_targets and not self.supports_targets:
             raise ValueError(f"{self.name} has no targets to draw; show_targets is for the Rearrange domains")
         if not self.num_versions and config.version != 0:
@@ -145,6 +154,9 @@ class MjxPixelEnv:
         self.mx = self._post_put(mjx.put_model(self.mj_model, device=device, impl="warp"))
         self._data0 = mjx.make_data(self.mj_model, device=device, impl="warp", njmax=self.njmax,
                                     naconmax=self.naconmax_per_world * self.num_envs)
+        if self.reset_pool:  # the pool's refill settles pool_size worlds in one batch
+            self._pool_data0 = mjx.make_data(self.mj_model, device=device, impl="warp", njmax=self.njmax,
+                                             naconmax=self.naconmax_per_world * self.pool_size)
         self.renderer = None
         if config.render:
             self.renderer = Renderer(self.mj_model, self.num_envs, self.resolution,
@@ -235,6 +247,7 @@ class MjxPixelEnv:
     def reset_keys(self, keys: jax.Array) -> EnvState:
         """Start `num_envs` episodes from per-world keys `[num_envs, 2]` (`reset(key)` splits
         one key; a caller that shards worlds over devices hands each device its share)."""
+        pool = make_pool(self, pool_keys_at_reset(keys, self.reset_pool)) if self.reset_pool else {}
         data, scheme, params, keys = self._reset_batch(keys, jnp.ones(self.num_envs, bool))
         zeros = jnp.zeros(self.num_envs)
         lowdim = self._lowdim_batch(data, params)
@@ -246,7 +259,7 @@ class MjxPixelEnv:
             key=keys, info={"episode_return": zeros, "episode_length": jnp.zeros(self.num_envs, jnp.int32),
                             "lowdim_raw": self.raw_state(data, params)},
             params=params, depth=obs.get("depth"), points=obs.get("points"),
-            counts={k: jnp.zeros(self.num_envs, jnp.int32) for k in COUNTS})
+            counts={k: jnp.zeros(self.num_envs, jnp.int32) for k in COUNTS}, pool=pool)
 
     def step(self, state: EnvState, action: jax.Array) -> EnvState:
         """Apply `action` to every world, step physics, reset worlds whose episode ended.
@@ -277,7 +290,12 @@ class MjxPixelEnv:
         ep_return = state.episode_return + reward
 
         split = jax.vmap(jax.random.split)(state.key)
-        data, scheme, params = self._reset_done(split[:, 1], done, data, state.scheme, state.params)
+        pool = state.pool
+        if pool and not self._fixed:  # the next pool entries; fixed draws take the chunked path
+            data, scheme, params, pool = reset_from_pool(self, split[:, 1], done, data, state.scheme,
+                                                         state.params, pool)
+        else:
+            data, scheme, params = self._reset_done(split[:, 1], done, data, state.scheme, state.params)
         # `mjx.step` computes positions before integrating, so geom and camera poses lag the new
         # qpos by one step. A frame must show the new state: run the forward pass when frames are
         # rendered; otherwise only the worlds just reset need it (for contacts and the next
@@ -298,7 +316,7 @@ class MjxPixelEnv:
             reward=reward, done=done.astype(jnp.float32), truncated=truncated.astype(jnp.float32),
             step_count=jnp.where(done, 0, step_count), episode_return=jnp.where(done, 0.0, ep_return),
             scheme=scheme, key=split[:, 0], info=info, params=params,
-            depth=obs.get("depth"), points=obs.get("points"),
+            depth=obs.get("depth"), points=obs.get("points"), pool=pool,
             counts=_add_counts(state.counts, nonfinite_resets=bad.astype(jnp.int32),
                                nonfinite_entries=bad_entries, actions_fixed=fixed))
 

@@ -2,8 +2,8 @@
 
 Kept apart from the environment base class (`base.MjxPixelEnv`, which runs `check_config` first
 thing in its constructor) so that the options and their limits read in one place. The checks
-that depend on the domain (targets, object versions, the reset chunk) stay with the domain's
-constructor and `resets.chunk_size`.
+that depend on the domain (targets, object versions, the reset chunk and pool) stay with the
+domain's constructor and `resets.chunk_size` / `resets.pool_multiple`.
 """
 
 from __future__ import annotations
@@ -39,6 +39,10 @@ class EnvConfig:
     # Ended worlds reset per chunk in `step` (`MjxPixelEnv.reset_chunk`): None, the domain's
     # default (`reset_chunk_fraction`); 0, every world's reset computed and the ended ones kept.
     reset_chunk: int | None = None
+    # Ended worlds in `step` take pre-settled initial states from a pool (`resets.reset_from_pool`)
+    # of reset_pool * num_envs entries: None, the domain's default (2 for Incline and Rearrange,
+    # 0 for the others); 0, no pool (the chunked resets above).
+    reset_pool: int | None = None
 
 
 def check_config(config: EnvConfig) -> None:

@@ -113,6 +113,9 @@ class Incline(MjxPixelEnv):
     # the fall simulates up to 50 steps: `step` resets only the ended worlds, an eighth of the
     # batch per chunk (twice the ~6% whose episode ends per step under random actions)
     reset_chunk_fraction = 1 / 8
+    # ... or rather, by default, take pre-settled states from a pool of 2 x num_envs (refilled in
+    # one batch when fewer than the ended worlds remain, every ~32 steps): `resets.reset_from_pool`
+    reset_pool_multiple = 2
 
     def __init__(self, config: EnvConfig):
         version = config.version

@@ -1,5 +1,14 @@
-"""Resets of the worlds that ended, a fixed-size chunk at a time (`MjxPixelEnv._reset_done`).
+"""Resets of the worlds that ended in `step`: from a pool of pre-settled initial states
+(`reset_from_pool`), or a fixed-size chunk at a time (`MjxPixelEnv._reset_done`).
 
+The pool (EnvConfig.reset_pool, on by default for Incline and Rearrange): `reset` also settles
+f * N initial states from fresh keys (`make_pool`, kept in `EnvState.pool`), and `step` gives
+each ended world the next unused one, a gather with no simulation; when fewer remain than worlds
+ended, the pool is refilled first, in one batched reset under `lax.cond`. With fixed draws
+(`reset_with`'s, in `env._fixed` while `step` is traced) or no pool in the state, `step` takes
+the chunked path below.
+
+Chunks:
 Domains whose reset simulates (Incline's initial fall, up to 50 of bulb's steps; Rearrange's
 30-step settle) would otherwise simulate every world at each env step in which any ends, while
 under random actions only ~6% end per step. Here the done worlds' indices are gathered
@@ -67,3 +76,71 @@ def scatter_rows(idx: jax.Array, part: Any, full: Any, n: int) -> Any:
             return y
         return y.at[idx].set(x.astype(y.dtype), mode="drop")
     return jax.tree.map(put, part, full)
+
+
+# ----- the pool of pre-settled initial states -------------------------------------------------
+# The mjx.Data fields a reset sets that the forward pass does not compute from others (the state,
+# controls and applied forces, the mocap poses, the solver's warm start): a pool entry holds these
+# (plus the colour scheme and the parameters), `step` writes them into an ended world, and its
+# forward pass recomputes everything else, as it does after a chunked reset.
+POOL_FIELDS = ("time", "qpos", "qvel", "act", "qacc_warmstart", "ctrl", "qfrc_applied", "xfrc_applied",
+               "mocap_pos", "mocap_quat")
+POOL_SALT = 0x706F6F6C  # the pool's keys at `reset`: the world keys folded with this, then split
+
+
+def pool_multiple(pool: Any, default: int) -> int:
+    """Pool size in `step` as a multiple of num_envs (EnvConfig.reset_pool): `pool` if given,
+    else the domain's `default`; 0 is no pool (the chunked resets). A value that is not None or a
+    non-negative int is a ValueError naming the choices."""
+    if pool is not None and (isinstance(pool, (bool, np.bool_)) or not isinstance(pool, (int, np.integer))
+                             or pool < 0):
+        raise ValueError(f"reset_pool must be None (the domain's default), 0 (no pool: chunked resets) or a "
+                         f"positive int, the pool's size as a multiple of num_envs, got {pool!r}")
+    return int(default if pool is None else pool)
+
+
+def make_pool(env: Any, keys: jax.Array) -> dict[str, Any]:
+    """A fresh pool of `env.pool_size` = f * N initial states, settled from `keys` `[f * N, 2]`
+    in one `_reset_batch` (with `env._pool_data0`, whose shared contact buffers hold f * N
+    worlds; without `reset_with`'s fixed draws: the pool is for the later resets, which draw as
+    usual). Laid out world-major, `[N, f, ...]`, so that every leaf has the world axis first
+    (EnvState is sharded and reshaped per world); entry j is `[j // f, j % f]`, the cursor `[N]`
+    (the same value in every world) is the next unused entry."""
+    n, f = env.num_envs, env.reset_pool
+    saved = env._data0, env._fixed
+    env._data0, env._fixed = env._pool_data0, {}
+    try:
+        data, scheme, params, _ = env._reset_batch(keys, jnp.ones(n * f, bool), forward=False)
+    finally:
+        env._data0, env._fixed = saved
+    rows = lambda x: x.reshape((n, f) + x.shape[1:])  # noqa: E731
+    fields = {name: rows(getattr(data, name)) for name in POOL_FIELDS}
+    return {"data": fields, "scheme": rows(scheme.astype(jnp.int32)), "params": jax.tree.map(rows, params),
+            "cursor": jnp.zeros(n, jnp.int32)}
+
+
+def pool_keys_at_reset(keys: jax.Array, f: int) -> jax.Array:
+    """`[f * N, 2]` keys of the pool made at `reset` from the worlds' reset keys `[N, 2]`."""
+    return jax.vmap(lambda k: jax.random.split(jax.random.fold_in(k, POOL_SALT), f))(keys).reshape(-1, 2)
+
+
+def reset_from_pool(env: Any, keys: jax.Array, done: jax.Array, data: Any, scheme: jax.Array,
+                    params: dict[str, jax.Array], pool: dict[str, Any]
+                    ) -> tuple[Any, jax.Array, dict[str, jax.Array], dict[str, Any]]:
+    """`data`, `scheme`, `params` with the worlds in `done` given the next unused pool entries
+    (the i-th ended world, in world order, the cursor's + i; no simulation), and the pool after.
+    When fewer entries remain than worlds ended, the pool is first refilled (`make_pool` from
+    `keys` `[N, 2]`, the ended worlds' reset keys of this step, each split f ways) and read
+    from its start; the refill runs under `lax.cond`, only then. `done` may hold every world."""
+    n, f = env.num_envs, env.reset_pool
+    count = done.sum(dtype=jnp.int32)
+    refill = lambda _: make_pool(env, jax.vmap(lambda k: jax.random.split(k, f))(keys).reshape(-1, 2))  # noqa: E731
+    pool = jax.lax.cond(pool["cursor"][0] + count > n * f, refill, lambda p: p, pool)
+    cursor = pool["cursor"][0]
+    entry = jnp.where(done, cursor + jnp.cumsum(done, dtype=jnp.int32) - 1, 0)
+    take = lambda x: x.reshape((n * f,) + x.shape[2:])[entry]  # noqa: E731
+    pick = lambda new, old: jnp.where(done.reshape((n,) + (1,) * (old.ndim - 1)), take(new).astype(old.dtype), old)  # noqa: E731
+    data = data.replace(**{name: pick(v, getattr(data, name)) for name, v in pool["data"].items()})
+    scheme = pick(pool["scheme"], scheme)
+    params = {k: pick(pool["params"][k], v) for k, v in params.items()}
+    return data, scheme, params, {**pool, "cursor": jnp.full(n, cursor + count, jnp.int32)}
