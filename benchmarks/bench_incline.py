@@ -63,6 +63,7 @@ class Settings:
     reset_chunks: tuple[int | None, ...] = (None,)
     # reset pool sizes in `step`, multiples of the worlds (None: the domain's default, 0: no pool)
     reset_pools: tuple[int | None, ...] = (None,)
+    raw_warp: bool = True  # the raw MuJoCo Warp probe of each env's scene at each world count (raw_warp.py)
 
     @property
     def mjx_version(self) -> int | str:
@@ -140,6 +141,8 @@ def parse_args(argv: list[str] | None = None) -> Settings:
                         "domain's), 0 (no pool: the chunked resets); '0,default' times both")
     p.add_argument("--skip-pybullet", action="store_true")
     p.add_argument("--skip-bulbjax", action="store_true")
+    p.add_argument("--skip-raw-warp", action="store_true",
+                   help="no raw MuJoCo Warp probe (step + render of the same scene, no JAX, no resets)")
     p.add_argument("--skip-cache", action="store_true", help="no cache build timing (use the existing cache)")
     a = p.parse_args(argv)
     small = a.small
@@ -153,7 +156,8 @@ def parse_args(argv: list[str] | None = None) -> Settings:
                     build_cache_dir=a.build_cache_dir, keep_cache=a.keep_cache, skip_pybullet=a.skip_pybullet,
                     skip_bulbjax=a.skip_bulbjax, skip_cache=a.skip_cache,
                     reset_chunks=parse_reset_chunks(a.reset_chunk),
-                    reset_pools=parse_reset_chunks(a.reset_pool, "--reset-pool"))
+                    reset_pools=parse_reset_chunks(a.reset_pool, "--reset-pool"),
+                    raw_warp=not a.skip_raw_warp)
 
 
 def main(argv: list[str] | None = None) -> str:

@@ -57,6 +57,7 @@ class Settings:
     reset_chunks: tuple[int | None, ...] = (None,)
     # reset pool sizes in `step`, multiples of the worlds (None: the domain's default, 0: no pool)
     reset_pools: tuple[int | None, ...] = (None,)
+    raw_warp: bool = True  # the raw MuJoCo Warp probe of each env's scene at each world count (raw_warp.py)
     seed: int = 0
 
     @property
@@ -112,6 +113,8 @@ def parse_args(argv: list[str] | None = None) -> Settings:
                         "domain's), 0 (no pool: the chunked resets); '0,default' times both")
     p.add_argument("--skip-pybullet", action="store_true")
     p.add_argument("--skip-bulbjax", action="store_true")
+    p.add_argument("--skip-raw-warp", action="store_true",
+                   help="no raw MuJoCo Warp probe (step + render of the same scene, no JAX, no resets)")
     p.add_argument("--seed", type=int, default=0)
     a = p.parse_args(argv)
     pick = lambda v, big, little: v if v is not None else (little if a.small else big)  # noqa: E731
@@ -123,7 +126,8 @@ def parse_args(argv: list[str] | None = None) -> Settings:
                     steps=pick(a.steps, 50, 3), repeats=pick(a.repeats, 5, 2), resolution=a.resolution, out=a.out,
                     ycb_dir=a.ycb_dir or os.environ.get("BULBJAX_YCB_DIR"), skip_pybullet=a.skip_pybullet,
                     skip_bulbjax=a.skip_bulbjax, seed=a.seed, reset_chunks=parse_reset_chunks(a.reset_chunk),
-                    reset_pools=parse_reset_chunks(a.reset_pool, "--reset-pool"))
+                    reset_pools=parse_reset_chunks(a.reset_pool, "--reset-pool"),
+                    raw_warp=not a.skip_raw_warp)
 
 
 def main(argv: list[str] | None = None) -> str:

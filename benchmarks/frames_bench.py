@@ -199,6 +199,33 @@ def measure_rows(results: dict[str, Any], s: Any, prefix: str,
                               None if s.skip_bulbjax else (lambda w: bulbjax(name, w, s, rc, rp)))
             results["rows"].append({**row, "reset_chunk": rc, "reset_pool": rp})
             save_progress(results, s.out, prefix)
+        if getattr(s, "raw_warp", False) and not s.skip_bulbjax:
+            raw_rows(results, s, name)
+            save_progress(results, s.out, prefix)
+
+
+def raw_rows(results: dict[str, Any], s: Any, name: str) -> None:
+    """The raw MuJoCo Warp probe (`raw_warp.probe`: step + render of env `name`'s scene, no JAX,
+    no resets) at each of `s.worlds`, in `results["raw_warp"]`, with each bulbjax row's rate as
+    a share of it (`share_of_raw`)."""
+    from raw_warp import probe
+
+    for w in s.worlds:
+        try:
+            r = probe(name, w, steps=s.steps, repeats=s.repeats, resolution=s.resolution,
+                      version=s.mjx_version, ycb_dir=s.ycb_dir)
+        except Exception as err:
+            results.setdefault("raw_warp", []).append({"env": name, "worlds": w, "error": repr(err)})
+            log(f"{name}: raw Warp probe at {w} worlds failed: {err!r}")
+            continue
+        results.setdefault("raw_warp", []).append(r)
+        log(f"{name}: raw MuJoCo Warp step + render, {w} worlds: {r['frames_per_s']:,.0f} frames/s")
+        for row in results["rows"]:
+            for b in row.get("bulbjax", []) if row["env"] == name else []:
+                if b.get("worlds") == w and "frames_per_s" in b:
+                    b["share_of_raw"] = b["frames_per_s"] / r["frames_per_s"]
+                    log(f"{name}: bulbjax {w} worlds (reset chunk {row.get('reset_chunk')}, pool "
+                        f"{row.get('reset_pool')}) = {b['share_of_raw']:.2f}x the raw probe")
 
 
 def save_progress(results: dict[str, Any], out: str, prefix: str) -> None:
