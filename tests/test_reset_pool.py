@@ -109,6 +109,39 @@ def test_the_pool_is_deterministic_under_the_key(fns, state):
         "the refill's states follow the step's keys"
 
 
+def test_blocks_of_worlds_keep_pools_of_their_own(env, fns, state):
+    """With `pool_segments=2` (the experiment's seeds: a pool per seed) the first block's resets
+    are the same whatever the second block's worlds do; with one pool shared by the batch they
+    are not. Block 0 ends 8 of its 16 worlds every step (a refill on the 5th); block 1 ends all
+    of its worlds (refills every other step) or none."""
+    blocks = jax.jit(lambda keys, done, state, pool: resets.reset_from_pool(
+        env, keys, done, state.data, state.scheme, state.params, pool))
+    half = N // 2
+    first = np.zeros(half, bool)
+    first[::2] = True
+
+    def run(take, second_done: bool):
+        pool, out = state.pool, []
+        for i in range(6):
+            done = np.concatenate([first, np.full(half, second_done)])
+            data, _, _, pool = take(_keys(i), jnp.asarray(done), state, pool)
+            out.append((np.asarray(data.qpos)[:half], np.asarray(pool["cursor"])[:half]))
+        return out
+
+    env.pool_segments = 2  # read when `blocks` is traced (its first call)
+    try:
+        busy, idle = run(blocks, True), run(blocks, False)
+    finally:
+        env.pool_segments = 1
+    for (qa, ca), (qb, cb) in zip(busy, idle):
+        np.testing.assert_array_equal(qa, qb)
+        np.testing.assert_array_equal(ca, cb)
+    assert [int(c[0]) for _, c in busy] == [8, 16, 24, 32, 8, 16], "block 0 counts its own entries, refills on the 5th"
+    shared_busy, shared_idle = run(fns["take"], True), run(fns["take"], False)
+    assert not all(np.array_equal(a[0], b[0]) for a, b in zip(shared_busy, shared_idle)), \
+        "one shared pool: block 0's resets depend on block 1's"
+
+
 def _resting_face(qpos: np.ndarray, params: dict, theta: np.ndarray) -> np.ndarray:
     """Per world the object's body axis (0..5: +x, -x, +y, -y, +z, -z) that points into the
     incline: the one most anti-aligned with the incline's normal."""
@@ -160,6 +193,9 @@ def test_reset_pool_is_checked():
     with pytest.raises(ValueError, match="reset_pool"):
         bulbjax.make("CartPole", num_envs=4, render=False, reset_pool=1.5)
     assert bulbjax.make("CartPole", num_envs=4, render=False).reset_pool == 0, "cheap resets keep no pool"
+    for bad in (3, 0, True):
+        with pytest.raises(ValueError, match="pool_segments must be a positive divisor of num_envs \\(4\\)"):
+            bulbjax.make("CartPole", num_envs=4, render=False, pool_segments=bad)
 
 
 def test_step_takes_from_the_pool_and_the_pool_off_resets_from_each_worlds_keys(env, fns, state):

@@ -130,6 +130,7 @@ class MjxPixelEnv:
         self.reset_chunk = chunk_size(config.reset_chunk, self.reset_chunk_fraction, config.num_envs)
         self.reset_pool = pool_multiple(config.reset_pool, self.reset_pool_multiple)
         self.pool_size = self.reset_pool * config.num_envs
+        self.pool_segments = int(config.pool_segments)  # blocks of worlds with a pool each
         if config.show_targets and not self.supports_targets:
             raise ValueError(f"{self.name} has no targets to draw; show_targets is for the Rearrange domains")
         if not self.num_versions and config.version != 0:

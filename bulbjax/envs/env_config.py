@@ -43,6 +43,10 @@ class EnvConfig:
     # of reset_pool * num_envs entries: None, the domain's default (2 for Incline and Rearrange,
     # 0 for the others); 0, no pool (the chunked resets above).
     reset_pool: int | None = None
+    # The worlds as this many equal, consecutive blocks (e.g. the experiment's seeds), each with a
+    # pool of its own: a block's resets then depend on its own worlds only, so a seed's episodes do
+    # not depend on which other seeds share the batch. num_envs must be a multiple of it.
+    pool_segments: int = 1
 
 
 def check_config(config: EnvConfig) -> None:
@@ -57,6 +61,11 @@ def check_config(config: EnvConfig) -> None:
         raise ValueError(f"num_points must be a positive integer, got {config.num_points!r}")
     if not isinstance(config.num_envs, (int, np.integer)) or config.num_envs < 1:
         raise ValueError(f"num_envs must be a positive integer, got {config.num_envs!r}")
+    seg = config.pool_segments
+    if (isinstance(seg, (bool, np.bool_)) or not isinstance(seg, (int, np.integer)) or seg < 1
+            or config.num_envs % seg):
+        raise ValueError(f"pool_segments must be a positive divisor of num_envs ({config.num_envs}): the worlds "
+                         f"as that many equal blocks with a reset pool each, got {seg!r}")
     res = config.resolution
     if not isinstance(res, (int, np.integer)) or not MIN_RES <= res <= MAX_RES:
         raise ValueError(f"resolution must be an integer side length in [{MIN_RES}, {MAX_RES}] "

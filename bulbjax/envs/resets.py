@@ -105,7 +105,8 @@ def make_pool(env: Any, keys: jax.Array) -> dict[str, Any]:
     worlds; without `reset_with`'s fixed draws: the pool is for the later resets, which draw as
     usual). Laid out world-major, `[N, f, ...]`, so that every leaf has the world axis first
     (EnvState is sharded and reshaped per world); entry j is `[j // f, j % f]`, the cursor `[N]`
-    (the same value in every world) is the next unused entry."""
+    (the same value in every world of a block, `env.pool_segments`) is the block's next unused
+    entry, counted within the block's rows."""
     n, f = env.num_envs, env.reset_pool
     saved = env._data0, env._fixed
     env._data0, env._fixed = env._pool_data0, {}
@@ -128,19 +129,33 @@ def reset_from_pool(env: Any, keys: jax.Array, done: jax.Array, data: Any, schem
                     params: dict[str, jax.Array], pool: dict[str, Any]
                     ) -> tuple[Any, jax.Array, dict[str, jax.Array], dict[str, Any]]:
     """`data`, `scheme`, `params` with the worlds in `done` given the next unused pool entries
-    (the i-th ended world, in world order, the cursor's + i; no simulation), and the pool after.
-    When fewer entries remain than worlds ended, the pool is first refilled (`make_pool` from
-    `keys` `[N, 2]`, the ended worlds' reset keys of this step, each split f ways) and read
-    from its start; the refill runs under `lax.cond`, only then. `done` may hold every world."""
-    n, f = env.num_envs, env.reset_pool
-    count = done.sum(dtype=jnp.int32)
-    refill = lambda _: make_pool(env, jax.vmap(lambda k: jax.random.split(k, f))(keys).reshape(-1, 2))  # noqa: E731
-    pool = jax.lax.cond(pool["cursor"][0] + count > n * f, refill, lambda p: p, pool)
-    cursor = pool["cursor"][0]
-    entry = jnp.where(done, cursor + jnp.cumsum(done, dtype=jnp.int32) - 1, 0)
+    (no simulation), and the pool after. The worlds are `env.pool_segments` equal, consecutive
+    blocks (the experiment's seeds), each with its own part of the pool (the rows of its worlds)
+    and cursor: the i-th ended world of a block, in world order, takes the block's cursor + i.
+    A block with fewer entries left than worlds ended is first refilled (`make_pool` from `keys`
+    `[N, 2]`, the worlds' reset keys of this step, each split f ways: a block's new entries come
+    from its own worlds' keys) and read from its start; the batched refill runs under
+    `lax.cond` only when some block needs it, and only the blocks that need it keep its states,
+    so a block's resets depend on its own worlds alone. `done` may hold every world."""
+    n, f, g = env.num_envs, env.reset_pool, env.pool_segments
+    m = n // g  # worlds per block
+    done_g = done.reshape(g, m)
+    count = done_g.sum(axis=1, dtype=jnp.int32)  # [g]
+    low = pool["cursor"].reshape(g, m)[:, 0] + count > m * f  # [g]: blocks that must refill
+    worlds_low = jnp.repeat(low, m)  # [n]
+
+    def refill(p: dict[str, Any]) -> dict[str, Any]:
+        fresh = make_pool(env, jax.vmap(lambda k: jax.random.split(k, f))(keys).reshape(-1, 2))
+        keep = lambda new, old: jnp.where(worlds_low.reshape((n,) + (1,) * (old.ndim - 1)), new, old)  # noqa: E731
+        return jax.tree.map(keep, fresh, p)  # the cursor of a refilled block goes to 0
+
+    pool = jax.lax.cond(low.any(), refill, lambda p: p, pool)
+    cursor = pool["cursor"].reshape(g, m)[:, 0]  # [g]
+    local = cursor[:, None] + jnp.cumsum(done_g, axis=1, dtype=jnp.int32) - 1  # [g, m]
+    entry = jnp.where(done, (jnp.arange(g, dtype=jnp.int32)[:, None] * (m * f) + local).reshape(n), 0)
     take = lambda x: x.reshape((n * f,) + x.shape[2:])[entry]  # noqa: E731
     pick = lambda new, old: jnp.where(done.reshape((n,) + (1,) * (old.ndim - 1)), take(new).astype(old.dtype), old)  # noqa: E731
     data = data.replace(**{name: pick(v, getattr(data, name)) for name, v in pool["data"].items()})
     scheme = pick(pool["scheme"], scheme)
     params = {k: pick(pool["params"][k], v) for k, v in params.items()}
-    return data, scheme, params, {**pool, "cursor": jnp.full(n, cursor + count, jnp.int32)}
+    return data, scheme, params, {**pool, "cursor": jnp.repeat(cursor + count, m)}

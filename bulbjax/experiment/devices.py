@@ -62,10 +62,13 @@ class Devices:
         self.mesh = make_mesh(devices or jax.devices()[:1], c.seeds, c.num_envs)
         self.sharded = self.mesh.size > 1
         try:
+            # a reset pool per seed (its share of worlds on a device): a seed's resets do not
+            # depend on the other seeds in the batch, as with each world's own reset keys
             self.env: MjxPixelEnv = bulbjax.make(c.env, num_envs=c.seeds * c.num_envs // self.mesh.size,
                                                  resolution=c.resolution, render=True,
                                                  render_steps=False, multicolour=c.multicolour,
-                                                 version=c.version)
+                                                 version=c.version,
+                                                 pool_segments=c.seeds // self.mesh.shape[SEED_AXIS])
         except ValueError as err:
             if c.env.startswith(("HalfCheetah", "Ant")):
                 raise ValueError(f"{err}. HalfCheetah and Ant come with the locomotion environments "
