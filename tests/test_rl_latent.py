@@ -19,8 +19,15 @@ from bulbjax.experiment.state import Rendered
 def test_latent_fed_to_ppo_is_the_learners_encoding(tmp_path) -> None:
     from bulbjax.experiment.run import RunOptions, run
 
+    import dataclasses
+
     cfg = small_config(ExperimentConfig(env="CartPole", learners=("vae_rpl",), seeds=2, epochs=2,
                                         rl_input="latent:vae_rpl"))
+    # fewer worlds, steps and frames than --small: what is checked does not depend on the sizes
+    # (32 steps of 8 worlds still end CartPole episodes in both epochs)
+    cfg = cfg.replace(num_envs=8, ppo=dataclasses.replace(cfg.ppo, num_envs=8, num_steps=32), ppo_updates_per_epoch=1,
+                      frames_per_epoch=64, replay_capacity=256, eval_frames=32, probe_train_frames=128,
+                      probe=dataclasses.replace(cfg.probe, steps=50), reference_steps=32)
     exp = Experiment(cfg)
     rs = exp.init(jax.random.PRNGKey(0))
     learner = exp.learners["vae_rpl"]
