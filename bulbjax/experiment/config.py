@@ -291,6 +291,12 @@ _FIG2_LEARNERS = ("vae", "vae_rpl", "beta_vae", "svae", "pred", "dsa")
 # off-balance states). CartPole (discrete: no log-std) takes the anneal and the freeze; Ant and
 # Rearrange keep PPO's defaults.
 PENDULUM_PPO = PPOConfig(anneal_updates=2000, lr_floor=0.1, min_log_std=-2.0, obs_norm_updates=400)
+# InvertedPendulum: in the six-learner 1,000-epoch run with PENDULUM_PPO two of six seeds fell
+# below 950 for tens of epochs at epochs 100-300 (lr still 0.7-0.9e-3, KL ~0.01, the normaliser
+# frozen or not), holding 93.5% and 94.6% of their later epochs. The lr annealed to its floor over
+# 500 updates (epoch 250) and the normaliser frozen after 100 (epoch 50): 24 of 24 PPO-alone seed
+# runs >= 95%, lowest 97.0% (against 95.5% with PENDULUM_PPO; docs/ppo.md).
+INVPEND_PPO = dataclasses.replace(PENDULUM_PPO, anneal_updates=500, obs_norm_updates=100)
 HALFCHEETAH_PPO = PPOConfig(anneal_updates=2000, lr_floor=0.1, min_log_std=-1.5)
 
 
@@ -301,7 +307,7 @@ def _fig2(env: str, learner_batches: int, ppo: PPOConfig | None = None) -> Exper
     batches per epoch (10 pendulums, 50 locomotion). `epochs` is an upper bound: the paper ran
     far longer than one GPU session allows, so runs are usually cut with --max-minutes.
     Two PPO updates per epoch (128 steps of 64 worlds), as in the README's H100 runs; `ppo`: the
-    domain's stability settings (`PENDULUM_PPO`, `HALFCHEETAH_PPO`)."""
+    domain's stability settings (`PENDULUM_PPO`, `INVPEND_PPO`, `HALFCHEETAH_PPO`)."""
     return ExperimentConfig(env=env, multicolour=True, learners=_FIG2_LEARNERS, seeds=6, epochs=1000,
                             ppo=ppo or PPOConfig(), ppo_updates_per_epoch=2, learner=LearnerConfig(lr=1e-4),
                             learner_batches=learner_batches)
@@ -335,7 +341,7 @@ def _fig3(env: str, version: int | str = FIG3_VERSION,
 
 PRESETS: dict[str, ExperimentConfig] = {
     "fig2-cartpole": _fig2("CartPole", 10, PENDULUM_PPO),
-    "fig2-invpend": _fig2("InvertedPendulum", 10, PENDULUM_PPO),
+    "fig2-invpend": _fig2("InvertedPendulum", 10, INVPEND_PPO),
     "fig2-halfcheetah": _fig2("HalfCheetah", 50, HALFCHEETAH_PPO),
     "fig2-ant": _fig2("Ant", 50),
     "fig3-rearrange-geom": _fig3("ReacherRearrangeGeom"),
