@@ -1,0 +1,156 @@
+"""Where an Incline env step's time goes, against raw MuJoCo Warp on the same scene (issue 39).
+
+The Incline with the reset pool renders at about a third of `benchmarks/raw_warp.py`'s probe (step
++ BVH refit + render, no resets, no JAX). This splits one env step of `--worlds` worlds, each part
+timed in the same process on the same device, every one as a jitted `lax.scan` of `--steps` steps
+(median of `--repeats` calls after a compiling one):
+
+* `full`: `env.step` with random pushes and rendering, as `bench_incline.py` times it;
+* `no_render`: the same with `render=False` (physics, the forward pass, auto-reset, the pool);
+* `refill`: one pool refill alone (`resets.make_pool` for the pool's f x N keys: bulb's settle of
+  f x N fresh worlds), and how many refills the `full` scan made (episodes ended per step);
+* `raw`: the raw Warp probe of the same scene and world count (`raw_warp.probe`).
+
+It prints the per-step milliseconds of each and what they imply (render share, refill share, the
+rest: JAX's dispatch of the Warp FFI calls, the forward pass, the where-selects of auto-reset),
+and writes `benchmarks/results/incline_gap_<device>_<stamp>.json`.
+
+    python benchmarks/diagnostics/incline_gap.py --env GeomOnIncline --worlds 4096      # GPU
+    python benchmarks/diagnostics/incline_gap.py --small                                # CPU smoke test
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import statistics
+import sys
+import time
+from typing import Any, Callable
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+sys.path.insert(0, os.path.dirname(os.path.dirname(HERE)))
+sys.path.insert(0, os.path.dirname(HERE))
+
+
+def _timed(fn: Callable[[], Any], repeats: int) -> tuple[float, float]:
+    """(first call's seconds: compile + run, median of `repeats` later calls)."""
+    import jax
+
+    t0 = time.perf_counter()
+    jax.block_until_ready(fn())
+    first = time.perf_counter() - t0
+    times = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        jax.block_until_ready(fn())
+        times.append(time.perf_counter() - t0)
+    return first, statistics.median(times)
+
+
+def step_scan(name: str, worlds: int, steps: int, repeats: int, render: bool, resolution: int) -> dict[str, Any]:
+    """Median seconds of `steps` random-push env steps in one jitted scan, and the episodes that
+    ended in them."""
+    import jax
+    import jax.numpy as jnp
+
+    import bulbjax
+
+    env = bulbjax.make(name, num_envs=worlds, resolution=resolution, render=render)
+    size = env.action_size
+
+    @jax.jit
+    def rollout(state, key):
+        def body(carry, _):
+            st, k = carry
+            k, ka = jax.random.split(k)
+            st = env.step(st, jax.random.uniform(ka, (worlds, size), minval=-1.0, maxval=1.0))
+            return (st, k), st.done.sum()
+        (state, key), ended = jax.lax.scan(body, (state, key), None, length=steps)
+        return state, key, jnp.sum(ended)
+
+    state = jax.block_until_ready(jax.jit(env.reset)(jax.random.PRNGKey(0)))
+    box = {"state": state, "key": jax.random.PRNGKey(1), "ended": []}
+
+    def call():
+        box["state"], box["key"], ended = rollout(box["state"], box["key"])
+        box["ended"].append(ended)
+        return box["state"]
+
+    first, med = _timed(call, repeats)
+    ended = [int(e) for e in box["ended"][1:]]
+    return {"render": render, "first_call_s": first, "call_s": med, "ms_per_step": 1e3 * med / steps,
+            "frames_per_s": worlds * steps / med, "ended_per_step": statistics.median(ended) / steps,
+            "reset_pool": int(env.reset_pool), "frame_skip": int(getattr(env, "frame_skip", 1))}
+
+
+def refill(name: str, worlds: int, repeats: int, resolution: int) -> dict[str, Any]:
+    """Median seconds of one full pool refill (`make_pool` of f x N fresh, settled worlds)."""
+    import jax
+
+    import bulbjax
+    from bulbjax.envs import resets
+
+    env = bulbjax.make(name, num_envs=worlds, resolution=resolution, render=False)
+    jax.block_until_ready(env.reset(jax.random.PRNGKey(0)))
+    keys = jax.random.split(jax.random.PRNGKey(2), env.reset_pool * worlds)
+    fn = jax.jit(lambda k: resets.make_pool(env, k))
+    first, med = _timed(lambda: fn(keys), repeats)
+    return {"entries": int(env.reset_pool * worlds), "first_call_s": first, "call_s": med}
+
+
+def main(argv: list[str] | None = None) -> dict[str, Any]:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--env", default="GeomOnIncline")
+    p.add_argument("--worlds", type=int, default=4096)
+    p.add_argument("--steps", type=int, default=50)
+    p.add_argument("--repeats", type=int, default=5)
+    p.add_argument("--resolution", type=int, default=64)
+    p.add_argument("--skip-raw", action="store_true")
+    p.add_argument("--small", action="store_true", help="CPU smoke test: 8 worlds, 3 steps, 2 repeats")
+    p.add_argument("--out", default=os.path.join(os.path.dirname(HERE), "results"))
+    a = p.parse_args(argv)
+    if a.small:
+        a.worlds, a.steps, a.repeats = 8, 3, 2
+    import jax
+
+    import raw_warp
+
+    out: dict[str, Any] = {"env": a.env, "worlds": a.worlds, "steps": a.steps, "device": str(jax.devices()[0]),
+                           "device_kind": jax.devices()[0].device_kind, "jax": jax.__version__}
+    out["full"] = step_scan(a.env, a.worlds, a.steps, a.repeats, True, a.resolution)
+    print(f"full step + render: {out['full']['ms_per_step']:.3f} ms/step, {out['full']['frames_per_s']:,.0f} frames/s, "
+          f"{out['full']['ended_per_step']:.1f} episodes ended per step", flush=True)
+    out["no_render"] = step_scan(a.env, a.worlds, a.steps, a.repeats, False, a.resolution)
+    print(f"step without render: {out['no_render']['ms_per_step']:.3f} ms/step", flush=True)
+    out["refill"] = refill(a.env, a.worlds, a.repeats, a.resolution)
+    per_step = out["full"]["ended_per_step"] / max(out["refill"]["entries"], 1)  # refills per step, on average
+    out["refill"]["per_step"] = per_step
+    out["refill"]["ms_per_step"] = 1e3 * out["refill"]["call_s"] * per_step
+    print(f"one refill of {out['refill']['entries']} entries: {1e3 * out['refill']['call_s']:.1f} ms; "
+          f"{per_step:.3f} refills per step -> {out['refill']['ms_per_step']:.3f} ms/step", flush=True)
+    if not a.skip_raw:
+        raw = raw_warp.probe(a.env, a.worlds, steps=a.steps, repeats=a.repeats, resolution=a.resolution)
+        out["raw"] = {**raw, "ms_per_step": 1e3 * raw["call_s"] / a.steps}
+        print(f"raw Warp step + render: {out['raw']['ms_per_step']:.3f} ms/step, {raw['frames_per_s']:,.0f} frames/s",
+              flush=True)
+    f, n = out["full"]["ms_per_step"], out["no_render"]["ms_per_step"]
+    out["split_ms_per_step"] = {"render (full - no_render)": f - n, "refills": out["refill"]["ms_per_step"],
+                                "rest of the step (no_render - refills)": n - out["refill"]["ms_per_step"]}
+    if "raw" in out:
+        out["split_ms_per_step"]["raw step + render"] = out["raw"]["ms_per_step"]
+    for k, v in out["split_ms_per_step"].items():
+        print(f"  {k}: {v:.3f} ms/step", flush=True)
+    os.makedirs(a.out, exist_ok=True)
+    stamp = time.strftime("%Y%m%d_%H%M%S")
+    kind = out["device_kind"].lower().replace(" ", "_")
+    path = os.path.join(a.out, f"incline_gap_{a.env.lower()}_{kind}_{stamp}.json")
+    with open(path, "w") as fh:
+        json.dump(out, fh, indent=1)
+    print(f"wrote {path}")
+    return out
+
+
+if __name__ == "__main__":
+    main()
