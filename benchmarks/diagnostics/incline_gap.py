@@ -33,20 +33,7 @@ HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, os.path.dirname(os.path.dirname(HERE)))
 sys.path.insert(0, os.path.dirname(HERE))
 
-
-def _timed(fn: Callable[[], Any], repeats: int) -> tuple[float, float]:
-    """(first call's seconds: compile + run, median of `repeats` later calls)."""
-    import jax
-
-    t0 = time.perf_counter()
-    jax.block_until_ready(fn())
-    first = time.perf_counter() - t0
-    times = []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        jax.block_until_ready(fn())
-        times.append(time.perf_counter() - t0)
-    return first, statistics.median(times)
+from timing import time_fn  # noqa: E402  (first call, then median of repeats)
 
 
 def step_scan(name: str, worlds: int, steps: int, repeats: int, render: bool, resolution: int) -> dict[str, Any]:
@@ -78,7 +65,8 @@ def step_scan(name: str, worlds: int, steps: int, repeats: int, render: bool, re
         box["ended"].append(ended)
         return box["state"]
 
-    first, med = _timed(call, repeats)
+    t = time_fn(call, repeats)
+    first, med = t["first_s"], t["median_s"]
     ended = [int(e) for e in box["ended"][1:]]
     return {"render": render, "first_call_s": first, "call_s": med, "ms_per_step": 1e3 * med / steps,
             "frames_per_s": worlds * steps / med, "ended_per_step": statistics.median(ended) / steps,
@@ -96,7 +84,8 @@ def refill(name: str, worlds: int, repeats: int, resolution: int) -> dict[str, A
     jax.block_until_ready(env.reset(jax.random.PRNGKey(0)))
     keys = jax.random.split(jax.random.PRNGKey(2), env.reset_pool * worlds)
     fn = jax.jit(lambda k: resets.make_pool(env, k))
-    first, med = _timed(lambda: fn(keys), repeats)
+    t = time_fn(lambda: fn(keys), repeats)
+    first, med = t["first_s"], t["median_s"]
     return {"entries": int(env.reset_pool * worlds), "first_call_s": first, "call_s": med}
 
 
