@@ -6,7 +6,9 @@ first reached `--threshold` and the share of later epochs at or above it, the po
 (from the Gaussian entropy, `log_std = entropy/A - 0.5 (1 + log 2 pi)`, or the logged
 `log_std_mean` where the run has it), approx KL and clip fraction at a few epochs, and the value
 loss just before each drop below the threshold against its median over the run. The numbers of
-docs/ppo.md ("Why the solved pendulum forgets") come from
+docs/ppo.md ("Why the solved pendulum forgets") come from these runs' metrics, in git history
+since the runs were superseded (`git show 45add11:docs/results/fig2_invpend_h100_1000/seed0/metrics.jsonl.gz > docs/results/fig2_invpend_h100_1000/seed0/metrics.jsonl.gz`,
+seed1 the same), and
 
     python benchmarks/diagnostics/ppo_curves.py docs/results/fig2_invpend_h100_1000/seed0 \
         docs/results/fig2_invpend_h100_1000/seed1 --threshold 950
