@@ -6,7 +6,7 @@ BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 SHARED ?= $(abspath ../shared)
 
-.PHONY: demo test venv bench clean
+.PHONY: demo test test-all venv bench clean
 
 $(STAMP): pyproject.toml
 	$(PY) -m venv $(VENV)
@@ -20,7 +20,12 @@ venv: $(STAMP)
 demo: $(STAMP)
 	$(BIN)/bulbjax run --env CartPole --learners vae,vae_rpl,beta_vae --seeds 2 --epochs 6 --out runs/demo --small --overwrite
 
+# `make test`: every test but the slow tier (marked `slow`, listed in tests/conftest.py): what CI
+# runs; `make test-all`: every test
 test: $(STAMP)
+	$(BIN)/python -m pytest -q -n 2 --dist loadfile --durations=25 -m "not slow" tests
+
+test-all: $(STAMP)
 	$(BIN)/python -m pytest -q -n 2 --dist loadfile --durations=25 tests
 
 bench: $(STAMP)

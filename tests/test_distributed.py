@@ -100,6 +100,7 @@ def _assert_close(one: list[dict], two: list[dict]) -> None:
             np.testing.assert_allclose(pa["overall"]["mae_norm"], pb["overall"]["mae_norm"], rtol=0.05, atol=1e-3)
 
 
+@pytest.mark.slow  # the slow tier: `make test-all` runs it, `make test` does not (tests/conftest.py)
 def test_two_processes_equal_one(tmp_path):
     env = {**os.environ, "JAX_PLATFORMS": "cpu", "BULBJAX_COMPILE_CACHE": "off", "PYTHONUNBUFFERED": "1"}
     env.pop("XLA_FLAGS", None)

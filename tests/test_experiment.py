@@ -209,6 +209,7 @@ def _max_abs_diff(a, b) -> float:
                for x, y in zip(jax.tree.leaves(a), jax.tree.leaves(b)))
 
 
+@pytest.mark.slow  # the slow tier: `make test-all` runs it, `make test` does not (tests/conftest.py)
 def test_split_programs_give_the_fused_epoch(run):
     """Init and the epoch as several programs (`Stages`, `programs="split"`) give the fused
     programs' run state and metrics: the probing epoch from the same init

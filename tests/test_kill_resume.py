@@ -11,6 +11,8 @@ import importlib.util
 import os
 import sys
 
+import pytest
+
 HERE = os.path.dirname(os.path.abspath(__file__))
 
 
@@ -36,6 +38,7 @@ def _in_order(lines: list[str], starts: list[str]) -> bool:
     return -1 not in idx and idx == sorted(idx)
 
 
+@pytest.mark.slow  # the slow tier: `make test-all` runs it, `make test` does not (tests/conftest.py)
 def test_kills_at_the_worst_moments_resume_exactly(tmp_path):
     work = tmp_path / "work"
     res = _script().main(["--size", "tiny", "--epochs", "3", "--kills", "2", "--plan", "commit:2,append:1",

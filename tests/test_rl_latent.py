@@ -13,6 +13,7 @@ import pytest
 
 from bulbjax.experiment import ExperimentConfig, small_config
 from bulbjax.experiment.loop import Experiment
+from bulbjax.experiment.programs import Programs
 from bulbjax.experiment.state import Rendered
 
 
@@ -29,7 +30,7 @@ def test_latent_fed_to_ppo_is_the_learners_encoding(tmp_path) -> None:
                       frames_per_epoch=64, replay_capacity=256, eval_frames=32, probe_train_frames=128,
                       probe=dataclasses.replace(cfg.probe, steps=50), reference_steps=32)
     exp = Experiment(cfg)
-    rs = exp.init(jax.random.PRNGKey(0))
+    rs = Programs.of(exp, (True,)).init(jax.random.PRNGKey(0))  # the init the run below reuses (one compile)
     learner = exp.learners["vae_rpl"]
     assert exp.policy.rl_learner == "vae_rpl"
     assert exp.ppo.obs_size == learner.latent_dim == 2 * exp.env.state_dim

@@ -21,6 +21,7 @@ from bulbjax.data import sequence
 from bulbjax.eval.probe import ProbeConfig
 from bulbjax.experiment import Experiment, ExperimentConfig
 from bulbjax.experiment.policy import push_window
+from bulbjax.experiment.programs import Programs
 from bulbjax.learners import LearnerConfig
 from bulbjax.rl.ppo import PPOConfig
 
@@ -65,7 +66,7 @@ def test_latent_is_encode_of_the_window_ending_at_the_step(exp: Experiment) -> N
     cfg = exp.config
     learner = exp.learners["dsa"]
     assert exp.policy.rl_sequential and exp.ppo.obs_size == learner.latent_dim
-    rs = exp.init(jax.random.PRNGKey(0))
+    rs = Programs.of(exp, (True,)).init(jax.random.PRNGKey(0))  # the init the run below reuses (one compile)
     S, N, T = cfg.seeds, cfg.num_envs, 30
     step = jax.jit(lambda es, w, k: exp.policy.step(rs.ppo, es, k, False, rs.learners, w))
     window = jax.jit(exp.policy.window)(rs.learners, rs.policy_history["train"])

@@ -349,6 +349,7 @@ print(json.dumps({{"hash": hashlib.sha256(text.encode()).hexdigest(), "traced_af
 """
 
 
+@pytest.mark.slow  # the slow tier: `make test-all` runs it, `make test` does not (tests/conftest.py)
 def test_resumed_process_compiles_the_same_epoch_program():
     """MuJoCo Warp numbers its FFI targets and call sites by per-process trace order, and the
     numbers are in the program (so in the compilation cache key). `Programs.of` traces
