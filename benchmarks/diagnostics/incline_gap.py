@@ -6,7 +6,11 @@ timed in the same process on the same device, every one as a jitted `lax.scan` o
 (median of `--repeats` calls after a compiling one):
 
 * `full`: `env.step` with random pushes and rendering, as `bench_incline.py` times it;
-* `no_render`: the same with `render=False` (physics, the forward pass, auto-reset, the pool);
+* `full_forward`: `full` with MJX's full forward pass after resets instead of the kinematics pass
+  (`env._poses`: what `step` ran before; the same episodes and frames), for the change's effect;
+* `no_render`: the same with `render=False` (physics, the pose pass, auto-reset, the pool);
+* `physics`: `env.physics` alone in a scan (the Warp steps and kinematics; no reward, resets,
+  selects or frames);
 * `refill`: one pool refill alone (`resets.make_pool` for the pool's f x N keys: bulb's settle of
   f x N fresh worlds), and how many refills the `full` scan made (episodes ended per step);
 * `raw`: the raw Warp probe of the same scene and world count (`raw_warp.probe`).
@@ -36,15 +40,18 @@ sys.path.insert(0, os.path.dirname(HERE))
 from timing import time_fn  # noqa: E402  (first call, then median of repeats)
 
 
-def step_scan(name: str, worlds: int, steps: int, repeats: int, render: bool, resolution: int) -> dict[str, Any]:
+def step_scan(name: str, worlds: int, steps: int, repeats: int, render: bool, resolution: int,
+              forward: bool = False) -> dict[str, Any]:
     """Median seconds of `steps` random-push env steps in one jitted scan, and the episodes that
-    ended in them."""
+    ended in them; `forward`: with MJX's full forward pass after resets (as for a moving camera)."""
     import jax
     import jax.numpy as jnp
 
     import bulbjax
 
     env = bulbjax.make(name, num_envs=worlds, resolution=resolution, render=render)
+    if forward:
+        env._static_view = False
     size = env.action_size
 
     @jax.jit
@@ -68,9 +75,41 @@ def step_scan(name: str, worlds: int, steps: int, repeats: int, render: bool, re
     t = time_fn(call, repeats)
     first, med = t["first_s"], t["median_s"]
     ended = [int(e) for e in box["ended"][1:]]
-    return {"render": render, "first_call_s": first, "call_s": med, "ms_per_step": 1e3 * med / steps,
+    pose_pass = "kinematics" if env._static_view else "forward"
+    return {"render": render, "pose_pass": pose_pass, "first_call_s": first, "call_s": med, "ms_per_step": 1e3 * med / steps,
             "frames_per_s": worlds * steps / med, "ended_per_step": statistics.median(ended) / steps,
             "reset_pool": int(env.reset_pool), "frame_skip": int(getattr(env, "frame_skip", 1))}
+
+
+def physics_scan(name: str, worlds: int, steps: int, repeats: int, resolution: int) -> dict[str, Any]:
+    """Median seconds of `steps` env steps of physics alone (`env.physics`: `frame_skip` Warp
+    steps with the action applied, and the kinematics pass where the domain has one) in one jitted
+    scan from a reset, no reward, resets or frames: the Warp calls' share of the step, as JAX
+    runs them."""
+    import jax
+
+    import bulbjax
+
+    env = bulbjax.make(name, num_envs=worlds, resolution=resolution, render=False)
+    size = env.action_size
+    data0 = jax.block_until_ready(jax.jit(env.reset)(jax.random.PRNGKey(0))).data
+
+    @jax.jit
+    def rollout(data, key):
+        def body(carry, _):
+            d, k = carry
+            k, ka = jax.random.split(k)
+            return (env.physics(d, jax.random.uniform(ka, (worlds, size), minval=-1.0, maxval=1.0)), k), None
+        return jax.lax.scan(body, (data, key), None, length=steps)[0]
+
+    box = {"carry": (data0, jax.random.PRNGKey(1))}
+
+    def call():
+        box["carry"] = rollout(*box["carry"])
+        return box["carry"]
+
+    t = time_fn(call, repeats)
+    return {"first_call_s": t["first_s"], "call_s": t["median_s"], "ms_per_step": 1e3 * t["median_s"] / steps}
 
 
 def refill(name: str, worlds: int, repeats: int, resolution: int) -> dict[str, Any]:
@@ -111,8 +150,13 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     out["full"] = step_scan(a.env, a.worlds, a.steps, a.repeats, True, a.resolution)
     print(f"full step + render: {out['full']['ms_per_step']:.3f} ms/step, {out['full']['frames_per_s']:,.0f} frames/s, "
           f"{out['full']['ended_per_step']:.1f} episodes ended per step", flush=True)
+    out["full_forward"] = step_scan(a.env, a.worlds, a.steps, a.repeats, True, a.resolution, forward=True)
+    print(f"full, forward pass after resets: {out['full_forward']['ms_per_step']:.3f} ms/step, "
+          f"{out['full_forward']['frames_per_s']:,.0f} frames/s", flush=True)
     out["no_render"] = step_scan(a.env, a.worlds, a.steps, a.repeats, False, a.resolution)
     print(f"step without render: {out['no_render']['ms_per_step']:.3f} ms/step", flush=True)
+    out["physics"] = physics_scan(a.env, a.worlds, a.steps, a.repeats, a.resolution)
+    print(f"physics alone (env.physics): {out['physics']['ms_per_step']:.3f} ms/step", flush=True)
     out["refill"] = refill(a.env, a.worlds, a.repeats, a.resolution)
     per_step = out["full"]["ended_per_step"] / max(out["refill"]["entries"], 1)  # refills per step, on average
     out["refill"]["per_step"] = per_step
@@ -126,7 +170,10 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
               flush=True)
     f, n = out["full"]["ms_per_step"], out["no_render"]["ms_per_step"]
     out["split_ms_per_step"] = {"render (full - no_render)": f - n, "refills": out["refill"]["ms_per_step"],
-                                "rest of the step (no_render - refills)": n - out["refill"]["ms_per_step"]}
+                                "rest of the step (no_render - refills)": n - out["refill"]["ms_per_step"],
+                                "of which physics (env.physics alone)": out["physics"]["ms_per_step"],
+                                "of which the wrapper (no_render - refills - physics)":
+                                    n - out["refill"]["ms_per_step"] - out["physics"]["ms_per_step"]}
     if "raw" in out:
         out["split_ms_per_step"]["raw step + render"] = out["raw"]["ms_per_step"]
     for k, v in out["split_ms_per_step"].items():

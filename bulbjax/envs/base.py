@@ -19,7 +19,7 @@ from flax import struct
 from mujoco import mjx
 
 from bulbjax.envs import warp_graphs
-from bulbjax.envs.camera import PAN_CAMERAS, CameraConfig, add_bulb_camera, pan_cameras
+from bulbjax.envs.camera import PAN_CAMERAS, CameraConfig, add_bulb_camera, pan_cameras, static_view, view_poses
 from bulbjax.envs.colours import NUM_SCHEMES, scheme_table
 from bulbjax.envs.env_config import EnvConfig, check_config
 from bulbjax.envs.render import PointCloudRenderer, Renderer, exclude_from_pointcloud
@@ -153,11 +153,16 @@ class MjxPixelEnv:
         # which under jax.distributed is another process's (arrays this process cannot address)
         device = jax.local_devices()[0]
         self.mx = self._post_put(mjx.put_model(self.mj_model, device=device, impl="warp"))
+        # With cameras and lights fixed in the world, `step` recomputes only the kinematics of the
+        # worlds it resets (`_poses`): the template Data they start from holds the view's poses.
+        self._static_view = static_view(self.mj_model)
+        view = ({k: jax.device_put(np.asarray(v, np.float32), device) for k, v in view_poses(self.mj_model).items()}
+                if self._static_view else {})
         self._data0 = mjx.make_data(self.mj_model, device=device, impl="warp", njmax=self.njmax,
-                                    naconmax=self.naconmax_per_world * self.num_envs)
+                                    naconmax=self.naconmax_per_world * self.num_envs).tree_replace(view)
         if self.reset_pool:  # the pool's refill settles pool_size worlds in one batch
             self._pool_data0 = mjx.make_data(self.mj_model, device=device, impl="warp", njmax=self.njmax,
-                                             naconmax=self.naconmax_per_world * self.pool_size)
+                                             naconmax=self.naconmax_per_world * self.pool_size).tree_replace(view)
         self.renderer = None
         if config.render:
             self.renderer = Renderer(self.mj_model, self.num_envs, self.resolution,
@@ -297,16 +302,7 @@ class MjxPixelEnv:
                                                          state.params, pool)
         else:
             data, scheme, params = self._reset_done(split[:, 1], done, data, state.scheme, state.params)
-        # `mjx.step` computes positions before integrating, so geom and camera poses lag the new
-        # qpos by one step. A frame must show the new state: run the forward pass when frames are
-        # rendered; otherwise only the worlds just reset need it (for contacts and the next
-        # step), and the Warp forward pass costs as much as a step, so it runs only then.
-        mx = self._world_model(params)
-        forward = lambda d: jax.vmap(mjx.forward, in_axes=(None, 0))(mx, d)
-        if self._renders_steps or self.point_renderer is not None:
-            data = forward(data)
-        else:
-            data = jax.lax.cond(done.any(), forward, lambda d: d, data)
+        data = self._poses(self._world_model(params), data, done)
         obs_lowdim = jnp.where(done[:, None], self._lowdim_batch(data, params), lowdim)
         info = {"episode_return": jnp.where(done, ep_return, 0.0),
                 "episode_length": jnp.where(done, step_count, 0),
@@ -365,6 +361,25 @@ class MjxPixelEnv:
         return jax.lax.scan(body, data0, render_inputs)[1]
 
     # ----- internals -----
+    def _poses(self, mx: mjx.Model, data: mjx.Data, done: jax.Array) -> mjx.Data:
+        """`data` after `step`'s resets with the poses of its new qpos, where something reads them.
+
+        `mjx.step` computes positions before integrating, so body, geom and camera poses lag the
+        new qpos by one step, and a reset world's are those of the state it replaced. A frame must
+        show the new state; the state and reward of domains with `kinematics_after_step` read
+        poses. With a `static_view` (cameras and lights fixed in the world) the kinematics pass
+        gives every pose any of these read: it runs on every world when frames are rendered, else
+        only in steps where some world was reset. Otherwise (a camera that follows a body) it is
+        MJX's full forward pass, the only Warp call that also places cameras, at the cost of a
+        physics step. Neither changes what the next step computes: `mjx.step` starts with its own
+        forward pass, and only its integration writes the solver's warm start."""
+        rendered = self._renders_steps or self.point_renderer is not None
+        fn = mjx.kinematics if self._static_view else mjx.forward
+        poses = lambda d: jax.vmap(fn, in_axes=(None, 0))(mx, d)  # noqa: E731
+        if rendered:
+            return poses(data)
+        return jax.lax.cond(done.any(), poses, lambda d: d, data)
+
     def _reward_terminated_batch(self, data: mjx.Data, lowdim: jax.Array, action: jax.Array,
                                  prev_data: mjx.Data, params: dict[str, jax.Array]) -> tuple[jax.Array, jax.Array]:
         """`_reward_terminated` of every world (domains whose reward needs `params` override this)."""

@@ -83,3 +83,24 @@ PAN_FOVY_DEG = 90.0
 def pan_cameras(cfg: CameraConfig) -> list[CameraConfig]:
     """The point-cloud cameras of a domain: bulb's pan views around `cfg`'s target."""
     return [dataclasses.replace(cfg, yaw=yaw, pitch=pitch, fovy=PAN_FOVY_DEG) for yaw, pitch in PAN_CAMERAS]
+
+
+def static_view(mj_model: mujoco.MjModel) -> bool:
+    """Whether every camera and light of `mj_model` is fixed in the world frame (on the world body,
+    mode fixed): their poses then never change, and a frame needs only the kinematics pass
+    (geom poses) after a step, not MuJoCo's camera-and-light pass, which MJX's Warp backend runs
+    only inside its full forward pass."""
+    fixed = int(mujoco.mjtCamLight.mjCAMLIGHT_FIXED)
+    return bool(np.all(mj_model.cam_bodyid == 0) and np.all(mj_model.cam_mode == fixed)
+                and np.all(mj_model.light_bodyid == 0) and np.all(mj_model.light_mode == fixed))
+
+
+def view_poses(mj_model: mujoco.MjModel) -> dict[str, np.ndarray]:
+    """World poses of the cameras and lights at `qpos0` (MuJoCo's forward pass on the CPU): for a
+    model with a `static_view`, the poses every world keeps, set once in the template Data that
+    resets start from (keys as `mjx.Data.tree_replace` takes them: MJX's Warp Data keeps the
+    lights' under `_impl`)."""
+    d = mujoco.MjData(mj_model)
+    mujoco.mj_forward(mj_model, d)
+    return {"cam_xpos": d.cam_xpos.copy(), "cam_xmat": d.cam_xmat.reshape(-1, 3, 3).copy(),
+            "_impl.light_xpos": d.light_xpos.copy(), "_impl.light_xdir": d.light_xdir.copy()}

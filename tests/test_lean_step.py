@@ -1,0 +1,49 @@
+"""`step`'s pose pass after resets (`MjxPixelEnv._poses`): with cameras and lights fixed in the
+world (the Incline and Rearrange scenes) it is the kinematics pass, not MJX's full forward pass,
+and gives the same episodes bit for bit: states, rewards, ends and frames equal to those of the
+forward pass over steps in which worlds end and are reset, from the reset pool and (pool off)
+from chunked resets, which start from the template Data whose camera poses `view_poses` set."""
+
+from __future__ import annotations
+
+import jax
+import numpy as np
+import pytest
+
+import bulbjax
+
+N, STEPS = 4, 24  # GeomOnIncline episodes last ~16 steps under random pushes: every world resets
+
+
+def _rollout(env) -> dict[str, np.ndarray]:
+    @jax.jit
+    def run(key):
+        state = env.reset(key)
+
+        def body(st, k):
+            a = jax.random.uniform(k, (N, env.action_size), minval=-1.0, maxval=1.0)
+            st = env.step(st, a)
+            return st, {"qpos": st.data.qpos, "qvel": st.data.qvel, "obs": st.obs, "reward": st.reward,
+                        "done": st.done, "pixels": st.pixels, "geom_xpos": st.data.geom_xpos}
+        return jax.lax.scan(body, state, jax.random.split(jax.random.PRNGKey(7), STEPS))[1]
+    return jax.tree.map(np.asarray, run(jax.random.PRNGKey(3)))
+
+
+# the chunked path (pool off, or `reset_with`'s fixed draws) in the slow tier: ~110 s of compile
+@pytest.mark.parametrize("pool", [None, pytest.param(0, marks=pytest.mark.slow)], ids=["pool", "chunks"])
+def test_kinematics_after_resets_gives_the_forward_passes_episodes(pool):
+    lean = bulbjax.make("GeomOnIncline", num_envs=N, resolution=16, reset_pool=pool)
+    full = bulbjax.make("GeomOnIncline", num_envs=N, resolution=16, reset_pool=pool)
+    assert lean._static_view, "the Incline's camera and light are fixed in the world"
+    full._static_view = False  # the forward pass after resets, as before the kinematics pass
+    a, b = _rollout(lean), _rollout(full)
+    assert a["done"].sum() >= N, f"every world should end at least once in {STEPS} steps: {a['done'].sum()} ends"
+    assert a["pixels"].std() > 0, "the frames show a scene"
+    for k in a:
+        np.testing.assert_array_equal(a[k], b[k], err_msg=k)
+
+
+def test_a_camera_that_follows_a_body_keeps_the_forward_pass():
+    assert not bulbjax.make("CartPole", num_envs=2, render=False)._static_view, \
+        "CartPole's camera rides on the cart: only the forward pass places it"
+    assert bulbjax.make("ReacherRearrangeGeom", num_envs=2, render=False)._static_view
