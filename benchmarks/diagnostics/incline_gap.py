@@ -92,14 +92,16 @@ def physics_scan(name: str, worlds: int, steps: int, repeats: int, resolution: i
 
     env = bulbjax.make(name, num_envs=worlds, resolution=resolution, render=False)
     size = env.action_size
-    data0 = jax.block_until_ready(jax.jit(env.reset)(jax.random.PRNGKey(0))).data
+    state0 = jax.block_until_ready(jax.jit(env.reset)(jax.random.PRNGKey(0)))
+    data0, params = state0.data, state0.params  # the worlds' physical parameters (the Incline's slope)
 
     @jax.jit
     def rollout(data, key):
         def body(carry, _):
             d, k = carry
             k, ka = jax.random.split(k)
-            return (env.physics(d, jax.random.uniform(ka, (worlds, size), minval=-1.0, maxval=1.0)), k), None
+            a = jax.random.uniform(ka, (worlds, size), minval=-1.0, maxval=1.0)
+            return (env.physics(d, a, params), k), None
         return jax.lax.scan(body, (data, key), None, length=steps)[0]
 
     box = {"carry": (data0, jax.random.PRNGKey(1))}
