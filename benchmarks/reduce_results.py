@@ -33,7 +33,7 @@ are only re-saved losslessly with `optimize`); a file is replaced only when the 
 Images with transparency are left alone. Running the script again changes nothing.
 
     python benchmarks/reduce_results.py                      # docs/results and docs/images
-    python benchmarks/reduce_results.py docs/results/fig2_invpend_h100_half0 --dry-run
+    python benchmarks/reduce_results.py docs/results/fig2_invpend_h100_6seeds --dry-run
 """
 
 from __future__ import annotations
