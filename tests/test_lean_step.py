@@ -1,5 +1,5 @@
 """`step`'s pose pass after resets (`MjxPixelEnv._poses`): with cameras and lights fixed in the
-world (the Incline and Rearrange scenes) it is the kinematics pass, not MJX's full forward pass,
+world (the Incline and Reacher Rearrange scenes) it is the kinematics pass, not MJX's full forward pass,
 and gives the same episodes bit for bit: states, rewards, ends and frames equal to those of the
 forward pass over steps in which worlds end and are reset, from the reset pool and (pool off)
 from chunked resets, which start from the template Data whose camera poses `view_poses` set."""
@@ -34,8 +34,8 @@ def _rollout(env) -> dict[str, np.ndarray]:
 def test_kinematics_after_resets_gives_the_forward_passes_episodes(pool):
     lean = bulbjax.make("GeomOnIncline", num_envs=N, resolution=16, reset_pool=pool)
     full = bulbjax.make("GeomOnIncline", num_envs=N, resolution=16, reset_pool=pool)
-    assert lean._static_view, "the Incline's camera and light are fixed in the world"
-    full._static_view = False  # the forward pass after resets, as before the kinematics pass
+    assert lean._pose_pass == "kinematics", "the Incline's camera and light are fixed in the world"
+    full._pose_pass = "forward"  # the full forward pass after resets, as before the kinematics pass
     a, b = _rollout(lean), _rollout(full)
     assert a["done"].sum() >= N, f"every world should end at least once in {STEPS} steps: {a['done'].sum()} ends"
     assert a["pixels"].std() > 0, "the frames show a scene"
@@ -43,7 +43,9 @@ def test_kinematics_after_resets_gives_the_forward_passes_episodes(pool):
         np.testing.assert_array_equal(a[k], b[k], err_msg=k)
 
 
-def test_a_camera_that_follows_a_body_keeps_the_forward_pass():
-    assert not bulbjax.make("CartPole", num_envs=2, render=False)._static_view, \
+def test_a_moving_camera_or_an_action_that_reads_dynamics_keeps_the_forward_pass():
+    assert bulbjax.make("CartPole", num_envs=2, render=False)._pose_pass == "forward", \
         "CartPole's camera rides on the cart: only the forward pass places it"
-    assert bulbjax.make("ReacherRearrangeGeom", num_envs=2, render=False)._static_view
+    assert bulbjax.make("FrankaRearrangeGeom", num_envs=2, render=False)._pose_pass == "forward", \
+        "the Franka's gravity compensation reads qfrc_bias, which only the forward pass computes"
+    assert bulbjax.make("ReacherRearrangeGeom", num_envs=2, render=False)._pose_pass == "kinematics"

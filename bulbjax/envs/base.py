@@ -104,6 +104,9 @@ class MjxPixelEnv:
     # `mjx.step` leaves body/geom poses one physics step behind qpos; domains whose state or
     # reward reads poses (not only qpos/qvel) set this to recompute kinematics after stepping.
     kinematics_after_step: bool = False
+    # Domains whose action reads what only MJX's full forward pass computes (the Franka's gravity
+    # compensation reads qfrc_bias) keep that pass after each step, not the kinematics pass alone.
+    forward_after_step: bool = False
     # PPOConfig fields this domain wants changed from PPO's defaults (`registry.ppo_config_for`)
     ppo_overrides: dict[str, Any] = {}
     # Physical-unit version of the state (`state.info["lowdim_raw"]`, `raw_state`); empty means
@@ -155,9 +158,10 @@ class MjxPixelEnv:
         self.mx = self._post_put(mjx.put_model(self.mj_model, device=device, impl="warp"))
         # With cameras and lights fixed in the world, `step` recomputes only the kinematics of the
         # worlds it resets (`_poses`): the template Data they start from holds the view's poses.
-        self._static_view = static_view(self.mj_model)
+        static = static_view(self.mj_model)
+        self._pose_pass = "kinematics" if static and not self.forward_after_step else "forward"
         view = ({k: jax.device_put(np.asarray(v, np.float32), device) for k, v in view_poses(self.mj_model).items()}
-                if self._static_view else {})
+                if static else {})
         self._data0 = mjx.make_data(self.mj_model, device=device, impl="warp", njmax=self.njmax,
                                     naconmax=self.naconmax_per_world * self.num_envs).tree_replace(view)
         if self.reset_pool:  # the pool's refill settles pool_size worlds in one batch
@@ -368,13 +372,14 @@ class MjxPixelEnv:
         new qpos by one step, and a reset world's are those of the state it replaced. A frame must
         show the new state; the state and reward of domains with `kinematics_after_step` read
         poses. With a `static_view` (cameras and lights fixed in the world) the kinematics pass
-        gives every pose any of these read: it runs on every world when frames are rendered, else
-        only in steps where some world was reset. Otherwise (a camera that follows a body) it is
+        gives every pose any of these read (`_pose_pass`): it runs on every world when frames are
+        rendered, else only in steps where some world was reset. Otherwise (a camera that follows
+        a body; or `forward_after_step`, an action that reads the forward pass's dynamics) it is
         MJX's full forward pass, the only Warp call that also places cameras, at the cost of a
         physics step. Neither changes what the next step computes: `mjx.step` starts with its own
         forward pass, and only its integration writes the solver's warm start."""
         rendered = self._renders_steps or self.point_renderer is not None
-        fn = mjx.kinematics if self._static_view else mjx.forward
+        fn = mjx.kinematics if self._pose_pass == "kinematics" else mjx.forward
         poses = lambda d: jax.vmap(fn, in_axes=(None, 0))(mx, d)  # noqa: E731
         if rendered:
             return poses(data)

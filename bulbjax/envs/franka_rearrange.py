@@ -68,6 +68,7 @@ class FrankaRearrange(Rearrange):
 
     joint_names = tuple(f"panda_joint{i}" for i in range(1, 8))
     fixed_joint_qpos = (0.0, 0.0)  # the fingers, closed
+    forward_after_step = True  # `_torque` reads qfrc_bias: the forward pass at the new state
     controlled = 7
     action_size = 7
     max_torque = FRANKA_EFFORTS

@@ -82,7 +82,8 @@ def scatter_rows(idx: jax.Array, part: Any, full: Any, n: int) -> Any:
 # The mjx.Data fields a reset sets that the forward pass does not compute from others (the state,
 # controls and applied forces, the mocap poses, the solver's warm start): a pool entry holds these
 # (plus the colour scheme and the parameters), `step` writes them into an ended world, and its
-# forward pass recomputes everything else, as it does after a chunked reset.
+# pose pass (`MjxPixelEnv._poses`) and the next `mjx.step`'s own forward pass recompute everything
+# else, as after a chunked reset.
 POOL_FIELDS = ("time", "qpos", "qvel", "act", "qacc_warmstart", "ctrl", "qfrc_applied", "xfrc_applied",
                "mocap_pos", "mocap_quat")
 POOL_SALT = 0x706F6F6C  # the pool's keys at `reset`: the world keys folded with this, then split
