@@ -49,3 +49,17 @@ def test_a_moving_camera_or_an_action_that_reads_dynamics_keeps_the_forward_pass
     assert bulbjax.make("FrankaRearrangeGeom", num_envs=2, render=False)._pose_pass == "forward", \
         "the Franka's gravity compensation reads qfrc_bias, which only the forward pass computes"
     assert bulbjax.make("ReacherRearrangeGeom", num_envs=2, render=False)._pose_pass == "kinematics"
+
+
+def test_graph_mode_is_checked_and_has_no_effect_on_the_cpu():
+    from bulbjax.envs import warp_graphs
+
+    with pytest.raises(ValueError, match="graph_mode must be"):
+        bulbjax.make("CartPole", num_envs=2, render=False, graph_mode="fast")
+    env = bulbjax.make("CartPole", num_envs=2, render=False, graph_mode="jax")
+    assert env.config.graph_mode == "jax"
+    assert warp_graphs.graph_mode("jax", jax.devices("cpu")[0]) is None, "the CPU never captures graphs"
+
+    class Gpu:
+        platform = "gpu"
+    assert int(warp_graphs.graph_mode("warp_staged", Gpu())) == 3, "Warp's JaxCallableGraphMode.WARP_STAGED"

@@ -13,7 +13,9 @@ timed in the same process on the same device, every one as a jitted `lax.scan` o
   selects or frames);
 * `refill`: one pool refill alone (`resets.make_pool` for the pool's f x N keys: bulb's settle of
   f x N fresh worlds), and how many refills the `full` scan made (episodes ended per step);
-* `raw`: the raw Warp probe of the same scene and world count (`raw_warp.probe`), second.
+* `raw`: the raw Warp probe of the same scene and world count (`raw_warp.probe`), second;
+* with `--graph-modes`, last: `physics` and `full` again under each of those `EnvConfig.graph_mode`
+  values (MJX's default is "warp": a Warp-captured CUDA graph per call and buffer addresses).
 
 It prints the per-step milliseconds of each and what they imply (render share, refill share,
 physics as JAX runs it, the rest: the wrapper's selects, state and reward), and writes
@@ -42,7 +44,7 @@ from timing import time_fn  # noqa: E402  (first call, then median of repeats)
 
 
 def step_scan(name: str, worlds: int, steps: int, repeats: int, render: bool, resolution: int,
-              forward: bool = False) -> dict[str, Any]:
+              forward: bool = False, graph_mode: str | None = None) -> dict[str, Any]:
     """Median seconds of `steps` random-push env steps in one jitted scan, and the episodes that
     ended in them; `forward`: with MJX's full forward pass after resets (as for a moving camera)."""
     import jax
@@ -50,7 +52,7 @@ def step_scan(name: str, worlds: int, steps: int, repeats: int, render: bool, re
 
     import bulbjax
 
-    env = bulbjax.make(name, num_envs=worlds, resolution=resolution, render=render)
+    env = bulbjax.make(name, num_envs=worlds, resolution=resolution, render=render, graph_mode=graph_mode)
     if forward:
         env._pose_pass = "forward"
     size = env.action_size
@@ -76,12 +78,14 @@ def step_scan(name: str, worlds: int, steps: int, repeats: int, render: bool, re
     t = time_fn(call, repeats)
     first, med = t["first_s"], t["median_s"]
     ended = [int(e) for e in box["ended"][1:]]
-    return {"render": render, "pose_pass": env._pose_pass, "first_call_s": first, "call_s": med, "ms_per_step": 1e3 * med / steps,
+    return {"render": render, "pose_pass": env._pose_pass, "graph_mode": graph_mode, "first_call_s": first,
+            "call_s": med, "ms_per_step": 1e3 * med / steps,
             "frames_per_s": worlds * steps / med, "ended_per_step": statistics.median(ended) / steps,
             "reset_pool": int(env.reset_pool), "frame_skip": int(getattr(env, "frame_skip", 1))}
 
 
-def physics_scan(name: str, worlds: int, steps: int, repeats: int, resolution: int) -> dict[str, Any]:
+def physics_scan(name: str, worlds: int, steps: int, repeats: int, resolution: int,
+                 graph_mode: str | None = None) -> dict[str, Any]:
     """Median seconds of `steps` env steps of physics alone (`env.physics`: `frame_skip` Warp
     steps with the action applied, and the kinematics pass where the domain has one) in one jitted
     scan from a reset, no reward, resets or frames: the Warp calls' share of the step, as JAX
@@ -90,7 +94,7 @@ def physics_scan(name: str, worlds: int, steps: int, repeats: int, resolution: i
 
     import bulbjax
 
-    env = bulbjax.make(name, num_envs=worlds, resolution=resolution, render=False)
+    env = bulbjax.make(name, num_envs=worlds, resolution=resolution, render=False, graph_mode=graph_mode)
     size = env.action_size
     state0 = jax.block_until_ready(jax.jit(env.reset)(jax.random.PRNGKey(0)))
     data0, params = state0.data, state0.params  # the worlds' physical parameters (the Incline's slope)
@@ -111,7 +115,7 @@ def physics_scan(name: str, worlds: int, steps: int, repeats: int, resolution: i
         return box["carry"]
 
     t = time_fn(call, repeats)
-    return {"first_call_s": t["first_s"], "call_s": t["median_s"], "ms_per_step": 1e3 * t["median_s"] / steps}
+    return {"graph_mode": graph_mode, "first_call_s": t["first_s"], "call_s": t["median_s"], "ms_per_step": 1e3 * t["median_s"] / steps}
 
 
 def refill(name: str, worlds: int, repeats: int, resolution: int) -> dict[str, Any]:
@@ -138,6 +142,9 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     p.add_argument("--repeats", type=int, default=5)
     p.add_argument("--resolution", type=int, default=64)
     p.add_argument("--skip-raw", action="store_true")
+    p.add_argument("--graph-modes", default="",
+                   help="comma-separated EnvConfig.graph_mode values (e.g. jax,warp_staged) to time `physics` "
+                        "and `full` under as well, after the parts above (GPU: how MJX-Warp's calls use CUDA graphs)")
     p.add_argument("--small", action="store_true", help="CPU smoke test: 8 worlds, 3 steps, 2 repeats")
     p.add_argument("--out", default=os.path.join(os.path.dirname(HERE), "results"))
     a = p.parse_args(argv)
@@ -197,6 +204,13 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     save()
     for k, v in out["split_ms_per_step"].items():
         print(f"  {k}: {v:.3f} ms/step", flush=True)
+    for mode in [m for m in a.graph_modes.split(",") if m]:
+        phys = physics_scan(a.env, a.worlds, a.steps, a.repeats, a.resolution, graph_mode=mode)
+        full = step_scan(a.env, a.worlds, a.steps, a.repeats, True, a.resolution, graph_mode=mode)
+        out.setdefault("by_graph_mode", {})[mode] = {"physics": phys, "full": full}
+        save()
+        print(f"graph_mode {mode}: physics {phys['ms_per_step']:.3f} ms/step, full {full['ms_per_step']:.3f} ms/step, "
+              f"{full['frames_per_s']:,.0f} frames/s", flush=True)
     print(f"wrote {path}")
     return out
 

@@ -155,7 +155,8 @@ class MjxPixelEnv:
         # on this process's first device: MJX's default is the first device of all processes,
         # which under jax.distributed is another process's (arrays this process cannot address)
         device = jax.local_devices()[0]
-        self.mx = self._post_put(mjx.put_model(self.mj_model, device=device, impl="warp"))
+        self.mx = self._post_put(mjx.put_model(self.mj_model, device=device, impl="warp",
+                                               graph_mode=warp_graphs.graph_mode(config.graph_mode, device)))
         # With cameras and lights fixed in the world, `step` recomputes only the kinematics of the
         # worlds it resets (`_poses`): the template Data they start from holds the view's poses.
         static = static_view(self.mj_model)
@@ -368,16 +369,15 @@ class MjxPixelEnv:
     def _poses(self, mx: mjx.Model, data: mjx.Data, done: jax.Array) -> mjx.Data:
         """`data` after `step`'s resets with the poses of its new qpos, where something reads them.
 
-        `mjx.step` computes positions before integrating, so body, geom and camera poses lag the
-        new qpos by one step, and a reset world's are those of the state it replaced. A frame must
-        show the new state; the state and reward of domains with `kinematics_after_step` read
-        poses. With a `static_view` (cameras and lights fixed in the world) the kinematics pass
-        gives every pose any of these read (`_pose_pass`): it runs on every world when frames are
-        rendered, else only in steps where some world was reset. Otherwise (a camera that follows
-        a body; or `forward_after_step`, an action that reads the forward pass's dynamics) it is
-        MJX's full forward pass, the only Warp call that also places cameras, at the cost of a
-        physics step. Neither changes what the next step computes: `mjx.step` starts with its own
-        forward pass, and only its integration writes the solver's warm start."""
+        `mjx.step` computes positions before integrating, so poses lag the new qpos by one step
+        (a reset world's are those of the state it replaced); frames and the state of domains with
+        `kinematics_after_step` read them. With a `static_view` (cameras and lights fixed in the
+        world) the kinematics pass gives them all (`_pose_pass`): on every world when frames are
+        rendered, else in steps where some world was reset. Otherwise (a camera that follows a
+        body, or `forward_after_step`) it is MJX's full forward pass, the only Warp call that also
+        places cameras, at the cost of a physics step. Neither changes what the next step
+        computes: `mjx.step` starts with its own forward pass, and only its integration writes
+        the solver's warm start."""
         rendered = self._renders_steps or self.point_renderer is not None
         fn = mjx.kinematics if self._pose_pass == "kinematics" else mjx.forward
         poses = lambda d: jax.vmap(fn, in_axes=(None, 0))(mx, d)  # noqa: E731

@@ -47,6 +47,15 @@ class EnvConfig:
     # pool of its own: a block's resets then depend on its own worlds only, so a seed's episodes do
     # not depend on which other seeds share the batch. num_envs must be a multiple of it.
     pool_segments: int = 1
+    # How MJX-Warp's calls run on a GPU (`mjx.put_model`'s graph_mode): None, MJX's default ("warp":
+    # Warp captures and replays a CUDA graph per call and buffer addresses); "jax" (XLA captures the
+    # calls into its own graphs), "warp_staged", "warp_staged_ex" (Warp's graphs over fixed staging
+    # buffers) or "none" (no graphs). Same physics; a speed setting (benchmarks/diagnostics/
+    # incline_gap.py --graph-modes). The CPU never captures graphs: there it has no effect.
+    graph_mode: str | None = None
+
+
+GRAPH_MODES = ("none", "jax", "warp", "warp_staged", "warp_staged_ex")
 
 
 def check_config(config: EnvConfig) -> None:
@@ -61,6 +70,8 @@ def check_config(config: EnvConfig) -> None:
         raise ValueError(f"num_points must be a positive integer, got {config.num_points!r}")
     if not isinstance(config.num_envs, (int, np.integer)) or config.num_envs < 1:
         raise ValueError(f"num_envs must be a positive integer, got {config.num_envs!r}")
+    if config.graph_mode is not None and config.graph_mode not in GRAPH_MODES:
+        raise ValueError(f"graph_mode must be None (MJX's default) or one of {GRAPH_MODES}, got {config.graph_mode!r}")
     seg = config.pool_segments
     if (isinstance(seg, (bool, np.bool_)) or not isinstance(seg, (int, np.integer)) or seg < 1
             or config.num_envs % seg):

@@ -64,3 +64,14 @@ def install(limit: int = GRAPH_CACHE_MAX) -> None:
 def limits() -> dict[str, int | None]:
     """Each existing Warp JAX callable's capture limit, by FFI target name (for checks)."""
     return {c.name: c.graph_cache_max for c in _registry().values()}
+
+
+def graph_mode(name: str | None, device: Any) -> Any:
+    """`mjx.put_model`'s graph_mode for `EnvConfig.graph_mode` on `device`: None (MJX's default)
+    when `name` is None or the device is not a GPU (the CPU never captures graphs), else Warp's
+    `JaxCallableGraphMode` member of that name ("none", "jax", "warp", "warp_staged", ...)."""
+    if name is None or getattr(device, "platform", "cpu") != "gpu":
+        return None
+    import warp
+
+    return warp.JaxCallableGraphMode[name.upper()]
