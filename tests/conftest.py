@@ -90,8 +90,11 @@ def pytest_unconfigure(config) -> None:
 #   test_kill_resume.py::test_kills_at_the_worst_moments_resume_exactly (killed processes), ~220-320 s
 #   test_run.py::test_resumed_process_compiles_the_same_epoch_program (4 processes lowering), ~200 s
 #   test_experiment.py::test_split_programs_give_the_fused_epoch (the optional split form), ~290-440 s
+#   test_lean_step.py::test_kinematics_after_resets_gives_the_forward_passes_episodes[chunks] (the kinematics
+#     pass after chunked resets, which run only with the pool off or fixed draws; the pool case stays), ~110 s
 # (durations of the 2-worker suite, 2026-11-26; without them `make test` took 64 min, `bash .ci/run`
-# on a fresh clone 65.6 min with its venv, against 88 min for the whole suite before). Each feature
+# on a fresh clone 65.6 min with its venv, against 88 min for the whole suite before; 2026-11-27, with
+# test_lean_step, 73 min while other jobs shared the 2 cores). Each feature
 # keeps in-process tests in `make test`:
 # test_run's bit-identical resume in one process, test_multiprocess's two real jax.distributed
 # processes (gather, flags, per-process checkpoints), test_distributed's settings and checkpoint
