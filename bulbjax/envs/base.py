@@ -19,6 +19,7 @@ from flax import struct
 from mujoco import mjx
 
 from bulbjax.envs import warp_graphs
+from bulbjax.envs.batch import add_counts, nonfinite, where_tree
 from bulbjax.envs.camera import PAN_CAMERAS, CameraConfig, add_bulb_camera, pan_cameras, static_view, view_poses
 from bulbjax.envs.colours import NUM_SCHEMES, scheme_table
 from bulbjax.envs.env_config import EnvConfig, check_config
@@ -290,7 +291,7 @@ class MjxPixelEnv:
         data = self.physics(state.data, action, state.params)
         lowdim = self._lowdim_batch(data, state.params)
         reward, terminated = self._reward_terminated_batch(data, lowdim, action, state.data, state.params)
-        bad_entries = (_nonfinite(data.qpos) + _nonfinite(data.qvel) + _nonfinite(lowdim)
+        bad_entries = (nonfinite(data.qpos) + nonfinite(data.qvel) + nonfinite(lowdim)
                        + (~jnp.isfinite(reward)).astype(jnp.int32))
         bad = bad_entries > 0
         terminated = terminated | bad
@@ -319,7 +320,7 @@ class MjxPixelEnv:
             step_count=jnp.where(done, 0, step_count), episode_return=jnp.where(done, 0.0, ep_return),
             scheme=scheme, key=split[:, 0], info=info, params=params,
             depth=obs.get("depth"), points=obs.get("points"), pool=pool,
-            counts=_add_counts(state.counts, nonfinite_resets=bad.astype(jnp.int32),
+            counts=add_counts(state.counts, nonfinite_resets=bad.astype(jnp.int32),
                                nonfinite_entries=bad_entries, actions_fixed=fixed))
 
     def physics(self, data: mjx.Data, action: jax.Array, params: dict[str, jax.Array] | None = None) -> mjx.Data:
@@ -413,8 +414,8 @@ class MjxPixelEnv:
         the done ones (right for resets without simulation)."""
         if not self.reset_chunk:
             fresh, fresh_scheme, fresh_params, _ = self._reset_batch(keys, done, forward=False)
-            return (_where_tree(done, fresh, data), jnp.where(done, fresh_scheme, scheme),
-                    _where_tree(done, fresh_params, params))
+            return (where_tree(done, fresh, data), jnp.where(done, fresh_scheme, scheme),
+                    where_tree(done, fresh_params, params))
         return reset_in_chunks(self, keys, done, data, scheme, params)
 
     def _reset_one(self, key: jax.Array, forward: bool = True) -> tuple[mjx.Data, jax.Array, jax.Array]:
@@ -475,28 +476,3 @@ class MjxPixelEnv:
             raise ValueError(f"geom {name!r} not in {self.xml_file or self.name}")
         return gid
 
-
-def _where_tree(mask: jax.Array, a: Any, b: Any) -> Any:
-    """Per-world select between two batched pytrees; leaves without the world axis (empty
-    Warp buffers) are taken from `b`."""
-    def sel(x, y):
-        if x.ndim == 0 or x.shape[0] != mask.shape[0] or x.shape != y.shape:
-            return y
-        m = mask.reshape(mask.shape + (1,) * (x.ndim - 1))
-        return jnp.where(m, x, y)
-    return jax.tree.map(sel, a, b)
-
-
-def _finite_rows(data: mjx.Data) -> jax.Array:
-    """`[N]` bool: the worlds whose qpos and qvel are finite."""
-    return jnp.isfinite(data.qpos).all(axis=1) & jnp.isfinite(data.qvel).all(axis=1)
-
-
-def _nonfinite(x: jax.Array) -> jax.Array:
-    """Per world `[N]` int32: the NaN or inf entries of a batched array `[N, ...]`."""
-    return (~jnp.isfinite(x)).reshape(x.shape[0], -1).sum(axis=1).astype(jnp.int32)
-
-
-def _add_counts(counts: dict[str, jax.Array], **step: jax.Array) -> dict[str, jax.Array]:
-    """`EnvState.counts` after a step (a state without counts, e.g. built by hand, starts at 0)."""
-    return {k: counts.get(k, jnp.zeros_like(v)) + v for k, v in step.items()}

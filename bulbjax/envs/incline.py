@@ -45,7 +45,8 @@ import mujoco
 import numpy as np
 from mujoco import mjx
 
-from bulbjax.envs.base import EnvState, MjxPixelEnv, _finite_rows, _where_tree
+from bulbjax.envs.base import EnvState, MjxPixelEnv
+from bulbjax.envs.batch import finite_rows, where_tree
 from bulbjax.envs.env_config import EnvConfig
 from bulbjax.envs.incline_scene import (  # noqa: F401  (the domain's constants, one import away)
     BULLET_DT, BULLET_SUBSTEPS, CAMERA, CLIP_DIST, CLIP_SPEED, EPISODE_STEPS, FALL_STEPS, FRICTION,
@@ -310,14 +311,14 @@ class Incline(MjxPixelEnv):
             # such a world is drawn again, as MuJoCo Playground resets non-finite worlds.
             bad = done & ~jnp.isfinite(data.qpos).all(axis=1)
             again = self._draws_fixed(draws["key"])
-            draws = _where_tree(bad, again, draws)
+            draws = where_tree(bad, again, draws)
             placed, params, start_x = jax.vmap(self._place)(draws)
-            data = _where_tree(bad, placed, data)
+            data = where_tree(bad, placed, data)
             data = jax.lax.cond(bad.any(), lambda d: self._fall(d, params, start_x, bad), lambda d: d, data)
         # Still non-finite after the redraws: the world starts where its object was placed, above
         # the incline before the fall (finite by construction), so no reset hands on NaN.
         placed = jax.vmap(self._place)(draws)[0]
-        data = _where_tree(done & ~_finite_rows(data), placed, data)
+        data = where_tree(done & ~finite_rows(data), placed, data)
         if forward:
             data = jax.vmap(mjx.forward, in_axes=(None, 0))(self._world_model(params), data)
         return data, params["texture"], params, draws["key"]
@@ -366,7 +367,7 @@ class Incline(MjxPixelEnv):
         def body(carry):
             i, d, active = carry
             moved = self._substeps(d, params, zero, BULLET_SUBSTEPS)
-            d = _where_tree(active, moved, d)
+            d = where_tree(active, moved, d)
             x = jax.vmap(lambda dd, s: self._object_qpos(dd, s)[0])(d, slot)
             return i + 1, d, active & (x <= start_x)
 

@@ -13,7 +13,8 @@ import mujoco
 import numpy as np
 from mujoco import mjx
 
-from bulbjax.envs.base import EnvState, MjxPixelEnv, _finite_rows, _where_tree
+from bulbjax.envs.base import EnvState, MjxPixelEnv
+from bulbjax.envs.batch import finite_rows, where_tree
 from bulbjax.envs.env_config import EnvConfig
 from bulbjax.envs.incline import _quat_mat
 from bulbjax.envs.locomotion import _quiet_solver_limits
@@ -431,9 +432,9 @@ class Rearrange(MjxPixelEnv):
         def attempt(carry):
             i, draws, data, todo = carry
             settled = self._settle(jax.vmap(self._place)(draws), draws)
-            data = _where_tree(todo, settled, data)
+            data = where_tree(todo, settled, data)
             bad = todo & ~jnp.isfinite(data.qpos).all(axis=1)
-            draws = _where_tree(bad, self._draws_fixed(draws["key"]), draws)
+            draws = where_tree(bad, self._draws_fixed(draws["key"]), draws)
             return i + 1, draws, data, bad
 
         def more(carry):
@@ -443,7 +444,7 @@ class Rearrange(MjxPixelEnv):
         _, draws, data, _ = jax.lax.while_loop(more, attempt, (jnp.int32(0), draws, data, done))
         # Still non-finite after the redraws: the world starts from its placement before the
         # settle (finite by construction; a step that goes NaN from it is reset and counted).
-        data = _where_tree(done & ~_finite_rows(data), jax.vmap(self._place)(draws), data)
+        data = where_tree(done & ~finite_rows(data), jax.vmap(self._place)(draws), data)
         params = {"version": draws["version"]}
         if forward:
             data = jax.vmap(mjx.forward, in_axes=(None, 0))(self._world_model(params), data)

@@ -28,6 +28,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from bulbjax.envs.batch import scatter_rows
+
 
 def chunk_size(chunk: Any, fraction: float, num_envs: int) -> int:
     """Worlds per reset chunk in `step`: `chunk` (EnvConfig.reset_chunk) if given, else the
@@ -65,17 +67,6 @@ def reset_in_chunks(env: Any, keys: jax.Array, done: jax.Array, data: Any, schem
 
     init = (jnp.int32(0), data, scheme, params)
     return jax.lax.while_loop(lambda carry: carry[0] * k < count, chunk, init)[1:]
-
-
-def scatter_rows(idx: jax.Array, part: Any, full: Any, n: int) -> Any:
-    """`full` (batched over `n` worlds) with its rows `idx` `[K]` replaced by `part`'s rows (an
-    index >= n is dropped); leaves without the world axis (MJX-Warp's shared contact buffers)
-    are kept from `full`, as `base._where_tree` keeps them."""
-    def put(x, y):
-        if y.ndim == 0 or y.shape[0] != n or x.shape != (idx.shape[0], *y.shape[1:]):
-            return y
-        return y.at[idx].set(x.astype(y.dtype), mode="drop")
-    return jax.tree.map(put, part, full)
 
 
 # ----- the pool of pre-settled initial states -------------------------------------------------

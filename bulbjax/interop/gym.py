@@ -55,7 +55,8 @@ except ImportError as e:  # pragma: no cover - depends on the install
     raise ImportError("bulbjax.gym needs gymnasium: pip install 'bulbjax[gym]' (or pip install gymnasium)") from e
 
 import bulbjax
-from bulbjax.envs.base import EnvState, MjxPixelEnv, RenderInput, _where_tree
+from bulbjax.envs.base import EnvState, MjxPixelEnv, RenderInput
+from bulbjax.envs.batch import where_tree
 
 OBS_KINDS = ("pixels", "state")
 AUTORESET_MODES = {"next_step": AutoresetMode.NEXT_STEP, "same_step": AutoresetMode.SAME_STEP}
@@ -96,7 +97,7 @@ class _Core:
         self.reset = jax.jit(env.reset)
         self.step = jax.jit(self._step)
         self.last = jax.jit(self._last)
-        self.select = jax.jit(lambda mask, a, b: _where_tree(mask, a, b))
+        self.select = jax.jit(lambda mask, a, b: where_tree(mask, a, b))
 
     # ----- spaces -----
     def single_observation_space(self) -> spaces.Box:
@@ -120,7 +121,7 @@ class _Core:
         """`env.step` for every world except those in `hold`, which keep their state (NEXT_STEP:
         a world whose episode ended last call shows its reset observation now)."""
         new = self.env.step(state, action)
-        new = _where_tree(hold, state, new)
+        new = where_tree(hold, state, new)
         zero = jnp.zeros_like(new.reward)
         out = self.views(new)
         out.update(reward=jnp.where(hold, zero, new.reward), done=jnp.where(hold, zero, new.done),
