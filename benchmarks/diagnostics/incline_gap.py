@@ -6,15 +6,15 @@ timed in the same process on the same device, every one as a jitted `lax.scan` o
 (median of `--repeats` calls after a compiling one), in this order:
 
 * `full`: `env.step` with random pushes and rendering, as `bench_incline.py` times it;
-* `full_forward`: `full` with MJX's full forward pass after resets instead of the kinematics pass
-  (`env._poses`: what `step` ran before; the same episodes and frames), for the change's effect;
-* `no_render`: the same with `render=False` (physics, the pose pass, auto-reset, the pool);
+* `raw`: the raw Warp probe of the same scene and world count (`raw_warp.probe`);
 * `physics`: `env.physics` alone in a scan (the Warp steps and kinematics; no reward, resets,
   selects or frames);
 * `refill`: one pool refill alone (`resets.make_pool` for the pool's f x N keys: bulb's settle of
   f x N fresh worlds), and how many refills the `full` scan made (episodes ended per step);
-* `raw`: the raw Warp probe of the same scene and world count (`raw_warp.probe`), second;
-* with `--graph-modes`, last: `physics` and `full` again under each of those `EnvConfig.graph_mode`
+* `no_render`: `full` with `render=False` (physics, the pose pass, auto-reset, the pool);
+* `full_forward`: `full` with MJX's full forward pass after resets instead of the kinematics pass
+  (`env._poses`: what `step` ran before; the same episodes and frames), for the change's effect;
+* with `--graph-modes`: `physics` and `full` again under each of those `EnvConfig.graph_mode`
   values (MJX's default is "warp": a Warp-captured CUDA graph per call and buffer addresses).
 
 It prints the per-step milliseconds of each and what they imply (render share, refill share,
@@ -43,41 +43,53 @@ sys.path.insert(0, os.path.dirname(HERE))
 from timing import time_fn  # noqa: E402  (first call, then median of repeats)
 
 
+def scan_random_pushes(fn: Any, carry: Any, worlds: int, size: int, steps: int, repeats: int
+                       ) -> tuple[dict[str, float], list[int]]:
+    """Time a jitted scan of `steps` applications of `fn(carry, action) -> (carry, ended)` under
+    uniform random pushes `[worlds, size]`, continued from call to call (`time_fn`: a compiling
+    call, then the median of `repeats`); also the summed `ended` of each timed call."""
+    import jax
+    import jax.numpy as jnp
+
+    @jax.jit
+    def rollout(carry, key):
+        def body(c, _):
+            x, k = c
+            k, ka = jax.random.split(k)
+            x, ended = fn(x, jax.random.uniform(ka, (worlds, size), minval=-1.0, maxval=1.0))
+            return (x, k), ended
+        (carry, key), ended = jax.lax.scan(body, (carry, key), None, length=steps)
+        return carry, key, jnp.sum(ended)
+
+    box = {"carry": carry, "key": jax.random.PRNGKey(1), "ended": []}
+
+    def call():
+        box["carry"], box["key"], ended = rollout(box["carry"], box["key"])
+        box["ended"].append(ended)
+        return box["carry"]
+
+    return time_fn(call, repeats), [int(e) for e in box["ended"][1:]]
+
+
 def step_scan(name: str, worlds: int, steps: int, repeats: int, render: bool, resolution: int,
               forward: bool = False, graph_mode: str | None = None) -> dict[str, Any]:
     """Median seconds of `steps` random-push env steps in one jitted scan, and the episodes that
     ended in them; `forward`: with MJX's full forward pass after resets (as for a moving camera)."""
     import jax
-    import jax.numpy as jnp
 
     import bulbjax
 
     env = bulbjax.make(name, num_envs=worlds, resolution=resolution, render=render, graph_mode=graph_mode)
     if forward:
         env._pose_pass = "forward"
-    size = env.action_size
-
-    @jax.jit
-    def rollout(state, key):
-        def body(carry, _):
-            st, k = carry
-            k, ka = jax.random.split(k)
-            st = env.step(st, jax.random.uniform(ka, (worlds, size), minval=-1.0, maxval=1.0))
-            return (st, k), st.done.sum()
-        (state, key), ended = jax.lax.scan(body, (state, key), None, length=steps)
-        return state, key, jnp.sum(ended)
-
     state = jax.block_until_ready(jax.jit(env.reset)(jax.random.PRNGKey(0)))
-    box = {"state": state, "key": jax.random.PRNGKey(1), "ended": []}
 
-    def call():
-        box["state"], box["key"], ended = rollout(box["state"], box["key"])
-        box["ended"].append(ended)
-        return box["state"]
+    def step(st, action):
+        st = env.step(st, action)
+        return st, st.done.sum()
 
-    t = time_fn(call, repeats)
+    t, ended = scan_random_pushes(step, state, worlds, env.action_size, steps, repeats)
     first, med = t["first_s"], t["median_s"]
-    ended = [int(e) for e in box["ended"][1:]]
     return {"render": render, "pose_pass": env._pose_pass, "graph_mode": graph_mode, "first_call_s": first,
             "call_s": med, "ms_per_step": 1e3 * med / steps,
             "frames_per_s": worlds * steps / med, "ended_per_step": statistics.median(ended) / steps,
@@ -95,27 +107,12 @@ def physics_scan(name: str, worlds: int, steps: int, repeats: int, resolution: i
     import bulbjax
 
     env = bulbjax.make(name, num_envs=worlds, resolution=resolution, render=False, graph_mode=graph_mode)
-    size = env.action_size
     state0 = jax.block_until_ready(jax.jit(env.reset)(jax.random.PRNGKey(0)))
-    data0, params = state0.data, state0.params  # the worlds' physical parameters (the Incline's slope)
-
-    @jax.jit
-    def rollout(data, key):
-        def body(carry, _):
-            d, k = carry
-            k, ka = jax.random.split(k)
-            a = jax.random.uniform(ka, (worlds, size), minval=-1.0, maxval=1.0)
-            return (env.physics(d, a, params), k), None
-        return jax.lax.scan(body, (data, key), None, length=steps)[0]
-
-    box = {"carry": (data0, jax.random.PRNGKey(1))}
-
-    def call():
-        box["carry"] = rollout(*box["carry"])
-        return box["carry"]
-
-    t = time_fn(call, repeats)
-    return {"graph_mode": graph_mode, "first_call_s": t["first_s"], "call_s": t["median_s"], "ms_per_step": 1e3 * t["median_s"] / steps}
+    params = state0.params  # the worlds' physical parameters (the Incline's slope)
+    t, _ = scan_random_pushes(lambda d, a: (env.physics(d, a, params), 0), state0.data, worlds,
+                              env.action_size, steps, repeats)
+    return {"graph_mode": graph_mode, "first_call_s": t["first_s"], "call_s": t["median_s"],
+            "ms_per_step": 1e3 * t["median_s"] / steps}
 
 
 def refill(name: str, worlds: int, repeats: int, resolution: int) -> dict[str, Any]:
