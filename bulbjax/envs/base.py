@@ -373,16 +373,18 @@ class MjxPixelEnv:
         `mjx.step` computes positions before integrating, so poses lag the new qpos by one step
         (a reset world's are those of the state it replaced); frames and the state of domains with
         `kinematics_after_step` read them. With a `static_view` (cameras and lights fixed in the
-        world) the kinematics pass gives them all (`_pose_pass`): on every world when frames are
-        rendered, else in steps where some world was reset. Otherwise (a camera that follows a
-        body, or `forward_after_step`) it is MJX's full forward pass, the only Warp call that also
-        places cameras, at the cost of a physics step. Neither changes what the next step
-        computes: `mjx.step` starts with its own forward pass, and only its integration writes
-        the solver's warm start."""
-        rendered = self._renders_steps or self.point_renderer is not None
-        fn = mjx.kinematics if self._pose_pass == "kinematics" else mjx.forward
+        world) the kinematics pass gives them all (`_pose_pass`). Otherwise (a camera that follows
+        a body, or `forward_after_step`) it is MJX's full forward pass, the only Warp call that
+        also places cameras, at the cost of a physics step. It runs on every world when frames
+        are rendered, unless `physics` has just computed the kinematics every other world needs:
+        then, as without frames, only in steps where some world was reset. Neither changes what
+        the next step computes: `mjx.step` starts with its own forward pass, and only its
+        integration writes the solver's warm start."""
+        kinematics = self._pose_pass == "kinematics"
+        fn = mjx.kinematics if kinematics else mjx.forward
         poses = lambda d: jax.vmap(fn, in_axes=(None, 0))(mx, d)  # noqa: E731
-        if rendered:
+        rendered = self._renders_steps or self.point_renderer is not None
+        if rendered and not (kinematics and self.kinematics_after_step):
             return poses(data)
         return jax.lax.cond(done.any(), poses, lambda d: d, data)
 
