@@ -14,7 +14,7 @@ def _settings(args: argparse.Namespace) -> dict:
     """The flags of `run` and `fit` as `bulbjax.experiment.resolve`'s arguments (the flags given;
     text values are parsed and checked there)."""
     flags = (("env", "env"), ("seeds", "seeds"), ("epochs", "epochs"), ("sequence_length", "sequence_length"),
-             ("learners", "learners"), ("version", "version"), ("rl_input", "rl_input"),
+             ("learners", "learners"), ("version", "version"), ("rl_input", "rl_input"), ("rl_frames", "rl_frames"),
              ("seed_loop", "learner_seed_loop"), ("programs", "programs"), ("ppo_updates", "ppo_updates_per_epoch"),
              ("resolution", "resolution"))
     overrides = {field: getattr(args, flag) for flag, field in flags if getattr(args, flag, None) is not None}
@@ -311,6 +311,9 @@ def main(argv: Sequence[str] | None = None) -> int:
                         "the current frame, its current parameters, no gradient into it; for svae, pred, "
                         "dsa: of the current step in the window of the last L steps ending at it), or "
                         "pixels (the frame through a conv encoder PPO trains end to end)")
+    r.add_argument("--rl-frames", type=int, default=None, metavar="K",
+                   help="with --rl-input pixels or latent:<frame learner>: PPO observes the last K frames "
+                        "(stacked) or their latents (concatenated), so that it can see velocities (default 1)")
     r.add_argument("--ppo-updates", type=int, default=None, help="PPO updates per epoch")
     r.add_argument("--ppo-option", action="append", default=None, metavar="KEY=VALUE",
                    help="set a PPOConfig field (repeatable; applied last, over the preset's and the "

@@ -111,6 +111,7 @@ def pytest_unconfigure(config) -> None:
 LONGEST_FIRST = (
     "test_experiment.py", "test_sharding.py", "test_object_probe.py", "test_incline.py", "test_run.py",
     "test_reset_pool.py", "test_chunked_reset.py", "test_rl_latent.py", "test_synthetic.py", "test_rl_sequential.py",
+    "test_rl_frames.py",
     "test_recon.py", "test_ppo.py", "test_rearrange.py", "test_sequential_learners.py", "test_learners.py",
     "test_contrastive.py", "test_ppo_stability.py", "test_spair.py", "test_extending.py",
 )

@@ -74,6 +74,13 @@ class ExperimentConfig:
     # `seq_len` steps ending at it, cut at the episode's start (`state.PolicyHistory`), or
     # "pixels": the current frame through a small conv encoder trained end to end by PPO.
     rl_input: str = "state"
+    # How many of the latest frames PPO observes with `rl_input` "pixels" or a frame learner's
+    # latent: 1, the current one; K > 1, the last K (frames stacked along the channels, or their
+    # latents concatenated, oldest first; an episode's first frame repeated until K are held).
+    # One frame holds positions, not velocities: from the positions alone PPO reaches 950 on
+    # InvertedPendulum but holds it in 20-36% of later updates, from two steps' in 93-100%
+    # (benchmarks/diagnostics/ppo_partial_obs.py, docs/ppo.md).
+    rl_frames: int = 1
     # How learner work runs over the seed axis (`seeds.resolve_seed_loop`): "vmap", "map" (one
     # seed at a time; ~1.9x faster VAE updates on the H100), "hybrid" (map, but DSA, whose three
     # LSTMs dominate its update, vmapped with its frame networks one seed at a time) or "auto"
@@ -124,6 +131,13 @@ class ExperimentConfig:
             if name not in self.learners:
                 raise ValueError(f"rl_input {self.rl_input!r} names a learner this run does not train; "
                                  f"its learners: {', '.join(self.learners)}")
+        if self.rl_frames < 1:
+            raise ValueError(f"rl_frames must be >= 1, got {self.rl_frames!r}")
+        if self.rl_frames > 1 and not (self.rl_input == "pixels" or
+                                       (self.rl_learner is not None and not is_sequential_name(self.rl_learner))):
+            raise ValueError(f"rl_frames={self.rl_frames} stacks frames for rl_input 'pixels' or a frame learner's "
+                             f"latent; got rl_input {self.rl_input!r} (the state holds its velocities; a "
+                             f"sequential learner's latent reads its own window of steps)")
         if self.learner_seed_loop not in SEED_LOOPS:
             raise ValueError(f"learner_seed_loop must be one of {SEED_LOOPS}, got {self.learner_seed_loop!r}")
         if self.programs not in PROGRAM_FORMS:

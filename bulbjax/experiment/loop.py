@@ -152,7 +152,7 @@ class Experiment:
         windows = self.streams.init_windows(ppo_state, jax.random.fold_in(key, 1)) if self.window_length else {}
         # PPO on a sequential learner's latent: every policy-driven world's window starts at its first frame.
         history = ({"train": policy.history_start(train_env), "curr": policy.history_start(curr_env)}
-                   if policy.rl_sequential else {})
+                   if policy.keeps_history else {})
         return RunState(ppo=ppo_state, learners={}, buffers=buffers, windows=windows,
                         train_env=train_env, curr_env=curr_env, rand_env=rand_env, policy_history=history,
                         ref_spread=ref_spread, epoch=jnp.zeros((), jnp.int32))

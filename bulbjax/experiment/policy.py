@@ -2,7 +2,9 @@
 
 PPO observes the true state, the current frame, or a learner's latent of the current frame
 (`ExperimentConfig.rl_input`); for a sequential learner, the latent of the current step in the
-window of the last L steps ending at it (`PolicyHistory`, kept per world in the run state). A
+window of the last L steps ending at it (`PolicyHistory`, kept per world in the run state). With
+`rl_frames` K > 1, PPO on pixels or a frame learner's latent observes the last K frames (stacked
+along the channels) or their latents (concatenated), read from a `PolicyHistory` of K steps. A
 rollout stores every step as (render input, true state, action features, done); a policy that
 rendered its frames keeps them in place of the render inputs (`Rendered`), so the data side
 gathers them instead of rendering the steps again.
@@ -60,9 +62,12 @@ class Policy:
         self.rl_pixels = c.rl_input == "pixels"
         # A sequential learner's latent is read from a window of the last L steps (PolicyHistory).
         self.rl_sequential = self.rl_learner is not None and is_sequential(team.learners[self.rl_learner])
+        # PPO on pixels or a frame learner's latent observes the last `rl_frames` frames
+        self.rl_frames = c.rl_frames
         num_actions = env.num_actions if env.discrete else None
         if self.rl_pixels:
-            self.ppo = PPO(c.ppo, 0, num_actions, env.action_size, frame_shape=env.frame_shape)
+            h, w, ch = env.frame_shape
+            self.ppo = PPO(c.ppo, 0, num_actions, env.action_size, frame_shape=(h, w, ch * self.rl_frames))
         elif self.rl_learner is None:
             self.ppo = PPO.for_env(c.ppo, env)
         else:
@@ -75,7 +80,7 @@ class Policy:
             else:
                 z = jax.eval_shape(self._encode_frames, params,
                                    jax.ShapeDtypeStruct((1,) + env.frame_shape, jnp.uint8))
-            self.ppo = PPO(c.ppo, z.shape[-1], num_actions, env.action_size)
+            self.ppo = PPO(c.ppo, z.shape[-1] * self.rl_frames, num_actions, env.action_size)
 
     @property
     def S(self) -> int:
@@ -90,6 +95,12 @@ class Policy:
         """Whether PPO observes frames (pixels or a learner's latent): its rollouts render every
         step's frame, and keep it for replay, windows and probes (`Rendered`)."""
         return self.rl_pixels or self.rl_learner is not None
+
+    @property
+    def keeps_history(self) -> bool:
+        """Whether the worlds carry a `PolicyHistory` in the run state: PPO observes a sequential
+        learner's latent (a window of L steps) or the last `rl_frames` > 1 frames."""
+        return self.rl_sequential or self.rl_frames > 1
 
     def rl_learners(self, learners: dict) -> dict | None:
         """The learner states PPO's policy reads (its `rl_input` learner's), None when it reads none."""
@@ -118,9 +129,10 @@ class Policy:
         return self.dev.per_seed(self.dev.render_sequence(ri)[0])
 
     def history_start(self, es: EnvState) -> PolicyHistory:
-        """The `PolicyHistory` of freshly reset worlds: their current frame alone (count 1)."""
+        """The `PolicyHistory` of freshly reset worlds: their current frame alone (count 1), in a
+        window of the sequential learner's L steps or of `rl_frames`."""
         frames = self.current_frames(es)
-        l = self.team.learners[self.rl_learner].sequence_length
+        l = self.team.learners[self.rl_learner].sequence_length if self.rl_sequential else self.rl_frames
         return PolicyHistory(
             frames=jnp.broadcast_to(frames[:, :, None], frames.shape[:2] + (l,) + frames.shape[2:]),
             actions=jnp.zeros((self.S, self.N, l, self.action_dim), jnp.float32),
@@ -138,20 +150,46 @@ class Policy:
         passes per world, once per rollout (the params changed since the history was built)."""
         return PolicyWindow(history, self._frame_features(learners, history.frames))
 
-    def _window_push(self, learners: dict, window: PolicyWindow, es: EnvState, frames: jax.Array,
-                     action: jax.Array) -> PolicyWindow:
-        """The window after an env step: `es`'s frames `[S, N, H, W, 3]` (one conv pass each)
-        appended with the actions that led into them `[S, N(, A)]`; a world whose step ended an
-        episode (`es.done`: its frame is the next episode's first) starts its window over."""
-        h = window.history
-        feats = self._frame_features(learners, frames[:, :, None])[:, :, 0]
+    def _history_push(self, h: PolicyHistory, es: EnvState, frames: jax.Array, action: jax.Array) -> PolicyHistory:
+        """The history after an env step: `es`'s frames `[S, N, H, W, 3]` appended with the
+        actions that led into them `[S, N(, A)]`; a world whose step ended an episode (`es.done`:
+        its frame is the next episode's first) starts its window over."""
         act = self.dev.per_seed(self.action_features(action))
         fresh = self.dev.per_seed(es.done) > 0
-        l = h.frames.shape[2]
-        hist = PolicyHistory(frames=push_window(h.frames, frames, h.count, fresh, True),
+        return PolicyHistory(frames=push_window(h.frames, frames, h.count, fresh, True),
                              actions=push_window(h.actions, act, h.count, fresh, False),
-                             count=jnp.where(fresh, 1, jnp.minimum(h.count + 1, l)).astype(jnp.int32))
-        return PolicyWindow(hist, push_window(window.features, feats, h.count, fresh, True))
+                             count=jnp.where(fresh, 1, jnp.minimum(h.count + 1, h.frames.shape[2])).astype(jnp.int32))
+
+    def _window_push(self, learners: dict, window: PolicyWindow, es: EnvState, frames: jax.Array,
+                     action: jax.Array) -> PolicyWindow:
+        """`_history_push` with the new frames' features (one conv pass each) appended alike."""
+        h = window.history
+        feats = self._frame_features(learners, frames[:, :, None])[:, :, 0]
+        fresh = self.dev.per_seed(es.done) > 0
+        return PolicyWindow(self._history_push(h, es, frames, action),
+                            push_window(window.features, feats, h.count, fresh, True))
+
+    def stacked_frames(self, h: PolicyHistory) -> jax.Array:
+        """The last `rl_frames` K frames of every world, oldest first, the newest last `[S, N, K,
+        H, W, 3]`: the window's steps before `count` read back from the end, its first step
+        repeated where fewer than K are held (an episode's start)."""
+        k = self.rl_frames
+        idx = jnp.clip(h.count[..., None] - k + jnp.arange(k), 0, h.count[..., None] - 1)  # [S, N, K]
+        idx = idx.reshape(idx.shape + (1,) * (h.frames.ndim - 3))
+        return jnp.take_along_axis(h.frames, idx, axis=2)
+
+    def _stacked_obs(self, learners: dict | None, h: PolicyHistory) -> jax.Array:
+        """PPO's observation from the last K frames: stacked along the channels `[S, N, H, W,
+        3K]` for pixels, else the frame learner's latents of them concatenated `[S, N, K*Z]`."""
+        frames = self.stacked_frames(h)
+        s, n, k = frames.shape[:3]
+        if self.rl_pixels:
+            return jnp.moveaxis(frames, 2, -2).reshape((s, n) + frames.shape[3:-1] + (k * frames.shape[-1],))
+        if learners is None:
+            raise ValueError("PPO observes a learner's latent: pass the learners' states")
+        z = self.team.over_seeds(self._encode_frames, learners[self.rl_learner].params,
+                                 frames.reshape((s, n * k) + frames.shape[3:]), learner=self.rl_learner)
+        return z.reshape(s, n, -1)
 
     def _window_obs(self, learners: dict, window: PolicyWindow) -> jax.Array:
         """PPO's latent of every world `[S, N, Z]`: the sequential learner's per-step latent of
@@ -173,10 +211,11 @@ class Policy:
         (rendered here), None for the true state or the random policy."""
         if random or not self.renders:
             return None
-        if self.rl_sequential:
+        if self.keeps_history:
             if history is None:
-                raise ValueError("PPO observes a sequential learner's latent: pass the worlds' PolicyHistory")
-            return self.window(learners, history)
+                raise ValueError("PPO observes a sequential learner's latent or the last rl_frames frames: "
+                                 "pass the worlds' PolicyHistory")
+            return self.window(learners, history) if self.rl_sequential else history
         return self.current_frames(es)
 
     def obs(self, es: EnvState, learners: dict | None, view: PolicyView = None) -> jax.Array:
@@ -192,6 +231,10 @@ class Policy:
                 raise ValueError("PPO observes a sequential learner's latent: pass the learners' "
                                  "states and the worlds' PolicyWindow")
             return self._window_obs(learners, view)
+        if self.rl_frames > 1:
+            if not isinstance(view, PolicyHistory):
+                raise ValueError(f"PPO observes the last {self.rl_frames} frames: pass the worlds' PolicyHistory")
+            return self._stacked_obs(learners, view)
         frames = self.current_frames(es) if view is None else view  # [S, N, H, W, 3]
         if self.rl_pixels:
             return frames
@@ -219,7 +262,12 @@ class Policy:
         frames = None
         if view is not None:
             frames = self.current_frames(nes)
-            view = self._window_push(learners, view, nes, frames, action) if self.rl_sequential else frames
+            if self.rl_sequential:
+                view = self._window_push(learners, view, nes, frames, action)
+            elif self.rl_frames > 1:
+                view = self._history_push(view, nes, frames, action)
+            else:
+                view = frames
         return nes, obs, action, logp, value, view, self._stored(nes, action, frames)
 
     def _stored(self, es: EnvState, action: jax.Array, frames: jax.Array | None) -> tuple:

@@ -330,7 +330,7 @@ def merge_seeds(run_dirs: Sequence[str], out_dir: str) -> str:
 
 def rl_compare(run_dirs: Sequence[str], out_dir: str, solved_return: float | None = None) -> str:
     """PPO return curves of several runs in one plot, labelled by what PPO observed
-    (`rl_input`: state, pixels, latent:<learner>), and a table with the final return and, with
+    (`rl_input`: state, pixels, latent:<learner>; with `rl_frames` K > 1, "last K frames"), and a table with the final return and, with
     `solved_return` (default: the env's), the epochs each seed needed to reach it (issue 15).
     Writes `rl_compare.png` and `rl_compare.md` into `out_dir`; returns the table."""
     import matplotlib
@@ -357,10 +357,11 @@ def rl_compare(run_dirs: Sequence[str], out_dir: str, solved_return: float | Non
             raise ValueError(f"{metrics_path(d)} has no epoch yet")
         epochs, r = rl_curve(records)
         ep, mean, half = _rl_band(epochs, r)
-        line, = ax.plot(ep, mean, label=cfg.rl_input)
+        observes = cfg.rl_input + (f", last {cfg.rl_frames} frames" if cfg.rl_frames > 1 else "")
+        line, = ax.plot(ep, mean, label=observes)
         ax.fill_between(ep, mean - half, mean + half, color=line.get_color(), alpha=0.2)
         reach = epochs_to_reach(r, epochs, target) if target is not None else []
-        rows.append(f"| {os.path.basename(os.path.normpath(d))} | {cfg.rl_input} | {r.shape[0]} | "
+        rows.append(f"| {os.path.basename(os.path.normpath(d))} | {observes} | {r.shape[0]} | "
                     f"{r.shape[1]} | {mean[-1]:.1f} ± {half[-1]:.1f} | "
                     f"{', '.join('never' if x is None else str(x) for x in reach) or 'n/a'} |")
     envs = sorted(targets)

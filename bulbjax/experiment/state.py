@@ -25,8 +25,10 @@ class PolicyHistory:
     and including the current one, cut at the start of the world's current episode, laid out as
     a training window whose episode ends at the current step (`bulbjax.data.sequence`): the
     `count` steps held, oldest first, then padding (the current frame repeated, action 0). The
-    latent PPO sees is the learner's per-step latent at step `count - 1` of this window. Part of
-    the run state: carried from epoch to epoch and checkpointed with the worlds it follows.
+    latent PPO sees is the learner's per-step latent at step `count - 1` of this window. With
+    `rl_frames` K > 1 (pixels or a frame learner's latent) the same window of L = K steps holds
+    the frames PPO stacks (`Policy.stacked_frames`). Part of the run state: carried from epoch to
+    epoch and checkpointed with the worlds it follows.
 
     Cost: memory `S x N x L` frames per set of worlds (train and held-out current-policy: fig2
     with L = 24, 2 x 113 MB). Per step and world, on top of the frame a frame learner would
@@ -70,12 +72,15 @@ class Rendered:
 # What a frame-observing policy carries from step to step (`Policy.view`): every world's
 # current frame `[S, N, H, W, 3]` (pixels, a frame learner's latent), its `PolicyWindow`
 # (a sequential learner's latent), or None (the true state, the random policy).
-PolicyView = jax.Array | PolicyWindow | None
+PolicyView = jax.Array | PolicyWindow | PolicyHistory | None
 
 
 def history_of(view: PolicyView) -> PolicyHistory | None:
-    """The worlds' `PolicyHistory` a rollout hands on: a sequential learner's window, else None."""
-    return view.history if isinstance(view, PolicyWindow) else None
+    """The worlds' `PolicyHistory` a rollout hands on: a sequential learner's window, the last
+    `rl_frames` frames, else None."""
+    if isinstance(view, PolicyWindow):
+        return view.history
+    return view if isinstance(view, PolicyHistory) else None
 
 
 @struct.dataclass

@@ -1,0 +1,124 @@
+"""PPO observing the last K frames (`rl_frames`, issue 41): with a frame learner's latent, the
+latents of the last K frames of the world's episode concatenated oldest first, the episode's
+first frame repeated until K are held; with pixels, the frames stacked along the channels.
+Why: one frame holds positions, not velocities (benchmarks/diagnostics/ppo_partial_obs.py)."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import jax
+import numpy as np
+import pytest
+
+from bulbjax.experiment import ExperimentConfig, small_config
+from bulbjax.experiment.loop import Experiment
+from bulbjax.experiment.state import PolicyHistory
+
+
+def _config(rl_input: str) -> ExperimentConfig:
+    cfg = small_config(ExperimentConfig(env="CartPole", learners=("vae_rpl",), seeds=2, epochs=1,
+                                        rl_input=rl_input, rl_frames=2))
+    return cfg.replace(num_envs=8, ppo=dataclasses.replace(cfg.ppo, num_envs=8, num_steps=8, update_epochs=1,
+                                                           num_minibatches=2),
+                       ppo_updates_per_epoch=1, frames_per_epoch=64, replay_capacity=256)
+
+
+@pytest.mark.parametrize("kw, match", [
+    (dict(rl_frames=0), "rl_frames must be >= 1"),
+    (dict(rl_frames=2), "stacks frames"),  # the state
+    (dict(rl_frames=2, learners=("vae_rpl", "dsa"), rl_input="latent:dsa"), "sequential learner"),
+])
+def test_bad_rl_frames(kw: dict, match: str) -> None:
+    with pytest.raises(ValueError, match=match):
+        ExperimentConfig(**{"learners": ("vae_rpl",), **kw})
+    assert ExperimentConfig(learners=("vae_rpl",), rl_input="pixels", rl_frames=3).rl_frames == 3
+
+
+def test_cli_flag_reaches_the_config(capsys) -> None:
+    from bulbjax.cli import main
+
+    assert main(["run", "--env", "CartPole", "--learners", "vae_rpl", "--small", "--epochs", "1",
+                 "--rl-frames", "2", "--out", "/tmp/never"]) == 2
+    assert "stacks frames" in capsys.readouterr().err
+
+
+def test_latents_of_the_last_two_frames() -> None:
+    exp = Experiment(_config("latent:vae_rpl"))
+    policy, learner = exp.policy, exp.learners["vae_rpl"]
+    z = learner.latent_dim
+    assert policy.keeps_history and exp.ppo.obs_size == 2 * z
+    rs = exp.init(jax.random.PRNGKey(0))
+    hist = rs.policy_history["train"]
+    S, N = exp.S, exp.N
+    assert isinstance(hist, PolicyHistory) and hist.frames.shape[:3] == (S, N, 2)
+    enc = lambda s, frames: np.asarray(learner.encode(jax.tree.map(lambda x: x[s], rs.learners["vae_rpl"].params),  # noqa: E731
+                                                      frames))
+
+    def frames_of(es):
+        return np.asarray(exp.env.render_frames(es.render_input)).reshape((S, N) + exp.env.frame_shape)
+
+    obs0 = np.asarray(jax.jit(policy.obs)(rs.train_env, rs.learners, hist))
+    f0 = frames_of(rs.train_env)
+    assert obs0.shape == (S, N, 2 * z)
+    for s in range(S):  # a fresh episode: its first frame twice
+        np.testing.assert_allclose(obs0[s, :, :z], enc(s, f0[s]), rtol=1e-5, atol=1e-5)
+        np.testing.assert_allclose(obs0[s, :, z:], enc(s, f0[s]), rtol=1e-5, atol=1e-5)
+    step = jax.jit(lambda es, k, view: policy.step(rs.ppo, es, k, False, rs.learners, view))
+    es, view = rs.train_env, hist
+    ended = np.zeros((S, N), bool)
+    for i in range(12):  # until some world has ended an episode (CartPole under a fresh policy)
+        prev = frames_of(es)
+        es, *_, view, _ = step(es, jax.random.PRNGKey(10 + i), view)
+        done = np.asarray(es.done).reshape(S, N) > 0
+        ended |= done
+        cur = frames_of(es)
+        obs = np.asarray(jax.jit(policy.obs)(es, rs.learners, view))
+        for s in range(S):
+            older = np.where(done[s][:, None, None, None], cur[s], prev[s])  # a new episode: its first frame twice
+            np.testing.assert_allclose(obs[s, :, :z], enc(s, older), rtol=1e-5, atol=1e-5)
+            np.testing.assert_allclose(obs[s, :, z:], enc(s, cur[s]), rtol=1e-5, atol=1e-5)
+        if ended.any() and i >= 2:
+            break
+    assert ended.any() and not ended.all()
+    # an epoch's PPO phase on the stacked latents: finite losses, the history handed on
+    out = jax.jit(policy.rl_phase)(rs.ppo, rs.train_env, jax.random.PRNGKey(1), rs.learners, hist)
+    assert np.all(np.isfinite(np.asarray(out[2]["total_loss"])))
+    assert isinstance(out[-1], PolicyHistory) and out[-1].frames.shape == hist.frames.shape
+
+
+def test_pixels_stack_along_the_channels() -> None:
+    exp = Experiment(_config("pixels"))
+    h, w, c = exp.env.frame_shape
+    assert exp.ppo.pixels and exp.ppo.frame_shape == (h, w, 2 * c)
+    rs = exp.init(jax.random.PRNGKey(0))
+    hist = rs.policy_history["train"]
+    # a history holding two different frames: the previous (slot 0) and the current (slot 1)
+    frames = np.array(hist.frames)
+    frames[:, :, 0] = 255 - frames[:, :, 1]
+    two = hist.replace(frames=frames, count=np.full(hist.count.shape, 2, np.int32))
+    obs = np.asarray(jax.jit(exp.policy.obs)(rs.train_env, rs.learners, two))
+    assert obs.shape == (exp.S, exp.N, h, w, 2 * c) and obs.dtype == np.uint8
+    np.testing.assert_array_equal(obs[..., :c], frames[:, :, 0])  # oldest first
+    np.testing.assert_array_equal(obs[..., c:], frames[:, :, 1])
+
+
+def test_compare_names_the_frames(tmp_path) -> None:
+    """`bulbjax report --compare-rl` says how many frames PPO observed."""
+    import json
+
+    from bulbjax.experiment import records
+    from bulbjax.experiment.report import rl_compare
+
+    runs = []
+    for k in (1, 2):
+        d = tmp_path / f"k{k}"
+        d.mkdir()
+        cfg = ExperimentConfig(env="InvertedPendulum", learners=("vae_rpl",), seeds=1, rl_input="latent:vae_rpl",
+                               rl_frames=k)
+        (d / "config.json").write_text(json.dumps({"experiment": dataclasses.asdict(cfg)}))
+        records.write_jsonl(str(d / "metrics.jsonl"), [{"epoch": e, "seed": 0, "rl_return": 100.0 * e} for e in range(3)])
+        runs.append(str(d))
+    rows = rl_compare(runs, str(tmp_path / "cmp")).splitlines()
+    assert any(r.startswith("| k1 | latent:vae_rpl |") for r in rows)
+    assert any(r.startswith("| k2 | latent:vae_rpl, last 2 frames |") for r in rows)
