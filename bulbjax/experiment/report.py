@@ -330,8 +330,9 @@ def merge_seeds(run_dirs: Sequence[str], out_dir: str) -> str:
 
 def rl_compare(run_dirs: Sequence[str], out_dir: str, solved_return: float | None = None) -> str:
     """PPO return curves of several runs in one plot, labelled by what PPO observed
-    (`rl_input`: state, pixels, latent:<learner>; with `rl_frames` K > 1, "last K frames"), and a table with the final return and, with
-    `solved_return` (default: the env's), the epochs each seed needed to reach it (issue 15).
+    (`rl_input`: state, pixels, latent:<learner>; with `rl_frames` K > 1, "last K frames"), and
+    a table with the final return and, with `solved_return` (default: the env's), the epochs each
+    seed needed to reach it (issue 15).
     Writes `rl_compare.png` and `rl_compare.md` into `out_dir`; returns the table."""
     import matplotlib
 

@@ -71,7 +71,8 @@ class Rendered:
 
 # What a frame-observing policy carries from step to step (`Policy.view`): every world's
 # current frame `[S, N, H, W, 3]` (pixels, a frame learner's latent), its `PolicyWindow`
-# (a sequential learner's latent), or None (the true state, the random policy).
+# (a sequential learner's latent), its `PolicyHistory` of the last `rl_frames` > 1 frames, or
+# None (the true state, the random policy).
 PolicyView = jax.Array | PolicyWindow | PolicyHistory | None
 
 
