@@ -122,3 +122,39 @@ def test_compare_names_the_frames(tmp_path) -> None:
     rows = rl_compare(runs, str(tmp_path / "cmp")).splitlines()
     assert any(r.startswith("| k1 | latent:vae_rpl |") for r in rows)
     assert any(r.startswith("| k2 | latent:vae_rpl, last 2 frames |") for r in rows)
+
+
+def test_two_epochs_resume_with_the_frames_in_the_checkpoint(tmp_path) -> None:
+    """The worlds' last frames are run state: in the checkpoint, and a run stopped after one epoch
+    and resumed writes the same records as one run straight through, bit for bit."""
+    import json
+
+    from bulbjax.eval.probe import ProbeConfig
+    from bulbjax.experiment.checkpoint import Checkpointer
+    from bulbjax.experiment.run import RunOptions, run
+    from bulbjax.learners import LearnerConfig
+    from bulbjax.rl.ppo import PPOConfig
+
+    cfg = ExperimentConfig(
+        env="CartPole", learners=("vae_rpl",), seeds=2, epochs=2, num_envs=4, resolution=32,
+        ppo=PPOConfig(num_envs=4, num_steps=8, num_minibatches=2, update_epochs=1),
+        ppo_updates_per_epoch=1, frames_per_epoch=8, replay_capacity=32,
+        learner=LearnerConfig(batch_size=8, conv_features=(8, 8, 8, 8), hidden=16, lr=1e-3),
+        learner_batches=1, eval_frames=8, probe_train_frames=16,
+        probe=ProbeConfig(hidden=(16,), steps=20, batch_size=16), reference_steps=16,
+        rl_input="latent:vae_rpl", rl_frames=2)
+    exp = Experiment(cfg)
+    lines = lambda d: (tmp_path / d / "metrics.jsonl").read_text().splitlines()  # noqa: E731
+    run(cfg, RunOptions(checkpoint_every=1), str(tmp_path / "straight"), experiment=exp, progress=False,
+        log=lambda s: None)
+    recs = [json.loads(x) for x in lines("straight")]
+    assert sorted({r["epoch"] for r in recs}) == [0, 1] and all(np.isfinite(list(r["ppo"].values())).all() for r in recs)
+    ck = Checkpointer(str(tmp_path / "straight"))
+    state, _, _ = ck.restore({"run": exp.abstract_state(), "key": exp.abstract_key()})
+    ck.close()
+    hist = state["run"].policy_history
+    assert set(hist) == {"train", "curr"} and hist["train"].frames.shape[:3] == (2, 4, 2)
+    assert 1 <= int(np.min(hist["train"].count)) and int(np.max(hist["train"].count)) <= 2
+    run(cfg, RunOptions(stop_after=1), str(tmp_path / "resumed"), experiment=exp, progress=False, log=lambda s: None)
+    run(cfg, RunOptions(), str(tmp_path / "resumed"), resume=True, experiment=exp, progress=False, log=lambda s: None)
+    assert lines("resumed") == lines("straight")
