@@ -16,7 +16,7 @@ def _settings(args: argparse.Namespace) -> dict:
     flags = (("env", "env"), ("seeds", "seeds"), ("epochs", "epochs"), ("sequence_length", "sequence_length"),
              ("learners", "learners"), ("version", "version"), ("rl_input", "rl_input"), ("rl_frames", "rl_frames"),
              ("seed_loop", "learner_seed_loop"), ("programs", "programs"), ("ppo_updates", "ppo_updates_per_epoch"),
-             ("resolution", "resolution"))
+             ("resolution", "resolution"), ("graph_mode", "graph_mode"))
     overrides = {field: getattr(args, flag) for flag, field in flags if getattr(args, flag, None) is not None}
     if getattr(args, "multicolour", False):
         overrides["multicolour"] = True
@@ -314,6 +314,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     r.add_argument("--rl-frames", type=int, default=None, metavar="K",
                    help="with --rl-input pixels or latent:<frame learner>: PPO observes the last K frames "
                         "(stacked) or their latents (concatenated), so that it can see velocities (default 1)")
+    r.add_argument("--graph-mode", default=None,
+                   help="how MJX-Warp's calls use CUDA graphs on a GPU: warp (MJX's default), jax (left to "
+                        "XLA's command buffers), warp_staged, warp_staged_ex or none; the same numbers, "
+                        "another speed (docs/performance.md)")
     r.add_argument("--ppo-updates", type=int, default=None, help="PPO updates per epoch")
     r.add_argument("--ppo-option", action="append", default=None, metavar="KEY=VALUE",
                    help="set a PPOConfig field (repeatable; applied last, over the preset's and the "

@@ -94,6 +94,7 @@ def test_small_is_cpu_sized_and_the_flags_given_win():
     (dict(overrides={"learners": "vae,vea"}), "unknown learners \\['vea'\\]"),
     (dict(overrides={"seeds": 0}), "seeds must be >= 1"),
     (dict(overrides={"learner_seed_loop": "pmap"}), "learner_seed_loop must be one of"),
+    (dict(overrides={"graph_mode": "cuda"}), "graph_mode must be one of none, jax, warp"),
     (dict(learner={"learning_rate": 1e-3}), "LearnerConfig has no fields \\['learning_rate'\\]; its fields: .*lr"),
     (dict(learner_options=["channelpad=1"]), "KEY one of"),
     (dict(learner_options=["batch_size=big"]), "'big' is not a int"),

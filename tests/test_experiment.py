@@ -409,6 +409,8 @@ def test_presets_and_cli_overrides():
     with pytest.raises(ValueError, match="KEY one of"):
         build_config(argparse.Namespace(**{**ns, "learner_option": ["channelpad=1"]}))
     assert build_config(argparse.Namespace(**{**ns, "ppo_option": ["ent_coef=0.02"]})).ppo.ent_coef == 0.02
+    assert cfg.graph_mode is None  # MJX's default unless --graph-mode is given
+    assert build_config(argparse.Namespace(**{**ns, "graph_mode": "jax"})).graph_mode == "jax"
     with pytest.raises(ValueError, match="version"):
         dataclasses.replace(cart, version="all")
     assert main(["run", "--preset", "nope", "--out", "/tmp/bulbjax_nope"]) == 2

@@ -23,6 +23,8 @@ physics as JAX runs it, the rest: the wrapper's selects, state and reward), and 
 stopped by a time limit keeps what it measured (the whole takes ~6 min on an H100 at 4,096 worlds).
 
     python benchmarks/diagnostics/incline_gap.py --env GeomOnIncline --worlds 4096      # GPU
+    python benchmarks/diagnostics/incline_gap.py --env GeomOnIncline --worlds 4096 --parts full,physics \
+        --graph-modes jax,warp_staged                                                     # graph modes alone
     python benchmarks/diagnostics/incline_gap.py --small                                # CPU smoke test
 """
 
@@ -41,6 +43,9 @@ sys.path.insert(0, os.path.dirname(os.path.dirname(HERE)))
 sys.path.insert(0, os.path.dirname(HERE))
 
 from timing import time_fn  # noqa: E402  (first call, then median of repeats)
+
+
+PARTS = ("full", "raw", "physics", "refill", "no_render", "full_forward")
 
 
 def scan_random_pushes(fn: Any, carry: Any, worlds: int, size: int, steps: int, repeats: int
@@ -139,6 +144,9 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     p.add_argument("--repeats", type=int, default=5)
     p.add_argument("--resolution", type=int, default=64)
     p.add_argument("--skip-raw", action="store_true")
+    p.add_argument("--parts", default=",".join(PARTS),
+                   help="which of the default graph mode's parts to time, in this order (default all; "
+                        "e.g. full,physics before --graph-modes for the modes' comparison alone)")
     p.add_argument("--graph-modes", default="",
                    help="comma-separated EnvConfig.graph_mode values (e.g. jax,warp_staged) to time `physics` "
                         "and `full` under as well, after the parts above (GPU: how MJX-Warp's calls use CUDA graphs)")
@@ -163,44 +171,55 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         with open(path, "w") as fh:
             json.dump(out, fh, indent=1)
 
-    out["full"] = step_scan(a.env, a.worlds, a.steps, a.repeats, True, a.resolution)
-    save()
-    print(f"full step + render: {out['full']['ms_per_step']:.3f} ms/step, {out['full']['frames_per_s']:,.0f} frames/s, "
-          f"{out['full']['ended_per_step']:.1f} episodes ended per step", flush=True)
-    if not a.skip_raw:
+    parts = [x for x in a.parts.split(",") if x]
+    bad = sorted(set(parts) - set(PARTS))
+    if bad:
+        p.error(f"--parts: unknown {bad}; choose from {','.join(PARTS)}")
+    if "full" in parts:
+        out["full"] = step_scan(a.env, a.worlds, a.steps, a.repeats, True, a.resolution)
+        save()
+        print(f"full step + render: {out['full']['ms_per_step']:.3f} ms/step, {out['full']['frames_per_s']:,.0f} frames/s, "
+              f"{out['full']['ended_per_step']:.1f} episodes ended per step", flush=True)
+    if "raw" in parts and not a.skip_raw:
         raw = raw_warp.probe(a.env, a.worlds, steps=a.steps, repeats=a.repeats, resolution=a.resolution)
         out["raw"] = {**raw, "ms_per_step": 1e3 * raw["call_s"] / a.steps}
         save()
         print(f"raw Warp step + render: {out['raw']['ms_per_step']:.3f} ms/step, {raw['frames_per_s']:,.0f} frames/s",
               flush=True)
-    out["physics"] = physics_scan(a.env, a.worlds, a.steps, a.repeats, a.resolution)
-    save()
-    print(f"physics alone (env.physics): {out['physics']['ms_per_step']:.3f} ms/step", flush=True)
-    out["refill"] = refill(a.env, a.worlds, a.repeats, a.resolution)
-    per_step = out["full"]["ended_per_step"] / max(out["refill"]["entries"], 1)  # refills per step, on average
-    out["refill"]["per_step"] = per_step
-    out["refill"]["ms_per_step"] = 1e3 * out["refill"]["call_s"] * per_step
-    save()
-    print(f"one refill of {out['refill']['entries']} entries: {1e3 * out['refill']['call_s']:.1f} ms; "
-          f"{per_step:.3f} refills per step -> {out['refill']['ms_per_step']:.3f} ms/step", flush=True)
-    out["no_render"] = step_scan(a.env, a.worlds, a.steps, a.repeats, False, a.resolution)
-    save()
-    print(f"step without render: {out['no_render']['ms_per_step']:.3f} ms/step", flush=True)
-    out["full_forward"] = step_scan(a.env, a.worlds, a.steps, a.repeats, True, a.resolution, forward=True)
-    print(f"full, forward pass after resets: {out['full_forward']['ms_per_step']:.3f} ms/step, "
-          f"{out['full_forward']['frames_per_s']:,.0f} frames/s", flush=True)
-    f, n, r = out["full"]["ms_per_step"], out["no_render"]["ms_per_step"], out["refill"]["ms_per_step"]
-    out["split_ms_per_step"] = {"render (full - no_render)": f - n, "refills": r,
-                                "rest of the step (no_render - refills)": n - r,
-                                "of which physics (env.physics alone)": out["physics"]["ms_per_step"],
-                                "of which the wrapper (no_render - refills - physics)":
-                                    n - r - out["physics"]["ms_per_step"],
-                                "kinematics pass's saving (full_forward - full)": out["full_forward"]["ms_per_step"] - f}
-    if "raw" in out:
-        out["split_ms_per_step"]["raw step + render"] = out["raw"]["ms_per_step"]
-    save()
-    for k, v in out["split_ms_per_step"].items():
-        print(f"  {k}: {v:.3f} ms/step", flush=True)
+    if "physics" in parts:
+        out["physics"] = physics_scan(a.env, a.worlds, a.steps, a.repeats, a.resolution)
+        save()
+        print(f"physics alone (env.physics): {out['physics']['ms_per_step']:.3f} ms/step", flush=True)
+    if "refill" in parts and "full" in out:
+        out["refill"] = refill(a.env, a.worlds, a.repeats, a.resolution)
+        per_step = out["full"]["ended_per_step"] / max(out["refill"]["entries"], 1)  # refills per step, on average
+        out["refill"]["per_step"] = per_step
+        out["refill"]["ms_per_step"] = 1e3 * out["refill"]["call_s"] * per_step
+        save()
+        print(f"one refill of {out['refill']['entries']} entries: {1e3 * out['refill']['call_s']:.1f} ms; "
+              f"{per_step:.3f} refills per step -> {out['refill']['ms_per_step']:.3f} ms/step", flush=True)
+    if "no_render" in parts:
+        out["no_render"] = step_scan(a.env, a.worlds, a.steps, a.repeats, False, a.resolution)
+        save()
+        print(f"step without render: {out['no_render']['ms_per_step']:.3f} ms/step", flush=True)
+    if "full_forward" in parts:
+        out["full_forward"] = step_scan(a.env, a.worlds, a.steps, a.repeats, True, a.resolution, forward=True)
+        print(f"full, forward pass after resets: {out['full_forward']['ms_per_step']:.3f} ms/step, "
+              f"{out['full_forward']['frames_per_s']:,.0f} frames/s", flush=True)
+    if all(k in out for k in ("full", "no_render", "refill", "physics", "full_forward")):
+        f, n, r = out["full"]["ms_per_step"], out["no_render"]["ms_per_step"], out["refill"]["ms_per_step"]
+        out["split_ms_per_step"] = {"render (full - no_render)": f - n, "refills": r,
+                                    "rest of the step (no_render - refills)": n - r,
+                                    "of which physics (env.physics alone)": out["physics"]["ms_per_step"],
+                                    "of which the wrapper (no_render - refills - physics)":
+                                        n - r - out["physics"]["ms_per_step"],
+                                    "kinematics pass's saving (full_forward - full)":
+                                        out["full_forward"]["ms_per_step"] - f}
+        if "raw" in out:
+            out["split_ms_per_step"]["raw step + render"] = out["raw"]["ms_per_step"]
+        save()
+        for k, v in out["split_ms_per_step"].items():
+            print(f"  {k}: {v:.3f} ms/step", flush=True)
     for mode in [m for m in a.graph_modes.split(",") if m]:
         phys = physics_scan(a.env, a.worlds, a.steps, a.repeats, a.resolution, graph_mode=mode)
         full = step_scan(a.env, a.worlds, a.steps, a.repeats, True, a.resolution, graph_mode=mode)

@@ -11,6 +11,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from bulbjax.data import synthetic
+from bulbjax.envs.env_config import GRAPH_MODES
 from bulbjax.eval.probe import ProbeConfig
 from bulbjax.learners import LearnerConfig, is_sequential_name, learner_names
 from bulbjax.rl.ppo_config import PPOConfig
@@ -51,6 +52,11 @@ class ExperimentConfig:
     epochs: int = 50
     num_envs: int = 64  # the paper's parallel simulators, per seed
     resolution: int = 64
+    # How MJX-Warp's calls use CUDA graphs on a GPU (`EnvConfig.graph_mode`): None, MJX's default
+    # ("warp": Warp captures a graph per call and set of buffer addresses), or one of
+    # `envs.env_config.GRAPH_MODES` ("jax": the calls left to XLA's own command buffers). The same
+    # numbers either way; a speed setting (docs/performance.md). Ignored on the CPU.
+    graph_mode: str | None = None
     ppo: PPOConfig = field(default_factory=PPOConfig)
     ppo_updates_per_epoch: int = 1
     frames_per_epoch: int = 1024  # new frames into replay per epoch, per seed
@@ -131,6 +137,9 @@ class ExperimentConfig:
             if name not in self.learners:
                 raise ValueError(f"rl_input {self.rl_input!r} names a learner this run does not train; "
                                  f"its learners: {', '.join(self.learners)}")
+        if self.graph_mode is not None and self.graph_mode not in GRAPH_MODES:
+            raise ValueError(f"graph_mode must be one of {', '.join(GRAPH_MODES)} (or unset: MJX's default, "
+                             f"warp), got {self.graph_mode!r}")
         if self.rl_frames < 1:
             raise ValueError(f"rl_frames must be >= 1, got {self.rl_frames!r}")
         if self.rl_frames > 1 and not (self.rl_input == "pixels" or

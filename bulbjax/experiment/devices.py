@@ -67,7 +67,7 @@ class Devices:
             self.env: MjxPixelEnv = bulbjax.make(c.env, num_envs=c.seeds * c.num_envs // self.mesh.size,
                                                  resolution=c.resolution, render=True,
                                                  render_steps=False, multicolour=c.multicolour,
-                                                 version=c.version,
+                                                 version=c.version, graph_mode=c.graph_mode,
                                                  pool_segments=c.seeds // self.mesh.shape[SEED_AXIS])
         except ValueError as err:
             if c.env.startswith(("HalfCheetah", "Ant")):
