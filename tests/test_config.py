@@ -146,3 +146,24 @@ def test_resume_starts_from_the_runs_own_config(tmp_path):
     assert anew == resolve("fig2-invpend").replace(epochs=saved.epochs)
     with pytest.raises(ValueError, match="config.json does not exist"):
         resolve_resume(str(tmp_path / "nowhere"))
+
+
+def test_a_frame_learners_latent_gets_the_entropy_bonus_unless_set():
+    """PPO from a frame learner's latent (positions only) collapses its action noise without an
+    entropy bonus (docs/results/rl_inputs_frames_h200): a fresh run gets LATENT_ENT_COEF, the
+    user's ent_coef wins, and the state, pixels and sequential learners' latents keep 0."""
+    from bulbjax.experiment.resolve import LATENT_ENT_COEF
+
+    def ent(rl_input, learners="vae_rpl,dsa", options=()):
+        return resolve("fig2-invpend", overrides={"learners": learners, "rl_input": rl_input},
+                       ppo_options=options).ppo.ent_coef
+
+    assert LATENT_ENT_COEF > 0
+    assert ent("latent:vae_rpl") == LATENT_ENT_COEF
+    assert ent("latent:curl", learners="curl") == LATENT_ENT_COEF
+    assert ent("latent:vae_rpl", options=["ent_coef=0"]) == 0.0
+    assert ent("latent:vae_rpl", options=["ent_coef=0.03"]) == 0.03
+    assert ent("state") == ent("pixels") == ent("latent:dsa") == 0.0
+    saved = resolve("fig2-invpend", overrides={"learners": "vae_rpl", "rl_input": "latent:vae_rpl"},
+                    ppo_options=["ent_coef=0"])
+    assert resolve(base=saved, domain_ppo=False).ppo.ent_coef == 0.0  # a resumed run keeps its own
