@@ -317,7 +317,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     r.add_argument("--graph-mode", default=None,
                    help="how MJX-Warp's calls use CUDA graphs on a GPU: warp (MJX's default), jax (left to "
                         "XLA's command buffers), warp_staged, warp_staged_ex or none; the same numbers, "
-                        "another speed (docs/performance.md)")
+                        "another speed; jax and warp_staged fail with mujoco-warp 4.0 (docs/performance.md)")
     r.add_argument("--ppo-updates", type=int, default=None, help="PPO updates per epoch")
     r.add_argument("--ppo-option", action="append", default=None, metavar="KEY=VALUE",
                    help="set a PPOConfig field (repeatable; applied last, over the preset's and the "

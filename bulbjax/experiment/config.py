@@ -55,7 +55,9 @@ class ExperimentConfig:
     # How MJX-Warp's calls use CUDA graphs on a GPU (`EnvConfig.graph_mode`): None, MJX's default
     # ("warp": Warp captures a graph per call and set of buffer addresses), or one of
     # `envs.env_config.GRAPH_MODES` ("jax": the calls left to XLA's own command buffers). The same
-    # numbers either way; a speed setting (docs/performance.md). Ignored on the CPU.
+    # numbers either way; a speed setting. On jax 0.11.2 / warp 1.19 / mujoco-warp 4.0 "jax" and
+    # "warp_staged" fail at the first call (docs/performance.md, "The reset pool"): kept for other
+    # versions. Ignored on the CPU.
     graph_mode: str | None = None
     ppo: PPOConfig = field(default_factory=PPOConfig)
     ppo_updates_per_epoch: int = 1
