@@ -312,7 +312,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                         "dsa: of the current step in the window of the last L steps ending at it), or "
                         "pixels (the frame through a conv encoder PPO trains end to end)")
     r.add_argument("--rl-frames", type=int, default=None, metavar="K",
-                   help="with --rl-input pixels or latent:<frame learner>: PPO observes the last K frames "
+                   help="with --rl-input pixels or latent:<frame learner or stdim>: PPO observes the last K frames "
                         "(stacked) or their latents (concatenated), so that it can see velocities (default 1)")
     r.add_argument("--graph-mode", default=None,
                    help="how MJX-Warp's calls use CUDA graphs on a GPU: warp (MJX's default), jax (left to "

@@ -49,6 +49,9 @@ def test_registered_with_equal_compute_batches() -> None:
     stdim = make_learner("stdim", 8, {"sequence_length": 24})
     curl = make_learner("curl", 8)
     assert stdim.sequential and not curl.sequential
+    from bulbjax.learners import has_frame_latent_name
+    # ST-DIM's latent is one frame's (PPO reads it from frames, `--rl-frames` stacks it); DSA's is not
+    assert has_frame_latent_name("stdim") and has_frame_latent_name("curl") and not has_frame_latent_name("dsa")
     assert stdim.batch_size == 1024 // 24 == 42  # windows: 1,008 frames, each encoded once
     assert curl.batch_size == 512  # frames, each encoded twice (query, key)
     assert stdim.retain_fraction == curl.retain_fraction == 0.5

@@ -16,8 +16,8 @@ from bulbjax.experiment.loop import Experiment
 from bulbjax.experiment.state import PolicyHistory
 
 
-def _config(rl_input: str) -> ExperimentConfig:
-    cfg = small_config(ExperimentConfig(env="CartPole", learners=("vae_rpl",), seeds=2, epochs=1,
+def _config(rl_input: str, learner: str = "vae_rpl") -> ExperimentConfig:
+    cfg = small_config(ExperimentConfig(env="CartPole", learners=(learner,), seeds=2, epochs=1,
                                         rl_input=rl_input, rl_frames=2))
     return cfg.replace(num_envs=8, ppo=dataclasses.replace(cfg.ppo, num_envs=8, num_steps=8, update_epochs=1,
                                                            num_minibatches=2),
@@ -33,6 +33,8 @@ def test_bad_rl_frames(kw: dict, match: str) -> None:
     with pytest.raises(ValueError, match=match):
         ExperimentConfig(**{"learners": ("vae_rpl",), **kw})
     assert ExperimentConfig(learners=("vae_rpl",), rl_input="pixels", rl_frames=3).rl_frames == 3
+    # ST-DIM trains on windows but its latent is one frame's: its latents can be stacked
+    assert ExperimentConfig(learners=("stdim",), rl_input="latent:stdim", rl_frames=2).rl_frames == 2
 
 
 def test_cli_flag_reaches_the_config(capsys) -> None:
@@ -43,17 +45,21 @@ def test_cli_flag_reaches_the_config(capsys) -> None:
     assert "stacks frames" in capsys.readouterr().err
 
 
-def test_latents_of_the_last_two_frames() -> None:
-    exp = Experiment(_config("latent:vae_rpl"))
-    policy, learner = exp.policy, exp.learners["vae_rpl"]
+@pytest.mark.parametrize("name", ["vae_rpl", "stdim"])
+def test_latents_of_the_last_two_frames(name: str) -> None:
+    """A frame learner's latents (`encode`), or ST-DIM's, which trains on windows but encodes each
+    frame alone (`frame_features`), of the previous and the current frame, step by step."""
+    exp = Experiment(_config(f"latent:{name}", name))
+    policy, learner = exp.policy, exp.learners[name]
     z = learner.latent_dim
-    assert policy.keeps_history and exp.ppo.obs_size == 2 * z
+    assert policy.keeps_history and not policy.rl_sequential and exp.ppo.obs_size == 2 * z
     rs = exp.init(jax.random.PRNGKey(0))
     hist = rs.policy_history["train"]
     S, N = exp.S, exp.N
     assert isinstance(hist, PolicyHistory) and hist.frames.shape[:3] == (S, N, 2)
-    enc = lambda s, frames: np.asarray(learner.encode(jax.tree.map(lambda x: x[s], rs.learners["vae_rpl"].params),  # noqa: E731
-                                                      frames))
+    encode = learner.frame_features if name == "stdim" else learner.encode
+    enc = lambda s, frames: np.asarray(encode(jax.tree.map(lambda x: x[s], rs.learners[name].params),  # noqa: E731
+                                              frames))
 
     def frames_of(es):
         return np.asarray(exp.env.render_frames(es.render_input)).reshape((S, N) + exp.env.frame_shape)

@@ -13,7 +13,7 @@ from typing import Any
 from bulbjax.data import synthetic
 from bulbjax.envs.env_config import GRAPH_MODES
 from bulbjax.eval.probe import ProbeConfig
-from bulbjax.learners import LearnerConfig, is_sequential_name, learner_names
+from bulbjax.learners import LearnerConfig, has_frame_latent_name, is_sequential_name, learner_names
 from bulbjax.rl.ppo_config import PPOConfig
 
 # How learner work may run over the seed axis (`ExperimentConfig.learner_seed_loop`).
@@ -82,8 +82,8 @@ class ExperimentConfig:
     # `seq_len` steps ending at it, cut at the episode's start (`state.PolicyHistory`), or
     # "pixels": the current frame through a small conv encoder trained end to end by PPO.
     rl_input: str = "state"
-    # How many of the latest frames PPO observes with `rl_input` "pixels" or a frame learner's
-    # latent: 1, the current one; K > 1, the last K (frames stacked along the channels, or their
+    # How many of the latest frames PPO observes with `rl_input` "pixels" or a latent of one frame
+    # (a frame learner's, or ST-DIM's: `Registration.frame_latent`): 1, the current one; K > 1, the last K (frames stacked along the channels, or their
     # latents concatenated, oldest first; an episode's first frame repeated until K are held).
     # One frame holds positions, not velocities: from the positions alone PPO reaches 950 on
     # InvertedPendulum but holds it in 20-36% of later updates, from two steps' in 93-100%
@@ -145,10 +145,10 @@ class ExperimentConfig:
         if self.rl_frames < 1:
             raise ValueError(f"rl_frames must be >= 1, got {self.rl_frames!r}")
         if self.rl_frames > 1 and not (self.rl_input == "pixels" or
-                                       (self.rl_learner is not None and not is_sequential_name(self.rl_learner))):
-            raise ValueError(f"rl_frames={self.rl_frames} stacks frames for rl_input 'pixels' or a frame learner's "
-                             f"latent; got rl_input {self.rl_input!r} (the state holds its velocities; a "
-                             f"sequential learner's latent reads its own window of steps)")
+                                       (self.rl_learner is not None and has_frame_latent_name(self.rl_learner))):
+            raise ValueError(f"rl_frames={self.rl_frames} stacks frames for rl_input 'pixels' or a latent of one "
+                             f"frame (a frame learner's, or ST-DIM's); got rl_input {self.rl_input!r} (the state "
+                             f"holds its velocities; a sequential learner's latent reads its own window of steps)")
         if self.learner_seed_loop not in SEED_LOOPS:
             raise ValueError(f"learner_seed_loop must be one of {SEED_LOOPS}, got {self.learner_seed_loop!r}")
         if self.programs not in PROGRAM_FORMS:

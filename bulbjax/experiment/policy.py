@@ -2,8 +2,9 @@
 
 PPO observes the true state, the current frame, or a learner's latent of the current frame
 (`ExperimentConfig.rl_input`); for a sequential learner, the latent of the current step in the
-window of the last L steps ending at it (`PolicyHistory`, kept per world in the run state). With
-`rl_frames` K > 1, PPO on pixels or a frame learner's latent observes the last K frames (stacked
+window of the last L steps ending at it (`PolicyHistory`, kept per world in the run state), unless
+its latent is one frame's (ST-DIM), which PPO reads as a frame learner's. With
+`rl_frames` K > 1, PPO on pixels or a latent of one frame observes the last K frames (stacked
 along the channels) or their latents (concatenated), read from a `PolicyHistory` of K steps. A
 rollout stores every step as (render input, true state, action features, done); a policy that
 rendered its frames keeps them in place of the render inputs (`Rendered`), so the data side
@@ -22,7 +23,7 @@ from bulbjax.experiment.config import ExperimentConfig
 from bulbjax.experiment.devices import Devices
 from bulbjax.experiment.seeds import Team
 from bulbjax.experiment.state import PolicyHistory, PolicyView, PolicyWindow, Rendered, history_of
-from bulbjax.learners import is_sequential
+from bulbjax.learners import is_sequential, registration
 from bulbjax.rl.ppo import PPO, PPOState, Transition
 
 
@@ -60,8 +61,10 @@ class Policy:
         # PPO observes the true state, the frame (rl_input "pixels") or a learner's latent of it.
         self.rl_learner = c.rl_learner
         self.rl_pixels = c.rl_input == "pixels"
-        # A sequential learner's latent is read from a window of the last L steps (PolicyHistory).
-        self.rl_sequential = self.rl_learner is not None and is_sequential(team.learners[self.rl_learner])
+        # A sequential learner's latent is read from a window of the last L steps (PolicyHistory),
+        # unless it is one frame's (ST-DIM: `Registration.frame_latent`), read as a frame learner's.
+        self.rl_sequential = (self.rl_learner is not None and is_sequential(team.learners[self.rl_learner])
+                              and not registration(self.rl_learner).frame_latent)
         # PPO on pixels or a frame learner's latent observes the last `rl_frames` frames
         self.rl_frames = c.rl_frames
         num_actions = env.num_actions if env.discrete else None
@@ -114,8 +117,11 @@ class Policy:
 
     def _encode_frames(self, params: Any, frames: jax.Array) -> jax.Array:
         """The RL learner's latent of uint8 frames `[B, H, W, 3]` (one seed), without gradient
-        into the learner."""
-        return self.team.learners[self.rl_learner].encode(jax.lax.stop_gradient(params), frames)
+        into the learner: `encode` for a frame learner, `frame_features` for a sequential learner
+        whose latent is one frame's (ST-DIM)."""
+        learner = self.team.learners[self.rl_learner]
+        encode = learner.frame_features if is_sequential(learner) else learner.encode
+        return encode(jax.lax.stop_gradient(params), frames)
 
     def _window_latents(self, params: Any, frames: jax.Array, actions: jax.Array) -> jax.Array:
         """The sequential RL learner's per-step latents `[B, L, Z]` of windows given as frames

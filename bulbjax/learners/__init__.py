@@ -31,8 +31,8 @@ from bulbjax.learners.base import (
     parse_learner_options,
 )
 from bulbjax.learners.networks import ConvEncoder, DeconvDecoder, check_frame_shape
-from bulbjax.learners.registry import (is_sequential_name, learner_names, register_learner, registration,
-                                       unregister_learner)
+from bulbjax.learners.registry import (has_frame_latent_name, is_sequential_name, learner_names, register_learner,
+                                       registration, unregister_learner)
 from bulbjax.learners.sequential import DSA, PRED, SEQUENTIAL_LEARNERS, SVAE, SequentialVAE
 from bulbjax.learners.spair import SPAIR
 from bulbjax.learners.vae import VAE
@@ -129,6 +129,7 @@ __all__ = [
     "SequenceLearner",
     "SequentialVAE",
     "is_sequential",
+    "has_frame_latent_name",
     "is_sequential_name",
     "learner_names",
     "register_learner",

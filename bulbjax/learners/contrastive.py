@@ -292,7 +292,7 @@ class CURL:
         return self._z(params["online"], _unit(frames))
 
 
-@register_learner("stdim", defaults={"retain_fraction": 0.5}, sequential=True)
+@register_learner("stdim", defaults={"retain_fraction": 0.5}, sequential=True, frame_latent=True)
 def make_stdim(latent_dim: int, config: LearnerConfig, action_dim: int) -> STDIM:
     return STDIM(latent_dim=latent_dim, config=config, action_dim=action_dim)
 

@@ -37,24 +37,31 @@ Factory = Callable[[int, LearnerConfig, int], Any]
 class Registration:
     """One registered learner: its `factory`, the `LearnerConfig` fields its name sets before the
     caller's choices (`defaults`, e.g. `{"retain_fraction": 0.5}`, the paper's replay fix) and
-    whether it trains on windows (`sequential`: the run then keeps window buffers)."""
+    whether it trains on windows (`sequential`: the run then keeps window buffers); whether its
+    latent is of one frame alone (`frame_latent`: every frame learner's, and a sequential
+    learner's that encodes each frame on its own, as ST-DIM: PPO then reads it from the frames,
+    and `rl_frames` can stack the latents of several)."""
 
     name: str
     factory: Factory
     defaults: Mapping[str, Any]
     sequential: bool
+    frame_latent: bool = True
 
 
 _REGISTRY: dict[str, Registration] = {}
 
 
 def register_learner(name: str, factory: Factory | None = None, *, defaults: Mapping[str, Any] | None = None,
-                     sequential: bool | None = None, replace: bool = False) -> Any:
+                     sequential: bool | None = None, frame_latent: bool | None = None,
+                     replace: bool = False) -> Any:
     """Register learner `name` built by `factory(latent_dim, config, action_dim)`; as a
     decorator when `factory` is left out (returns the factory unchanged). `defaults`: per-name
     `LearnerConfig` fields (checked here: an unknown field is an error). `sequential`: whether it
     trains on `Windows`; left out, the factory's own `sequential` attribute (a class with
-    `sequential = True`) or False. Registering a name twice is an error unless `replace`."""
+    `sequential = True`) or False. `frame_latent`: whether its latent is one frame's (read by PPO
+    through the learner's `frame_features` when it is sequential); left out, `not sequential`.
+    Registering a name twice is an error unless `replace`."""
     fields = {f.name for f in dataclasses.fields(LearnerConfig)}
 
     def add(fn: Factory) -> Factory:
@@ -67,7 +74,8 @@ def register_learner(name: str, factory: Factory | None = None, *, defaults: Map
             raise ValueError(f"learner {name!r}: unknown LearnerConfig fields {sorted(unknown)} in defaults")
         LearnerConfig(**dict(defaults or {}))  # validated now, not at the first run
         seq = bool(getattr(fn, "sequential", False)) if sequential is None else bool(sequential)
-        _REGISTRY[name] = Registration(name, fn, dict(defaults or {}), seq)
+        one_frame = (not seq) if frame_latent is None else bool(frame_latent)
+        _REGISTRY[name] = Registration(name, fn, dict(defaults or {}), seq, one_frame)
         return fn
 
     return add if factory is None else add(factory)
@@ -95,3 +103,9 @@ def learner_names() -> tuple[str, ...]:
 def is_sequential_name(name: str) -> bool:
     """Whether the registered learner `name` trains on windows (False for an unknown name)."""
     return name in _REGISTRY and _REGISTRY[name].sequential
+
+
+def has_frame_latent_name(name: str) -> bool:
+    """Whether the registered learner `name`'s latent is of one frame alone (a frame learner's,
+    or ST-DIM's; False for an unknown name)."""
+    return name in _REGISTRY and _REGISTRY[name].frame_latent
