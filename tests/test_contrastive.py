@@ -64,10 +64,10 @@ def data():
             synthetic.generate(jax.random.PRNGKey(1), MOVERS, 32, 16))
 
 
-@pytest.mark.parametrize("name", ["stdim", "curl"])
-def test_loss_falls_and_the_probe_reads_position(name: str, data) -> None:
+@pytest.mark.parametrize("name, options", [("stdim", {}), ("stdim", {"stdim_temperature": 0.1}), ("curl", {})])
+def test_loss_falls_and_the_probe_reads_position(name: str, options: dict, data) -> None:
     traj, test = data
-    learner = make_learner(name, 4, SMALL, action_dim=1)
+    learner = make_learner(name, 4, {**SMALL, **options}, action_dim=1)
     state0 = learner.init(jax.random.PRNGKey(2), MOVERS.frame_shape)
 
     def sample(k):
@@ -142,3 +142,23 @@ def test_one_epoch_of_the_experiment_with_ppo_on_stdim() -> None:
     # PPO observes stdim's one-frame latent: 2 x the state's dimension, not two steps of it
     assert exp.ppo.obs_size == exp.learners["stdim"].latent_dim == 2 * d
     assert all(np.all(np.isfinite(v)) for v in m["ppo"].values())
+
+
+def test_stdim_cosine_scores_are_bounded_and_scale_free(data) -> None:
+    """With `stdim_temperature` the scores are cosines over T: the loss does not move when the
+    score matrices grow (what made the raw bilinear scores diverge in long runs) and stays below
+    ln(N) + 2/T; the raw scores' loss moves with their scale."""
+    traj, _ = data
+    w = sequence.sample_windows(traj, jax.random.PRNGKey(8), 8, SMALL["sequence_length"])
+    n = 8 * (SMALL["sequence_length"] - 1)
+    for t in (0.0, 0.1):
+        learner = make_learner("stdim", 4, {**SMALL, "stdim_temperature": t}, action_dim=1)
+        params = learner.init(jax.random.PRNGKey(9), MOVERS.frame_shape).params
+        grown = {**params, "w_gl": params["w_gl"] * 50.0, "w_ll": params["w_ll"] * 50.0}
+        base, big = (float(learner.loss(p, w, jax.random.PRNGKey(0))[0]) for p in (params, grown))
+        if t:
+            assert abs(big - base) < 1e-4 and base < 2 * (np.log(n) + 2 / t), (base, big)
+        else:
+            assert abs(big - base) > 1.0, (base, big)
+    with pytest.raises(ValueError, match="stdim_temperature"):
+        make_learner("stdim", 4, {**SMALL, "stdim_temperature": -1.0})

@@ -88,6 +88,11 @@ class LearnerConfig:
     # the loop; each LSTM's forward + backward 1.25-1.5x faster on the H100) or "autodiff" (JAX's
     # own); same function and gradients. A config.json written before the field reads "autodiff".
     lstm_grad: str = "written"
+    # ST-DIM only (contrastive.py): 0, AtariARI's bilinear scores of the raw features (unbounded:
+    # in 4 of 12 seeds of docs/results/fig2_contrastive_h200 the local-local loss grew from ~6 to
+    # 10-360 nats after ~700 epochs); > 0, scores of L2-normalised vectors over this temperature
+    # (cosine / T, bounded by 1/T). The other learners ignore it.
+    stdim_temperature: float = 0.0
     # SPAIR only (spair.py); the other learners ignore these. Defaults follow the original
     # (Crawford & Pineau 2019) where it says, and the bulb paper (28 px glimpses, 4x4 grid).
     spair_grid: int = 4  # G: cells per side of the grid (paper: 4 or 6)
@@ -138,6 +143,8 @@ class LearnerConfig:
             raise ValueError(f"lstm_grad must be one of {LSTM_GRADS}, got {self.lstm_grad!r}")
         if self.dsa_encoder not in DSA_ENCODERS:
             raise ValueError(f"dsa_encoder must be one of {DSA_ENCODERS}, got {self.dsa_encoder!r}")
+        if not (math.isfinite(self.stdim_temperature) and self.stdim_temperature >= 0):
+            raise ValueError(f"stdim_temperature must be >= 0 (0: unnormalised scores), got {self.stdim_temperature!r}")
         for name in ("spair_grid", "spair_glimpse", "spair_what_dim", "spair_bg_dim",
                      "spair_count_decay_steps"):
             if getattr(self, name) < 1:

@@ -10,7 +10,10 @@ softmax over the N candidates of each anchor, the other anchors' positives being
   consecutive frames x_t, x_{t+1} of a window. Global-local: the latent of x_t (through `w_gl`)
   against each location of x_{t+1}'s local feature map (the output of the second-to-last conv
   layer: 8x8x128 at 64 px); local-local: each location of x_t's map (through `w_ll`) against the
-  same location of x_{t+1}'s. The loss is the mean over locations of both. It trains on windows
+  same location of x_{t+1}'s. The loss is the mean over locations of both. The scores are
+  AtariARI's bilinear products of the raw vectors unless `LearnerConfig.stdim_temperature` > 0,
+  which scores L2-normalised vectors over that temperature (bounded; the raw scores diverged in
+  4 of 12 long pendulum seeds). It trains on windows
   (a `SequenceLearner`), but its latent is one frame's: the probe reads z_t alone
   (`probe_context = 1`), as AtariARI probes, so that it compares with the frame learners.
 - **CURL** (`curl`; Laskin et al. 2020): InfoNCE between two random shifts of the same frame (the
@@ -94,6 +97,11 @@ def _unit(frames: jax.Array) -> jax.Array:
     return frames.astype(jnp.float32) / 255.0
 
 
+def _l2_unit(x: jax.Array) -> jax.Array:
+    """`x` scaled to unit length along its last axis (zero vectors stay ~zero)."""
+    return x * jax.lax.rsqrt(jnp.sum(x * x, axis=-1, keepdims=True) + 1e-12)
+
+
 def _encoder(latent_dim: int, c: LearnerConfig) -> ContrastiveEncoder:
     return ContrastiveEncoder(latent_dim, c.conv_features, c.hidden, c.dtype, **c.conv_forms)
 
@@ -175,8 +183,13 @@ class STDIM:
         za = z[:, :-1].reshape(n, -1)
         la = local[:, :-1].reshape(n, -1, local.shape[-1])  # [N, M, C]
         lb = local[:, 1:].reshape(n, -1, local.shape[-1])
-        gl = jnp.einsum("nc,kmc->mnk", za @ params["w_gl"], lb)  # [M, N, N]
-        ll = jnp.einsum("nmc,kmc->mnk", la @ params["w_ll"], lb)
+        qg, ql, t = za @ params["w_gl"], la @ params["w_ll"], self.config.stdim_temperature
+        if t > 0:  # cosine scores over a temperature (LearnerConfig.stdim_temperature): bounded
+            qg, ql, lb = _l2_unit(qg), _l2_unit(ql), _l2_unit(lb)
+        gl = jnp.einsum("nc,kmc->mnk", qg, lb)  # [M, N, N]
+        ll = jnp.einsum("nmc,kmc->mnk", ql, lb)
+        if t > 0:
+            gl, ll = gl / t, ll / t
         score = jax.vmap(info_nce, in_axes=(0, None))
         gl_loss, gl_acc = score(gl, valid)
         ll_loss, _ = score(ll, valid)
