@@ -16,7 +16,8 @@ from bulbjax.data.sequence import Windows
 from bulbjax.eval import linear, probe
 from bulbjax.experiment.probing import probe_latents
 from bulbjax.learners import learner_names, make_learner
-from bulbjax.learners.contrastive import info_nce, random_shift
+from bulbjax.data.augment import random_shift
+from bulbjax.learners.contrastive import info_nce
 
 MOVERS = synthetic.MoversConfig(resolution=16, num_objects=1, size=5.0, max_speed=1.0, episode_length=16)
 SMALL = dict(conv_features=(16, 32, 32), hidden=32, lr=2e-3, batch_size=64, sequence_length=8)

@@ -185,11 +185,13 @@ def _bandit_frames(key: jax.Array, n: int) -> tuple[jax.Array, jax.Array]:
     return jnp.repeat(img[..., None], 3, -1), side
 
 
-def test_pixel_ppo_learns_a_visual_bandit():
+@pytest.mark.parametrize("shift", [0, 2])
+def test_pixel_ppo_learns_a_visual_bandit(shift: int):
     """PPO from pixels (`frame_shape`): the conv torso and the policy learn, from the PPO loss
     alone, which action a frame rewards (the square's side); a state-free task only the pixels
-    can solve. Random play is right half the time."""
-    cfg = PPOConfig(num_steps=4, num_minibatches=2, update_epochs=4, lr=1e-3, reward_scale=1.0)
+    can solve. Random play is right half the time. With `pixel_shift` 2 the update sees the
+    frames shifted by up to 2 px (the sides stay apart) and learns as well."""
+    cfg = PPOConfig(num_steps=4, num_minibatches=2, update_epochs=4, lr=1e-3, reward_scale=1.0, pixel_shift=shift)
     ppo = PPO(cfg, 0, num_actions=2, frame_shape=(16, 16, 3))
     assert ppo.pixels and ppo.obs_size == 0
     state = ppo.init(jax.random.PRNGKey(0))
@@ -217,3 +219,26 @@ def test_pixel_ppo_learns_a_visual_bandit():
     assert float((greedy == side).mean()) > 0.95, float((greedy == side).mean())
     # frames are not normalised with running statistics (the torso scales them)
     assert float(state.obs_stats.count) < 1.0
+
+
+def test_pixel_shift_moves_the_update_and_only_for_frames():
+    """`pixel_shift` changes a pixel policy's update (its minibatches see shifted frames) and
+    nothing else: a state policy's update is the same bit for bit; a negative shift is refused."""
+    frames, side = _bandit_frames(jax.random.PRNGKey(3), 4 * 8)
+    frames = frames.reshape((4, 8) + frames.shape[1:])
+    ones = jnp.ones((4, 8))
+
+    def updated(shift: int, pixels: bool):
+        cfg = PPOConfig(num_steps=4, num_minibatches=2, update_epochs=1, pixel_shift=shift)
+        ppo = PPO(cfg, 0 if pixels else 3, num_actions=2, frame_shape=(16, 16, 3) if pixels else None)
+        state = ppo.init(jax.random.PRNGKey(0))
+        obs = frames if pixels else jnp.tile(side.reshape(4, 8, 1).astype(jnp.float32), (1, 1, 3))
+        action, logp, value = ppo.act(state, obs.reshape((32,) + obs.shape[2:]), jax.random.PRNGKey(1))
+        traj = Transition(obs, action.reshape(4, 8), ones, ones, 0 * ones, logp.reshape(4, 8), value.reshape(4, 8))
+        return jax.tree.leaves(ppo.update(state, traj, obs[-1], jax.random.PRNGKey(2))[0].params)
+
+    moved = [not np.array_equal(a, b) for a, b in zip(updated(0, True), updated(3, True))]
+    assert any(moved)
+    assert all(np.array_equal(a, b) for a, b in zip(updated(0, False), updated(3, False)))
+    with pytest.raises(ValueError, match="pixel_shift"):
+        PPOConfig(pixel_shift=-1)

@@ -42,6 +42,7 @@ import jax
 import jax.numpy as jnp
 import optax
 
+from bulbjax.data.augment import random_shift
 from bulbjax.learners.base import LearnerConfig, LearnerState, Metrics
 from bulbjax.learners.networks import Conv4x4, check_edge_layers, check_frame_shape, lecun_normal_flat
 from bulbjax.learners.registry import register_learner
@@ -216,17 +217,6 @@ class STDIM:
     def encode(self, params: Any, windows: Any) -> jax.Array:
         """Per-step latents `[B, sequence_length, Z]`, each of its frame alone."""
         return self.frame_features(params, windows.frames[:, : self.sequence_length])
-
-
-def random_shift(key: jax.Array, x: jax.Array, pad: int) -> jax.Array:
-    """Frames `[B, H, W, C]` padded by `pad` px with their edge pixels and cropped back to
-    `[B, H, W, C]` at a random offset per frame (shifts of up to `pad` px each way)."""
-    if pad <= 0:
-        return x
-    b, h, w, c = x.shape
-    xp = jnp.pad(x, ((0, 0), (pad, pad), (pad, pad), (0, 0)), mode="edge")
-    off = jax.random.randint(key, (b, 2), 0, 2 * pad + 1)
-    return jax.vmap(lambda img, o: jax.lax.dynamic_slice(img, (o[0], o[1], 0), (h, w, c)))(xp, off)
 
 
 @dataclasses.dataclass(frozen=True)

@@ -24,6 +24,7 @@ import jax.numpy as jnp
 import optax
 from flax import struct
 
+from bulbjax.data.augment import random_shift
 from bulbjax.rl.networks import DiscreteActorCritic, GaussianActorCritic, PixelActorCritic
 from bulbjax.rl.ppo_config import PPOConfig, lr_factor
 
@@ -251,9 +252,12 @@ class PPO:
         return jax.random.uniform(key, (n, self.action_size), minval=-1.0, maxval=1.0)
 
     # ------------------------------------------------------------------ learning
-    def _loss(self, params: Any, mb: dict) -> tuple[jax.Array, dict]:
+    def _loss(self, params: Any, mb: dict, key: jax.Array | None = None) -> tuple[jax.Array, dict]:
         cfg = self.config
-        logp, entropy, value = self._evaluate(params, mb["obs"], mb["action"])
+        obs = mb["obs"]
+        if self.pixels and cfg.pixel_shift > 0 and key is not None:  # frames [B, H, W, C]
+            obs = random_shift(key, obs, cfg.pixel_shift)
+        logp, entropy, value = self._evaluate(params, obs, mb["action"])
         log_ratio = logp - mb["log_prob"]
         ratio = jnp.exp(log_ratio)
         adv = mb["adv"]
@@ -308,11 +312,13 @@ class PPO:
         batch = jax.tree.map(lambda x: x.reshape((batch_size,) + x.shape[2:]), batch)
 
         steps_per_update = cfg.update_epochs * cfg.num_minibatches
+        aug_key = jax.random.fold_in(key, 0x5EED)  # leaves `key`'s permutations as they were
 
         def minibatch_step(carry, xs):
             params, opt_state, stopped = carry
             mb, j = xs  # j: the minibatch step's index within this update
-            grads, metrics = jax.grad(self._loss, has_aux=True)(params, mb)
+            # the frames' shifts (cfg.pixel_shift), drawn apart from the minibatches' order
+            grads, metrics = jax.grad(self._loss, has_aux=True)(params, mb, jax.random.fold_in(aug_key, j))
             updates, new_opt = self.tx.update(grads, opt_state, params)
             factor = lr_factor(cfg, state.step + j / steps_per_update)
             if cfg.anneal_updates > 0:

@@ -58,6 +58,12 @@ class PPOConfig:
     # >0: the observation statistics stop updating after this many PPO updates (frozen, so a
     # solved task's narrowing state distribution no longer moves the inputs); 0: never frozen.
     obs_norm_updates: int = 0
+    # PPO from pixels only: > 0, every minibatch step of the update sees its frames shifted by up
+    # to this many pixels each way (`data.augment.random_shift`, all stacked frames of a sample
+    # together; RAD/DrQ's augmentation), the rollout's log-probabilities and values unshifted;
+    # 0: the frames as rendered. In 2 of 3 InvertedPendulum seeds PPO's torso never came to
+    # encode the pole without it (docs/results/rl_inputs_frames_h200); with it: not measured yet.
+    pixel_shift: int = 0
 
     def __post_init__(self) -> None:
         if self.lr_schedule not in LR_SCHEDULES:
@@ -66,6 +72,8 @@ class PPOConfig:
             raise ValueError(f"lr_floor is a fraction of lr in [0, 1], got {self.lr_floor}")
         if self.anneal_updates < 0 or self.obs_norm_updates < 0:
             raise ValueError("anneal_updates and obs_norm_updates must be >= 0")
+        if self.pixel_shift < 0:
+            raise ValueError(f"pixel_shift must be >= 0 (pixels of shift; 0: none), got {self.pixel_shift}")
         if self.target_kl is not None and self.target_kl <= 0:
             raise ValueError(f"target_kl must be > 0 (or None), got {self.target_kl}")
 
