@@ -83,8 +83,9 @@ class ExperimentConfig:
     # "pixels": the current frame through a small conv encoder trained end to end by PPO.
     rl_input: str = "state"
     # How many of the latest frames PPO observes with `rl_input` "pixels" or a latent of one frame
-    # (a frame learner's, or ST-DIM's: `Registration.frame_latent`): 1, the current one; K > 1, the last K (frames stacked along the channels, or their
-    # latents concatenated, oldest first; an episode's first frame repeated until K are held).
+    # (a frame learner's, or ST-DIM's: `Registration.frame_latent`): 1, the current one; K > 1,
+    # the last K (frames stacked along the channels, or their latents concatenated, oldest first;
+    # an episode's first frame repeated until K are held).
     # One frame holds positions, not velocities: from the positions alone PPO reaches 950 on
     # InvertedPendulum but holds it in 20-36% of later updates, from two steps' in 93-100%
     # (benchmarks/diagnostics/ppo_partial_obs.py, docs/ppo.md).
