@@ -76,7 +76,11 @@ def fit(latents: jax.Array, states: jax.Array, val: jax.Array,
     def solve(l: jax.Array) -> jax.Array:
         return jsl.cho_solve(jsl.cho_factor(gram + l * eye, lower=True), cross)
 
-    ws = jax.vmap(solve)(lam)  # [K, Z, D]
+    # one regulariser after another, not vmapped: a batched Cholesky solve runs jaxlib's LAPACK
+    # `trsm` with a parallel batch map on XLA:CPU's thread pool, and two of those side by side
+    # (several learners' probes in one program) wait on each other for ever on 2 cores
+    # (`fig5-rearrange-ycb --small` hung in 3 of 3 tries; with this it runs). Same numbers.
+    ws = jax.lax.map(solve, lam)  # [K, Z, D]
     wv = val.astype(jnp.float32)[:, None]
     n_val = jnp.sum(val)
     pred = jnp.einsum("bz,kzd->kbd", xs, ws, precision=_HI) * y_std + y_mean  # [K, B, D]
