@@ -17,6 +17,10 @@ timed in the same process on the same device, every one as a jitted `lax.scan` o
 * with `--graph-modes`: `physics` and `full` again under each of those `EnvConfig.graph_mode`
   values (MJX's default is "warp": a Warp-captured CUDA graph per call and buffer addresses).
 
+With `--trace DIR`, one more call of `full` and of `physics` is traced (JAX profiler) and each
+trace's summary (`trace_summary.summarise`: kernels and copies, GPU busy time and launches per
+step) goes into the JSON.
+
 It prints the per-step milliseconds of each and what they imply (render share, refill share,
 physics as JAX runs it, the rest: the wrapper's selects, state and reward), and writes
 `benchmarks/results/incline_gap_<env>_<device>_<stamp>.json` after every part, so that a run
@@ -25,6 +29,7 @@ stopped by a time limit keeps what it measured (the whole takes ~6 min on an H10
     python benchmarks/diagnostics/incline_gap.py --env GeomOnIncline --worlds 4096      # GPU
     python benchmarks/diagnostics/incline_gap.py --env GeomOnIncline --worlds 4096 --parts full,physics \
         --graph-modes jax,warp_staged                                                     # graph modes alone
+    python benchmarks/diagnostics/incline_gap.py --env GeomOnIncline --parts full,physics --trace /tmp/t  # profile
     python benchmarks/diagnostics/incline_gap.py --small                                # CPU smoke test
 """
 
@@ -48,11 +53,12 @@ from timing import time_fn  # noqa: E402  (first call, then median of repeats)
 PARTS = ("full", "raw", "physics", "refill", "no_render", "full_forward")
 
 
-def scan_random_pushes(fn: Any, carry: Any, worlds: int, size: int, steps: int, repeats: int
-                       ) -> tuple[dict[str, float], list[int]]:
+def scan_random_pushes(fn: Any, carry: Any, worlds: int, size: int, steps: int, repeats: int,
+                       trace: str = "") -> tuple[dict[str, float], list[int]]:
     """Time a jitted scan of `steps` applications of `fn(carry, action) -> (carry, ended)` under
     uniform random pushes `[worlds, size]`, continued from call to call (`time_fn`: a compiling
-    call, then the median of `repeats`); also the summed `ended` of each timed call."""
+    call, then the median of `repeats`); also the summed `ended` of each timed call. `trace`: a
+    folder to write a JAX profiler trace of one more call to (its kernels and copies)."""
     import jax
     import jax.numpy as jnp
 
@@ -73,11 +79,36 @@ def scan_random_pushes(fn: Any, carry: Any, worlds: int, size: int, steps: int, 
         box["ended"].append(ended)
         return box["carry"]
 
-    return time_fn(call, repeats), [int(e) for e in box["ended"][1:]]
+    timing = time_fn(call, repeats)
+    if trace:
+        with jax.profiler.trace(trace):
+            jax.block_until_ready(call())
+    return timing, [int(e) for e in box["ended"][1:1 + repeats]]
+
+
+def trace_summary_of(folder: str, steps: int) -> dict[str, Any]:
+    """`trace_summary.summarise` of the trace written under `folder`, with each device's busy
+    time, launches and copies per env step (the copies: kernels named Memcpy/Memset)."""
+    import glob
+
+    import trace_summary
+
+    files = sorted(glob.glob(os.path.join(folder, "**", "*.xplane.pb"), recursive=True))
+    if not files:
+        return {"error": f"no trace under {folder}"}
+    res = trace_summary.summarise(files[-1], top=25)
+    for dev in res["devices"].values():
+        streams = dev["lines"].get("streams", {"top": []})["top"]
+        copies = [t for t in streams if "Memcpy" in t["name"] or "Memset" in t["name"]]
+        dev["per_step"] = {"busy_ms": dev["busy_ms"] / steps, "span_ms": dev["span_ms"] / steps,
+                           "launches": dev["kernel_launches"] / steps,
+                           "copies_ms": sum(t["ms"] for t in copies) / steps,
+                           "copies": sum(t["count"] for t in copies) / steps}
+    return res
 
 
 def step_scan(name: str, worlds: int, steps: int, repeats: int, render: bool, resolution: int,
-              forward: bool = False, graph_mode: str | None = None) -> dict[str, Any]:
+              forward: bool = False, graph_mode: str | None = None, trace: str = "") -> dict[str, Any]:
     """Median seconds of `steps` random-push env steps in one jitted scan, and the episodes that
     ended in them; `forward`: with MJX's full forward pass after resets (as for a moving camera)."""
     import jax
@@ -93,16 +124,17 @@ def step_scan(name: str, worlds: int, steps: int, repeats: int, render: bool, re
         st = env.step(st, action)
         return st, st.done.sum()
 
-    t, ended = scan_random_pushes(step, state, worlds, env.action_size, steps, repeats)
+    t, ended = scan_random_pushes(step, state, worlds, env.action_size, steps, repeats, trace)
     first, med = t["first_s"], t["median_s"]
-    return {"render": render, "pose_pass": env._pose_pass, "graph_mode": graph_mode, "first_call_s": first,
+    extra = {"trace": trace_summary_of(trace, steps)} if trace else {}
+    return {**extra, "render": render, "pose_pass": env._pose_pass, "graph_mode": graph_mode, "first_call_s": first,
             "call_s": med, "ms_per_step": 1e3 * med / steps,
             "frames_per_s": worlds * steps / med, "ended_per_step": statistics.median(ended) / steps,
             "reset_pool": int(env.reset_pool), "frame_skip": int(getattr(env, "frame_skip", 1))}
 
 
 def physics_scan(name: str, worlds: int, steps: int, repeats: int, resolution: int,
-                 graph_mode: str | None = None) -> dict[str, Any]:
+                 graph_mode: str | None = None, trace: str = "") -> dict[str, Any]:
     """Median seconds of `steps` env steps of physics alone (`env.physics`: `frame_skip` Warp
     steps with the action applied, and the kinematics pass where the domain has one) in one jitted
     scan from a reset, no reward, resets or frames: the Warp calls' share of the step, as JAX
@@ -115,8 +147,9 @@ def physics_scan(name: str, worlds: int, steps: int, repeats: int, resolution: i
     state0 = jax.block_until_ready(jax.jit(env.reset)(jax.random.PRNGKey(0)))
     params = state0.params  # the worlds' physical parameters (the Incline's slope)
     t, _ = scan_random_pushes(lambda d, a: (env.physics(d, a, params), 0), state0.data, worlds,
-                              env.action_size, steps, repeats)
-    return {"graph_mode": graph_mode, "first_call_s": t["first_s"], "call_s": t["median_s"],
+                              env.action_size, steps, repeats, trace)
+    extra = {"trace": trace_summary_of(trace, steps)} if trace else {}
+    return {**extra, "graph_mode": graph_mode, "first_call_s": t["first_s"], "call_s": t["median_s"],
             "ms_per_step": 1e3 * t["median_s"] / steps}
 
 
@@ -150,6 +183,9 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     p.add_argument("--graph-modes", default="",
                    help="comma-separated EnvConfig.graph_mode values (e.g. jax,warp_staged) to time `physics` "
                         "and `full` under as well, after the parts above (GPU: how MJX-Warp's calls use CUDA graphs)")
+    p.add_argument("--trace", default="",
+                   help="a folder: also trace one call of `full` and `physics` (JAX profiler) and keep each trace's "
+                        "summary (busy time, launches, copies per step; benchmarks/trace_summary.py) in the JSON")
     p.add_argument("--small", action="store_true", help="CPU smoke test: 8 worlds, 3 steps, 2 repeats")
     p.add_argument("--out", default=os.path.join(os.path.dirname(HERE), "results"))
     a = p.parse_args(argv)
@@ -176,7 +212,8 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     if bad:
         p.error(f"--parts: unknown {bad}; choose from {','.join(PARTS)}")
     if "full" in parts:
-        out["full"] = step_scan(a.env, a.worlds, a.steps, a.repeats, True, a.resolution)
+        out["full"] = step_scan(a.env, a.worlds, a.steps, a.repeats, True, a.resolution,
+                                trace=os.path.join(a.trace, "full") if a.trace else "")
         save()
         print(f"full step + render: {out['full']['ms_per_step']:.3f} ms/step, {out['full']['frames_per_s']:,.0f} frames/s, "
               f"{out['full']['ended_per_step']:.1f} episodes ended per step", flush=True)
@@ -187,7 +224,8 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         print(f"raw Warp step + render: {out['raw']['ms_per_step']:.3f} ms/step, {raw['frames_per_s']:,.0f} frames/s",
               flush=True)
     if "physics" in parts:
-        out["physics"] = physics_scan(a.env, a.worlds, a.steps, a.repeats, a.resolution)
+        out["physics"] = physics_scan(a.env, a.worlds, a.steps, a.repeats, a.resolution,
+                                      trace=os.path.join(a.trace, "physics") if a.trace else "")
         save()
         print(f"physics alone (env.physics): {out['physics']['ms_per_step']:.3f} ms/step", flush=True)
     if "refill" in parts and "full" in out:
