@@ -23,7 +23,9 @@ bytes):
   of a run, kept in the probed ones) goes. No report reads ppo, learners or replay_dropped.
   `--unprobed minimal` keeps only epoch, seed, rl_return, rl_episodes (what the plots' RL row,
   the tables' return and the epoch count in the titles read). Every (epoch, seed) record
-  stays: the reports count epochs and drop epochs missing a seed.
+  stays: the reports count epochs and drop epochs missing a seed. `--probed-every N` (runs that
+  probed every epoch, ~200 KB a record on the Rearrange scenes) keeps whole only the probed
+  records of every Nth epoch and those the tables and findings read (`kept_probed_epochs`).
 
 PNGs: quantised to a 256-colour palette (no dithering; Pillow's median cut or fast octree,
 whichever file is smaller), kept only when it stays faithful (mean error per channel at most
@@ -48,6 +50,7 @@ import sys
 from typing import Any, Iterable
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+sys.path.insert(0, ROOT)  # kept_probed_epochs reads bulbjax.experiment.findings_objects
 DEFAULT_PATHS = ("docs/results", "docs/images")
 SCALARS = ("epoch", "seed", "rl_return", "rl_episodes", "nonfinite_resets", "ppo", "learners", "replay_dropped",
            "probes")
@@ -106,11 +109,35 @@ def encode(records: Iterable[dict[str, Any]], gz: bool) -> bytes:
     return gzip.compress(text, compresslevel=9, mtime=0) if gz else text
 
 
+def kept_probed_epochs(epochs: Iterable[int], every: int) -> set[int]:
+    """Of a run's probed `epochs`, those `--probed-every every` keeps whole: the multiples of
+    `every`, the last 3 (the tables and findings average over them) and the 3 at or before the
+    object findings' early epoch (`findings_objects.EARLY_EPOCH`, or half the run: what "SPAIR's
+    localisation does not improve" compares the last ones with), so that the reports read the
+    same numbers as before."""
+    from bulbjax.experiment.findings_objects import EARLY_EPOCH
+
+    epochs = sorted(set(epochs))
+    if not epochs:
+        return set()
+    early_at = min(EARLY_EPOCH, epochs[-1] // 2)
+    return ({e for e in epochs if e % every == 0} | set(epochs[-3:])
+            | set([e for e in epochs if e <= early_at][-3:]))
+
+
 def reduce_metrics(path: str, digits: int = 5, unprobed: str = "scalars", report_digits: int | None = 7,
-                   dry_run: bool = False) -> tuple[int, int]:
-    """Rewrite one metrics file reduced (same name and format); returns (bytes before, after)."""
+                   dry_run: bool = False, probed_every: int = 0) -> tuple[int, int]:
+    """Rewrite one metrics file reduced (same name and format); returns (bytes before, after).
+    `probed_every` > 0: probed records outside `kept_probed_epochs` are reduced as unprobed
+    ones (for runs that probed every epoch: their per-entry errors are ~200 KB a record)."""
     before = os.path.getsize(path)
-    records = [reduce_record(r, digits, unprobed, report_digits) for r in read_records(path)]
+    records = read_records(path)
+    if probed_every > 0:
+        keep = kept_probed_epochs([r["epoch"] for r in records if "epoch" in r and is_probed(r)], probed_every)
+        records = [r if "epoch" not in r or r["epoch"] in keep or not is_probed(r)
+                   else {**{k: v for k, v in r.items() if k not in ("objects", "linear_probes", "angles")}, "probes": {}}
+                   for r in records]
+    records = [reduce_record(r, digits, unprobed, report_digits) for r in records]
     data = encode(records, path.endswith(".gz"))
     if not dry_run and len(data) < before:
         _replace(path, data)
@@ -204,6 +231,10 @@ def main(argv: list[str] | None = None) -> int:
                          "out as before)")
     ap.add_argument("--unprobed", choices=("scalars", "minimal"), default="scalars",
                     help="what records of unprobed epochs keep (default scalars: see the doc)")
+    ap.add_argument("--probed-every", type=int, default=0, metavar="N",
+                    help="keep whole only the probed records of every Nth epoch, the last 3 and the 3 the object "
+                         "findings compare them with; reduce the other probed ones as unprobed (for runs that "
+                         "probed every epoch; default 0: keep every probed record)")
     ap.add_argument("--no-metrics", action="store_true", help="leave the metrics files alone")
     ap.add_argument("--no-png", action="store_true", help="leave the PNGs alone")
     ap.add_argument("--max-mean-error", type=float, default=2.0,
@@ -219,7 +250,7 @@ def main(argv: list[str] | None = None) -> int:
     for path in files_under(paths):
         name = os.path.basename(path)
         if is_metrics(name) and not a.no_metrics:
-            b, n = reduce_metrics(path, a.digits, a.unprobed, a.report_digits, a.dry_run)
+            b, n = reduce_metrics(path, a.digits, a.unprobed, a.report_digits, a.dry_run, a.probed_every)
             what = "metrics"
         elif name.lower().endswith(".png") and not a.no_png:
             b, n, what = reduce_png(path, a.max_mean_error, a.max_off_share, a.dry_run)

@@ -138,3 +138,28 @@ def test_pngs_palette_for_plots_lossless_for_shading(tmp_path) -> None:
         assert im.mode == "RGB" and (np.asarray(im) == shade).all()  # lossless, only recompressed
     again = open(plot, "rb").read()
     assert rr.main([run, "--no-metrics"]) == 0 and open(plot, "rb").read() == again
+
+
+def test_probed_every_keeps_what_the_reports_read(tmp_path) -> None:
+    """`--probed-every N` (runs probed every epoch): whole records at multiples of N, the last 3
+    probed epochs (tables, findings) and the 3 at or before the object findings' early epoch
+    (min(300, last // 2)); the other probed records keep only the scalars, every (epoch, seed)."""
+    rr = _module()
+    assert rr.kept_probed_epochs(range(500), 50) == set(range(0, 500, 50)) | {247, 248, 249, 497, 498, 499}
+    assert rr.kept_probed_epochs(range(0, 1000, 5), 100) == set(range(0, 1000, 100)) | {290, 295, 300, 985, 990, 995}
+    path = str(tmp_path / "metrics.jsonl.gz")
+    recs = [{"epoch": e, "seed": s, "rl_return": 1.5 * e, "rl_episodes": 3.0,
+             "probes": {"vae": {"curr": {"overall": {"mae_norm": 0.5 + e}}}}, "objects": {"o": e}}
+            for e in range(20) for s in range(2)]
+    with gzip.open(path, "wt") as f:
+        f.write("".join(json.dumps(r) + "\n" for r in recs))
+    rr.reduce_metrics(path, unprobed="minimal", probed_every=8)
+    out = records.read_jsonl(path)
+    assert [(r["epoch"], r["seed"]) for r in out] == [(r["epoch"], r["seed"]) for r in recs]
+    whole = {r["epoch"] for r in out if r["probes"]}
+    assert whole == {0, 8, 16, 17, 18, 19, 7, 8, 9}  # early: min(300, 19 // 2) = 9 -> 7, 8, 9
+    for r in out:
+        if r["epoch"] in whole:
+            assert r["objects"] == {"o": r["epoch"]} and r["probes"]["vae"]["curr"]["overall"]["mae_norm"] == 0.5 + r["epoch"]
+        else:
+            assert set(r) == {"epoch", "seed", "rl_return", "rl_episodes", "probes"} and r["rl_return"] == 1.5 * r["epoch"]
