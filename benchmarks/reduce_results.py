@@ -129,7 +129,8 @@ def reduce_metrics(path: str, digits: int = 5, unprobed: str = "scalars", report
                    dry_run: bool = False, probed_every: int = 0) -> tuple[int, int]:
     """Rewrite one metrics file reduced (same name and format); returns (bytes before, after).
     `probed_every` > 0: probed records outside `kept_probed_epochs` are reduced as unprobed
-    ones (for runs that probed every epoch: their per-entry errors are ~200 KB a record)."""
+    ones (long runs; runs that probed every epoch, whose per-entry errors are ~200 KB a record
+    on the Rearrange scenes)."""
     before = os.path.getsize(path)
     records = read_records(path)
     if probed_every > 0:
@@ -233,8 +234,8 @@ def main(argv: list[str] | None = None) -> int:
                     help="what records of unprobed epochs keep (default scalars: see the doc)")
     ap.add_argument("--probed-every", type=int, default=0, metavar="N",
                     help="keep whole only the probed records of every Nth epoch, the last 3 and the 3 the object "
-                         "findings compare them with; reduce the other probed ones as unprobed (for runs that "
-                         "probed every epoch; default 0: keep every probed record)")
+                         "findings compare them with; reduce the other probed ones as unprobed (long runs, runs "
+                         "that probed every epoch; default 0: keep every probed record)")
     ap.add_argument("--no-metrics", action="store_true", help="leave the metrics files alone")
     ap.add_argument("--no-png", action="store_true", help="leave the PNGs alone")
     ap.add_argument("--max-mean-error", type=float, default=2.0,
@@ -245,6 +246,8 @@ def main(argv: list[str] | None = None) -> int:
     a = ap.parse_args(argv)
     if a.digits < 1 or a.report_digits < a.digits:
         ap.error("--digits must be >= 1 and --report-digits >= --digits")
+    if a.probed_every < 0:
+        ap.error("--probed-every must be >= 1 (every Nth probed epoch kept whole) or 0 (all kept)")
     paths = a.paths or [os.path.join(ROOT, p) for p in DEFAULT_PATHS]
     total = [0, 0]
     for path in files_under(paths):
