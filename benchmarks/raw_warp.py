@@ -26,9 +26,16 @@ import numpy as np
 
 
 def probe(name: str, worlds: int, steps: int = 50, repeats: int = 5, resolution: int = 64, seed: int = 0,
-          **env_kwargs: Any) -> dict[str, Any]:
+          pushed: bool = False, **env_kwargs: Any) -> dict[str, Any]:
     """Rendered frames/s of raw MuJoCo Warp on env `name`'s scene (see the module doc); `warm_s`
-    is the first (compiling) pass plus the graph capture, not timed in the rate."""
+    is the first (compiling) pass plus the graph capture, not timed in the rate.
+
+    `pushed` (the Incline only): the workload of the env's episodes rather than of a resting
+    scene: each world's incline at its own pitch (the reset's mocap pose), its object pushed by a
+    force drawn once per world in bulb's range (+-2 N) along the object's z axis at the start
+    (held in the world frame; the env recomputes the axis every substep), and every launch
+    starting again from the reset state (a copy inside the graph), so that `steps` of about an
+    episode's length (~16) keep the objects on the slope."""
     import jax
     import mujoco
     import mujoco_warp as mjw
@@ -51,6 +58,22 @@ def probe(name: str, worlds: int, steps: int = 50, repeats: int = 5, resolution:
         d = mjw.make_data(mjm, nworld=worlds, njmax=env.njmax, naconmax=env.naconmax_per_world * worlds)
         d.qpos.assign(np.asarray(state.data.qpos, np.float32))
         d.qvel.assign(np.asarray(state.data.qvel, np.float32))
+        restart = None
+        if pushed:
+            from bulbjax.envs.incline import Incline
+
+            if not isinstance(env, Incline):
+                raise ValueError(f"pushed=True is for the Incline domains (their push), not {name}")
+            d.mocap_pos.assign(np.asarray(state.data.mocap_pos, np.float32))
+            d.mocap_quat.assign(np.asarray(state.data.mocap_quat, np.float32))
+            slot = np.asarray(env._slot(state.params))
+            body = env._obj_bodies[slot]
+            qpos, adr = np.asarray(state.data.qpos), env._obj_qadr[slot]
+            axis = np.stack([_quat_z(qpos[i, a + 3:a + 7]) for i, a in enumerate(adr)])
+            xfrc = np.zeros((worlds, mjm.nbody, 6), np.float32)
+            xfrc[np.arange(worlds), body, :3] = rng.uniform(-2.0, 2.0, (worlds, 1)) * axis
+            d.xfrc_applied.assign(xfrc)
+            restart = (wp.clone(d.qpos), wp.clone(d.qvel))
         if mjm.nu:
             lo, hi = mjm.actuator_ctrlrange[:, 0], mjm.actuator_ctrlrange[:, 1]
             limited = mjm.actuator_ctrllimited.astype(bool)
@@ -64,6 +87,9 @@ def probe(name: str, worlds: int, steps: int = 50, repeats: int = 5, resolution:
         skip = int(getattr(env, "frame_skip", 1))
 
         def run() -> None:
+            if restart is not None:  # every launch from the reset state (pushed)
+                wp.copy(d.qpos, restart[0])
+                wp.copy(d.qvel, restart[1])
             for _ in range(steps):
                 for _ in range(skip):
                     mjw.step(m, d)
@@ -87,9 +113,15 @@ def probe(name: str, worlds: int, steps: int = 50, repeats: int = 5, resolution:
             times.append(time.perf_counter() - t)
     call = statistics.median(times)
     return {"env": name, "worlds": worlds, "steps": steps, "frame_skip": skip, "resolution": resolution,
-            "device": str(device), "cuda_graph": graph is not None, "warm_s": warm, "call_s": call,
+            "device": str(device), "cuda_graph": graph is not None, "pushed": pushed, "warm_s": warm, "call_s": call,
             "call_times_s": times, "frames_per_s": worlds * steps / call,
             "finite": bool(np.isfinite(d.qpos.numpy()).all())}
+
+
+def _quat_z(q: np.ndarray) -> np.ndarray:
+    """The z axis of the rotation of unit quaternion q = (w, x, y, z)."""
+    w, x, y, z = q
+    return np.array([2 * (x * z + w * y), 2 * (y * z - w * x), 1 - 2 * (x * x + y * y)], np.float32)
 
 
 if __name__ == "__main__":  # smoke test: python benchmarks/raw_warp.py GeomOnIncline 8 3

@@ -7,6 +7,9 @@ timed in the same process on the same device, every one as a jitted `lax.scan` o
 
 * `full`: `env.step` with random pushes and rendering, as `bench_incline.py` times it;
 * `raw`: the raw Warp probe of the same scene and world count (`raw_warp.probe`);
+* `raw_pushed`: the raw probe under the env's workload (`probe(..., pushed=True)`: each world's
+  slope, its object pushed by a held force in bulb's range, every launch of 16 steps from the
+  reset state), the ceiling of the episodes' physics and render without JAX and without falls;
 * `physics`: `env.physics` alone in a scan (the Warp steps and kinematics; no reward, resets,
   selects or frames);
 * `refill`: one pool refill alone (`resets.make_pool` for the pool's f x N keys: bulb's settle of
@@ -50,7 +53,8 @@ sys.path.insert(0, os.path.dirname(HERE))
 from timing import time_fn  # noqa: E402  (first call, then median of repeats)
 
 
-PARTS = ("full", "raw", "physics", "refill", "no_render", "full_forward")
+PARTS = ("full", "raw", "raw_pushed", "physics", "refill", "no_render", "full_forward")
+PUSHED_STEPS = 16  # raw_pushed: about an Incline episode under random pushes (13-21 steps)
 
 
 def scan_random_pushes(fn: Any, carry: Any, worlds: int, size: int, steps: int, repeats: int,
@@ -223,6 +227,13 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         save()
         print(f"raw Warp step + render: {out['raw']['ms_per_step']:.3f} ms/step, {raw['frames_per_s']:,.0f} frames/s",
               flush=True)
+    if "raw_pushed" in parts and not a.skip_raw:
+        raw = raw_warp.probe(a.env, a.worlds, steps=PUSHED_STEPS, repeats=a.repeats, resolution=a.resolution,
+                             pushed=True)
+        out["raw_pushed"] = {**raw, "ms_per_step": 1e3 * raw["call_s"] / PUSHED_STEPS}
+        save()
+        print(f"raw Warp step + render, pushed: {out['raw_pushed']['ms_per_step']:.3f} ms/step, "
+              f"{raw['frames_per_s']:,.0f} frames/s", flush=True)
     if "physics" in parts:
         out["physics"] = physics_scan(a.env, a.worlds, a.steps, a.repeats, a.resolution,
                                       trace=os.path.join(a.trace, "physics") if a.trace else "")
