@@ -60,7 +60,7 @@ def probe(name: str, worlds: int, steps: int = 50, repeats: int = 5, resolution:
         d.qvel.assign(np.asarray(state.data.qvel, np.float32))
         restart = None
         if pushed:
-            from bulbjax.envs.incline import Incline
+            from bulbjax.envs.incline import Incline, _quat_mat
 
             if not isinstance(env, Incline):
                 raise ValueError(f"pushed=True is for the Incline domains (their push), not {name}")
@@ -69,7 +69,8 @@ def probe(name: str, worlds: int, steps: int = 50, repeats: int = 5, resolution:
             slot = np.asarray(env._slot(state.params))
             body = env._obj_bodies[slot]
             qpos, adr = np.asarray(state.data.qpos), env._obj_qadr[slot]
-            axis = np.stack([_quat_z(qpos[i, a + 3:a + 7]) for i, a in enumerate(adr)])
+            quat = np.stack([qpos[i, a + 3:a + 7] for i, a in enumerate(adr)])
+            axis = np.asarray(jax.vmap(_quat_mat)(quat))[:, :, 2]  # each object's z axis
             xfrc = np.zeros((worlds, mjm.nbody, 6), np.float32)
             xfrc[np.arange(worlds), body, :3] = rng.uniform(-2.0, 2.0, (worlds, 1)) * axis
             d.xfrc_applied.assign(xfrc)
@@ -116,12 +117,6 @@ def probe(name: str, worlds: int, steps: int = 50, repeats: int = 5, resolution:
             "device": str(device), "cuda_graph": graph is not None, "pushed": pushed, "warm_s": warm, "call_s": call,
             "call_times_s": times, "frames_per_s": worlds * steps / call,
             "finite": bool(np.isfinite(d.qpos.numpy()).all())}
-
-
-def _quat_z(q: np.ndarray) -> np.ndarray:
-    """The z axis of the rotation of unit quaternion q = (w, x, y, z)."""
-    w, x, y, z = q
-    return np.array([2 * (x * z + w * y), 2 * (y * z - w * x), 1 - 2 * (x * x + y * y)], np.float32)
 
 
 if __name__ == "__main__":  # smoke test: python benchmarks/raw_warp.py GeomOnIncline 8 3

@@ -111,18 +111,13 @@ def encode(records: Iterable[dict[str, Any]], gz: bool) -> bytes:
 
 def kept_probed_epochs(epochs: Iterable[int], every: int) -> set[int]:
     """Of a run's probed `epochs`, those `--probed-every every` keeps whole: the multiples of
-    `every`, the last 3 (the tables and findings average over them) and the 3 at or before the
-    object findings' early epoch (`findings_objects.EARLY_EPOCH`, or half the run: what "SPAIR's
-    localisation does not improve" compares the last ones with), so that the reports read the
-    same numbers as before."""
-    from bulbjax.experiment.findings_objects import EARLY_EPOCH
+    `every`, the last 3 (the tables and findings average over them) and the object findings'
+    early ones (`findings_objects.early_epochs`: what "SPAIR's localisation does not improve"
+    compares the last ones with), so that the reports read the same numbers as before."""
+    from bulbjax.experiment.findings_objects import early_epochs
 
     epochs = sorted(set(epochs))
-    if not epochs:
-        return set()
-    early_at = min(EARLY_EPOCH, epochs[-1] // 2)
-    return ({e for e in epochs if e % every == 0} | set(epochs[-3:])
-            | set([e for e in epochs if e <= early_at][-3:]))
+    return {e for e in epochs if e % every == 0} | set(epochs[-3:]) | set(early_epochs(epochs))
 
 
 def reduce_metrics(path: str, digits: int = 5, unprobed: str = "scalars", report_digits: int | None = 7,
@@ -135,8 +130,8 @@ def reduce_metrics(path: str, digits: int = 5, unprobed: str = "scalars", report
     records = read_records(path)
     if probed_every > 0:
         keep = kept_probed_epochs([r["epoch"] for r in records if "epoch" in r and is_probed(r)], probed_every)
-        records = [r if "epoch" not in r or r["epoch"] in keep or not is_probed(r)
-                   else {**{k: v for k, v in r.items() if k not in ("objects", "linear_probes", "angles")}, "probes": {}}
+        # outside `keep`: no probes and no objects, so reduce_record keeps only the unprobed keys
+        records = [r if "epoch" not in r or r["epoch"] in keep else {**r, "probes": {}, "objects": {}}
                    for r in records]
     records = [reduce_record(r, digits, unprobed, report_digits) for r in records]
     data = encode(records, path.endswith(".gz"))

@@ -181,6 +181,19 @@ def summarise(path: str, top: int = 40, scopes: dict[str, str] | None = None,
     return out
 
 
+def summarise_dir(trace_dir: str, top: int = 40, window: str | None = None) -> dict[str, Any]:
+    """`summarise` of the newest `*.xplane.pb` under `trace_dir`, with the phase scopes of the
+    `*.hlo.txt` files beside it (profile_epoch.py writes them; other traces have none)."""
+    files = sorted(glob.glob(os.path.join(trace_dir, "**", "*.xplane.pb"), recursive=True))
+    if not files:
+        raise FileNotFoundError(f"no *.xplane.pb under {trace_dir}: was the trace written (profile_epoch.py --trace)?")
+    scopes: dict[str, str] = {}
+    for h in sorted(glob.glob(os.path.join(trace_dir, "**", "*.hlo.txt"), recursive=True)):
+        with open(h) as f:
+            scopes.update(hlo_scopes(f.read()))
+    return summarise(files[-1], top, scopes, window)
+
+
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("trace_dir")
@@ -189,14 +202,10 @@ def main() -> None:
     p.add_argument("--window", default="", help="only device events inside host events of this name "
                                                  "(profile_epoch.py: bj_timed_no_probe, bj_timed_probe)")
     a = p.parse_args()
-    files = sorted(glob.glob(os.path.join(a.trace_dir, "**", "*.xplane.pb"), recursive=True))
-    if not files:
-        raise SystemExit(f"no *.xplane.pb under {a.trace_dir}: was the trace written (profile_epoch.py --trace)?")
-    scopes: dict[str, str] = {}
-    for h in sorted(glob.glob(os.path.join(a.trace_dir, "**", "*.hlo.txt"), recursive=True)):
-        with open(h) as f:
-            scopes.update(hlo_scopes(f.read()))
-    res = summarise(files[-1], a.top, scopes, a.window or None)
+    try:
+        res = summarise_dir(a.trace_dir, a.top, a.window or None)
+    except FileNotFoundError as err:
+        raise SystemExit(str(err)) from None
     with open(a.out, "w") as f:
         json.dump(res, f, indent=1)
     for dev, d in res["devices"].items():

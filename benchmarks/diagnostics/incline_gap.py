@@ -91,16 +91,14 @@ def scan_random_pushes(fn: Any, carry: Any, worlds: int, size: int, steps: int, 
 
 
 def trace_summary_of(folder: str, steps: int) -> dict[str, Any]:
-    """`trace_summary.summarise` of the trace written under `folder`, with each device's busy
+    """`trace_summary.summarise_dir` of the trace written under `folder`, with each device's busy
     time, launches and copies per env step (the copies: kernels named Memcpy/Memset)."""
-    import glob
-
     import trace_summary
 
-    files = sorted(glob.glob(os.path.join(folder, "**", "*.xplane.pb"), recursive=True))
-    if not files:
-        return {"error": f"no trace under {folder}"}
-    res = trace_summary.summarise(files[-1], top=25)
+    try:
+        res = trace_summary.summarise_dir(folder, top=25)
+    except FileNotFoundError as err:
+        return {"error": str(err)}
     for dev in res["devices"].values():
         streams = dev["lines"].get("streams", {"top": []})["top"]
         copies = [t for t in streams if "Memcpy" in t["name"] or "Memset" in t["name"]]

@@ -44,6 +44,16 @@ EARLY_EPOCH = 300  # "the first few hundred epochs" of SPAIR's localisation
 NO_GAIN = 0.05  # normalised error: an improvement below this is "no improvement"
 
 
+def early_epochs(epochs: Sequence[int], last: int = 3) -> list[int]:
+    """The probed epochs "SPAIR's localisation does not improve" compares the last ones with: the
+    `last` at or before EARLY_EPOCH, or before half the run where it is shorter."""
+    epochs = sorted(set(epochs))
+    if not epochs:
+        return []
+    early_at = min(EARLY_EPOCH, epochs[-1] // 2)
+    return [e for e in epochs if e <= early_at][-last:]
+
+
 def object_volume(name: str) -> float:
     """Volume (m^3) of a Rearrange object: geoms exactly (bulb's dims), YCB approximately."""
     from bulbjax.envs.rearrange_scene import GEOM_INFO, SHAPE_BOX, SHAPE_CYLINDER
@@ -205,8 +215,7 @@ def check_objects(records: Sequence[dict[str, Any]], env: str, version: int | st
 
     claim = (f"SPAIR's localisation does not improve after its first few hundred epochs (object_position "
              f"error near epoch {EARLY_EPOCH} minus the last epochs' below {NO_GAIN})")
-    early_at = min(EARLY_EPOCH, all_epochs[-1] // 2) if all_epochs else 0
-    early = [e for e in all_epochs if e <= early_at][-last:] if all_epochs else []
+    early = early_epochs(all_epochs, last)
     pos = tuple(f"{o}_{a}" for o in objs for a in "xy")
     m = missing("spair") or ("not tested (too few probed epochs)" if not early or set(early) & set(epochs) else None)
     if m:
