@@ -194,3 +194,34 @@ def test_probe_group_split_stops_memorising_scenes() -> None:
     assert rows[4:].mean() > 1.08, rows[4:].mean()
     assert by_scene[4:].mean() < 1.06, by_scene[4:].mean()
     assert by_scene[:4].mean() < 0.97, by_scene[:4].mean()  # what the latent holds is still found
+
+
+def test_held_out_latents_outside_the_fit_range_are_clamped_and_counted() -> None:
+    """A latent column (nearly) constant over the fit pairs and far off on a held-out frame gave
+    that frame an extreme prediction (fig3-rearrange-geom: probe errors up to ~320x the
+    reference spread at single epochs); clamped to the fit range, the frame is predicted about
+    as well as one without the excursion, by the MLP and the linear probe, and it is counted."""
+    from bulbjax.eval import linear
+
+    k = jax.random.split(jax.random.PRNGKey(3), 3)
+    n = 1024
+    signal = jax.random.uniform(k[0], (n + 256, 1), minval=-2.0, maxval=2.0)
+    quiet = 1e-7 * jax.random.normal(k[1], (n + 256, 1))  # std ~1e-7: divided by ~0 unclamped
+    latents = jnp.concatenate([signal, jnp.zeros((n + 256, 1)), quiet], axis=1)
+    states = jnp.sin(signal) * 3.0
+    params = probe.fit(k[2], latents[:n], states[:n], CFG)
+    clean = latents[n:]
+    off = clean.at[:, 1].set(40.0).at[:, 2].set(0.5)  # both quiet columns far out on every row
+    assert not np.any(probe.clamped_rows(params, latents[:n]))  # the fit rows are in range
+    assert np.all(probe.clamped_rows(params, off)) and not np.any(probe.clamped_rows(params, clean))
+    err_clean = float(probe.mae(probe.predict(params, clean), states[n:])[0])
+    err_off = float(probe.mae(probe.predict(params, off), states[n:])[0])
+    base = float(probe.constant_baseline(states[:n], states[n:])[0])
+    assert err_clean < 0.3 * base, (err_clean, base)
+    assert err_off < 1.5 * err_clean + 0.05 * base, (err_off, err_clean, base)
+
+    val = probe.validation_rows(k[2], n, CFG)
+    lin = linear.fit(latents[:n], states[:n], val)
+    lin_clean = float(probe.mae(linear.predict(lin, clean), states[n:])[0])
+    lin_off = float(probe.mae(linear.predict(lin, off), states[n:])[0])
+    assert lin_clean < base and lin_off < 1.01 * lin_clean + 1e-3 * base, (lin_off, lin_clean, base)

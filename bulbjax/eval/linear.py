@@ -27,6 +27,8 @@ import jax.numpy as jnp
 import jax.scipy.linalg as jsl
 from flax import struct
 
+from bulbjax.eval.probe import clamp_bounds
+
 # Regulariser grid (standardised Gram scale, see the module docstring): 1e-4 .. 1e3.
 LAMBDAS: tuple[float, ...] = tuple(10.0 ** k for k in range(-4, 4))
 DEFAULT_LAMBDA = 1.0  # no validation rows to choose by
@@ -45,6 +47,8 @@ class RidgeParams:
     y_mean: jax.Array  # [D]
     y_std: jax.Array  # [D], 1 for constant targets (predicted as their mean)
     log10_lambda: jax.Array  # [D]
+    x_lo: jax.Array  # [Z], the least standardised input `predict` lets through per column
+    x_hi: jax.Array  # [Z], and the greatest (the training rows' `probe.clamp_bounds`)
 
 
 def _weighted_moments(x: jax.Array, w: jax.Array) -> tuple[jax.Array, jax.Array]:
@@ -65,6 +69,7 @@ def fit(latents: jax.Array, states: jax.Array, val: jax.Array,
     x_mean, x_std = _weighted_moments(x, train)
     y_mean, y_std = _weighted_moments(y, train)
     xs = (x - x_mean) / x_std
+    x_lo, x_hi = clamp_bounds(xs, train > 0)
     ys = (y - y_mean) / y_std
     xt = xs * train[:, None]  # validation rows out of the sums
     n = jnp.maximum(jnp.sum(train), 1.0)
@@ -83,16 +88,18 @@ def fit(latents: jax.Array, states: jax.Array, val: jax.Array,
     ws = jax.lax.map(solve, lam)  # [K, Z, D]
     wv = val.astype(jnp.float32)[:, None]
     n_val = jnp.sum(val)
-    pred = jnp.einsum("bz,kzd->kbd", xs, ws, precision=_HI) * y_std + y_mean  # [K, B, D]
+    xc = jnp.clip(xs, x_lo, x_hi)  # validation rows as `predict` will see them
+    pred = jnp.einsum("bz,kzd->kbd", xc, ws, precision=_HI) * y_std + y_mean  # [K, B, D]
     val_mae = jnp.sum(jnp.abs(pred - y) * wv, axis=1) / jnp.maximum(n_val, 1)  # [K, D]
     val_mae = jnp.where(jnp.isfinite(val_mae), val_mae, jnp.inf)
     default = jnp.argmin(jnp.abs(jnp.log10(lam) - jnp.log10(DEFAULT_LAMBDA)))
     choice = jnp.where(n_val > 0, jnp.argmin(val_mae, axis=0), default)  # [D]
     w = jnp.take_along_axis(ws, choice[None, None, :], axis=0)[0]  # [Z, D]
-    return RidgeParams(w, x_mean, x_std, y_mean, y_std, jnp.log10(lam)[choice])
+    return RidgeParams(w, x_mean, x_std, y_mean, y_std, jnp.log10(lam)[choice], x_lo, x_hi)
 
 
 def predict(params: RidgeParams, latents: jax.Array) -> jax.Array:
-    """Predicted states `[B, D]` in the states' own units."""
-    xs = (latents.astype(jnp.float32) - params.x_mean) / params.x_std
+    """Predicted states `[B, D]` in the states' own units, from latents clamped as the MLP probe
+    clamps its inputs (`bulbjax.eval.probe.standardise` says why)."""
+    xs = jnp.clip((latents.astype(jnp.float32) - params.x_mean) / params.x_std, params.x_lo, params.x_hi)
     return jnp.matmul(xs, params.w, precision=_HI) * params.y_std + params.y_mean

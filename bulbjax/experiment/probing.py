@@ -119,8 +119,10 @@ def fit_and_score(latents: dict[str, Any], held: dict[str, Windows], key: jax.Ar
     Beside the MLP, the linear (ridge) probe (`bulbjax.eval.linear`) on the same training pairs
     and the MLP's own validation split (`probe.validation_rows`, recomputed from the same key:
     no key drawn beyond the MLP's), scored on the same steps: `"linear_mae"` `[D]` and the
-    regulariser it chose per entry, `"linear_log10_lambda"` `[D]`.
-    Returns `{stream: {"mae", "baseline", "spread", "linear_mae", "linear_log10_lambda"
+    regulariser it chose per entry, `"linear_log10_lambda"` `[D]`. `"inputs_clamped"` (scalar):
+    the share of the stream's valid steps whose latent the MLP probe clamped to its fit range
+    (`probe.standardise`).
+    Returns `{stream: {"mae", "baseline", "spread", "inputs_clamped", "linear_mae", "linear_log10_lambda"
     (, "objects", "angle")}}`, each `[D]` in the targets' units."""
     targets = targets or ProbeTargets(())
     tz, ts = latents["tz"], targets(latents["ts"])
@@ -133,7 +135,10 @@ def fit_and_score(latents: dict[str, Any], held: dict[str, Windows], key: jax.Ar
         z = zw.reshape((-1, tz.shape[-1]))
         s, v = targets(w.states).reshape((-1, ts.shape[-1])), w.valid.reshape(-1)
         pred = probe.predict(p, z)
+        vf = jnp.asarray(v, jnp.float32)
+        clamped = probe.clamped_rows(p, z).astype(jnp.float32)
         res[stream] = {"mae": probe.mae(pred, s, v),
+                       "inputs_clamped": jnp.sum(clamped * vf) / jnp.maximum(jnp.sum(vf), 1.0),
                        "baseline": probe.constant_baseline(ts, s, v),
                        "spread": probe.spread(s, v),
                        "linear_mae": probe.mae(linear.predict(lin, z), s, v),

@@ -33,7 +33,9 @@ def epoch_records(epoch: int, metrics: Any, spec: Sequence[StateEntry]) -> list[
     the same pairs is under `linear_probes[learner][stream]` (`linear_summary`: groups and
     overall as in `probes`; absent in epochs without a probe). Learners with an object-level
     probe (SPAIR in multi-object domains) also get `objects[learner][stream]`
-    (`bulbjax.eval.objects.summary_of`: per object and averaged); other records have no `objects`."""
+    (`bulbjax.eval.objects.summary_of`: per object and averaged); other records have no `objects`.
+    `probe_inputs_clamped[learner][stream]`: the share of held-out steps whose latent the probes
+    clamped to their fit range (`bulbjax.eval.probe.standardise`)."""
     m = _to_numpy(metrics)
     seeds = len(m["rl_return"])
     names = objects.object_names(spec)
@@ -59,6 +61,8 @@ def epoch_records(epoch: int, metrics: Any, spec: Sequence[StateEntry]) -> list[
                 rec.setdefault("linear_probes", {})[name] = {
                     stream: linear_summary(d, s, m["ref_spread"][s], spec) for stream, d in streams.items()}
             for stream, d in streams.items():
+                if "inputs_clamped" in d:
+                    rec.setdefault("probe_inputs_clamped", {}).setdefault(name, {})[stream] = _f(d["inputs_clamped"][s])
                 if "angle" in d:
                     rec.setdefault("angles", {}).setdefault(name, {})[stream] = angle_summary(
                         {k: v[s] for k, v in d["angle"].items()}, spec)
