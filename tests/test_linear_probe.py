@@ -123,8 +123,11 @@ def test_in_fit_and_score_records_table_and_findings() -> None:
     assert set(lp) >= {"entries", "groups", "overall"}
     assert lp["overall"]["mae_norm"] < 1e-3 < recs[0]["probes"]["toy"]["rand"]["overall"]["mae_norm"]
     assert set(next(iter(lp["entries"].values()))) == {"mae", "mae_norm", "log10_lambda"}
+    share = recs[0]["probe_inputs_clamped"]["toy"]
+    assert set(share) == {"rand", "curr"} and all(0.0 <= v <= 1.0 for v in share.values())
     tab = report.table(recs, spec)
     assert "| toy (linear) | π_rand |" in tab and "| toy (linear) | π_curr |" in tab
+    assert "the probes clamped to their fit range" in tab and "toy " in tab.split("fit range")[-1]
     verdicts, _ = findings.check(recs, spec, "InvertedPendulum")
     agree = [v for v in verdicts if v.claim.startswith("probes agree for toy")]
     # the MLP (10 Adam steps) is far above an exact linear probe: the check flags it

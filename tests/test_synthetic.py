@@ -114,6 +114,7 @@ def test_fit_cli_end_to_end(tmp_path) -> None:
     assert [r["update"] for r in recs] == [0, 0, 2, 2, 4, 4]
     g = recs[-1]["probes"]["vae"]["rand"]["groups"]
     assert set(g) == {"position", "velocity"} and np.isfinite(g["position"]["mae_norm"])
+    assert 0.0 <= recs[-1]["probe_inputs_clamped"]["vae"]["rand"] <= 1.0
     for f in ("curves.png", "recon.png", "table.md", "config.json"):
         assert os.path.getsize(tmp_path / "a" / f) > 100
     assert len(os.listdir(tmp_path / "cache")) == 2

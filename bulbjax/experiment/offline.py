@@ -212,6 +212,9 @@ def records_of(update: int, probes: Any, losses: Any, ref_spread: np.ndarray,
             if any("linear_mae" in d for d in streams.values()):
                 rec.setdefault("linear_probes", {})[name] = {
                     st: linear_summary(d, s, ref_spread, spec) for st, d in streams.items()}
+            clamped = {st: float(d["inputs_clamped"][s]) for st, d in streams.items() if "inputs_clamped" in d}
+            if clamped:
+                rec.setdefault("probe_inputs_clamped", {})[name] = clamped
         out.append(rec)
     return out
 

@@ -194,6 +194,10 @@ def table(records: Sequence[dict[str, Any]], spec: Sequence[StateEntry], last: i
                  f"the last {len(epochs)} probed epoch(s), or a seed's latest finished episode up to "
                  "the last of them where none ended in them")
         lines.append(f"PPO return over {where}: {shown}" + (f" (90% CI over {len(seeds)} seeds)" if len(seeds) > 1 else ""))
+    clamped = clamped_shares(recs)
+    if clamped:
+        lines.append("Held-out steps whose latent the probes clamped to their fit range (most of any seed and "
+                     "stream, `docs/probes.md`): " + ", ".join(f"{n} {v:.1%}" for n, v in clamped.items()) + ".")
     lines.append("")
     if linear:
         lines.append("Rows `<learner>`: the MLP probe; `<learner> (linear)`: closed-form ridge regression on the "
@@ -201,6 +205,19 @@ def table(records: Sequence[dict[str, Any]], spec: Sequence[StateEntry], last: i
                      "(`bulbjax.eval.linear`).")
     lines.append(f"Errors: {NORM_NOTE}; raw MAE in each entry's unit in metrics.jsonl.")
     return "\n".join(lines)
+
+
+def clamped_shares(records: Sequence[dict[str, Any]]) -> dict[str, float]:
+    """Per learner, the largest share of held-out steps whose latent its probes clamped
+    (`probe_inputs_clamped`, `bulbjax.eval.probe.standardise`) over `records`' seeds and streams;
+    {} for records made before the clamp."""
+    out: dict[str, float] = {}
+    for r in records:
+        for name, streams in r.get("probe_inputs_clamped", {}).items():
+            for v in streams.values():
+                if v is not None and np.isfinite(v):
+                    out[name] = max(out.get(name, 0.0), float(v))
+    return out
 
 
 def title_of(cfg: Any, epochs_done: int) -> str:
