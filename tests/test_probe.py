@@ -199,8 +199,9 @@ def test_probe_group_split_stops_memorising_scenes() -> None:
 def test_held_out_latents_outside_the_fit_range_are_clamped_and_counted() -> None:
     """A latent column (nearly) constant over the fit pairs and far off on a held-out frame gave
     that frame an extreme prediction (fig3-rearrange-geom: probe errors up to ~320x the
-    reference spread at single epochs); clamped to the fit range, the frame is predicted about
-    as well as one without the excursion, by the MLP and the linear probe, and it is counted."""
+    reference spread at single epochs); clamped to the fit range, the MLP predicts the frame
+    about as well as one without the excursion (17.9 against 0.012 unclamped), and it is counted.
+    The linear probe (its ridge weights on such columns ~0) stays as good with the clamp."""
     from bulbjax.eval import linear
 
     k = jax.random.split(jax.random.PRNGKey(3), 3)
