@@ -244,12 +244,9 @@ def clamp_bounds(x: jax.Array, rows: jax.Array | None = None) -> tuple[jax.Array
     [B, L]` (those with `rows [B]` True, default all): each column's range widened by half its
     width on each side. Room for the extrapolation an ordinary held-out frame needs (a linear
     probe stays exact on a linear target); none for a column constant over the fit rows."""
-    if rows is None:
-        lo, hi = jnp.min(x, axis=0), jnp.max(x, axis=0)
-    else:
-        big = jnp.finfo(jnp.float32).max
-        lo = jnp.min(jnp.where(rows[:, None], x, big), axis=0)
-        hi = jnp.max(jnp.where(rows[:, None], x, -big), axis=0)
+    rows = jnp.ones(x.shape[:1], bool) if rows is None else rows
+    lo = jnp.min(x, axis=0, where=rows[:, None], initial=jnp.inf)
+    hi = jnp.max(x, axis=0, where=rows[:, None], initial=-jnp.inf)
     half = 0.5 * (hi - lo)
     return lo - half, hi + half
 

@@ -37,7 +37,7 @@ from bulbjax.experiment.devices import Devices, make_mesh
 from bulbjax.experiment.learning import train_learner
 from bulbjax.experiment.policy import Policy
 from bulbjax.experiment.probing import fit_and_score, probe_latents, probe_over_seeds, probe_targets
-from bulbjax.experiment.records import linear_summary, nanmean, read_jsonl, write_jsonl, write_jsonl_atomic
+from bulbjax.experiment.records import clamped_share, linear_summary, nanmean, read_jsonl, write_jsonl, write_jsonl_atomic
 from bulbjax.experiment.seeds import SeedGroup, Team, learner_loop, over_seeds, resolve_seed_loop, with_seed_loop
 from bulbjax.learners import check_finite, is_sequential, make_learner
 
@@ -212,8 +212,7 @@ def records_of(update: int, probes: Any, losses: Any, ref_spread: np.ndarray,
             if any("linear_mae" in d for d in streams.values()):
                 rec.setdefault("linear_probes", {})[name] = {
                     st: linear_summary(d, s, ref_spread, spec) for st, d in streams.items()}
-            clamped = {st: float(d["inputs_clamped"][s]) for st, d in streams.items() if "inputs_clamped" in d}
-            if clamped:
+            if clamped := clamped_share(streams, s):
                 rec.setdefault("probe_inputs_clamped", {})[name] = clamped
         out.append(rec)
     return out

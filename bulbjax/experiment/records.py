@@ -60,9 +60,9 @@ def epoch_records(epoch: int, metrics: Any, spec: Sequence[StateEntry]) -> list[
             if any("linear_mae" in d for d in streams.values()):
                 rec.setdefault("linear_probes", {})[name] = {
                     stream: linear_summary(d, s, m["ref_spread"][s], spec) for stream, d in streams.items()}
+            if clamped := clamped_share(streams, s):
+                rec.setdefault("probe_inputs_clamped", {})[name] = clamped
             for stream, d in streams.items():
-                if "inputs_clamped" in d:
-                    rec.setdefault("probe_inputs_clamped", {}).setdefault(name, {})[stream] = _f(d["inputs_clamped"][s])
                 if "angle" in d:
                     rec.setdefault("angles", {}).setdefault(name, {})[stream] = angle_summary(
                         {k: v[s] for k, v in d["angle"].items()}, spec)
@@ -83,6 +83,13 @@ def linear_summary(d: dict[str, Any], s: int, ref_spread_D: Any, spec: Sequence[
     out["entries"] = {name: {"mae": e["mae"], "mae_norm": e["mae_norm"], "log10_lambda": float(lam[i])}
                       for i, (name, e) in enumerate(out["entries"].items())}
     return out
+
+
+def clamped_share(streams: dict[str, Any], s: int) -> dict[str, float]:
+    """`{stream: share}` for seed `s` of one learner's probe output (`probing.fit_and_score`):
+    the share of held-out steps whose latent the probes clamped to their fit range
+    (`bulbjax.eval.probe.standardise`); {} for outputs without it."""
+    return {st: _f(d["inputs_clamped"][s]) for st, d in streams.items() if "inputs_clamped" in d}
 
 
 def angle_summary(angle: dict[str, Any], spec: Sequence[StateEntry]) -> dict[str, dict[str, float]]:
