@@ -82,12 +82,18 @@ def test_zero_torque_step_and_reward(env):
 
 
 def test_same_seed_same_reset_and_fixed_draws(env):
-    # a seed repeats in fresh envs (Bullet's contact caches outlive a reset, so not in a used one)
-    fresh = [pbr.RearrangeBulletEnv(env.name, version=0, render=False) for _ in range(2)]
-    a, b = (f.reset(seed=3)[1] for f in fresh)
+    # a seed repeats in fresh envs (Bullet's contact caches outlive a reset, so not in a used one),
+    # to Bullet's float noise: fresh envs made one after another in a process alternate between two
+    # results 9.4e-6 apart in 12 object entries (ReacherRearrangeGeom, seed 3; in 7 of 8 pytest
+    # processes, 0 of 10 plain ones: the memory an env gets decides it), while another seed moves
+    # the state by far more
+    fresh = [pbr.RearrangeBulletEnv(env.name, version=0, render=False) for _ in range(3)]
+    a, b = (f.reset(seed=3)[1] for f in fresh[:2])
+    other = fresh[2].reset(seed=4)[1]
     for f in fresh:
         f.close()
-    np.testing.assert_array_equal(a, b)
+    np.testing.assert_allclose(a, b, rtol=0, atol=1e-4)
+    assert np.abs(other - a).max() > 0.1
     n = env.spec.action_size
     q0 = np.full(n, 0.3) if not env.franka else np.asarray(pbr.FRANKA_REST)
     env.reset(seed=3, robot_qpos=q0, torques=np.zeros((pbr.RANDOM_TORQUE_STEPS, n)),
