@@ -30,6 +30,11 @@ _created: str | None = None
 if "BULBJAX_COMPILE_CACHE" not in os.environ:
     _created = tempfile.mkdtemp(prefix="bulbjax-test-jax-cache-")
     os.environ["BULBJAX_COMPILE_CACHE"] = _created
+# MJX-Warp programs only load from the cache if their Warp calls are numbered by signature (Warp's
+# own per-trace counter makes every re-trace new text): `bulbjax.envs.warp_graphs.stable_call_ids`,
+# installed when an env is built. Measured alone on this 2-core machine (2026-11-27):
+# tests/test_incline.py 175 s -> 140 s.
+os.environ.setdefault("BULBJAX_STABLE_WARP_IDS", "1")
 _cache = os.environ["BULBJAX_COMPILE_CACHE"]
 if _cache.strip().lower() not in ("", "0", "off", "false", "no"):  # compile_cache.OFF_VALUES (importing
     # bulbjax here would import JAX before it reads the variables below)

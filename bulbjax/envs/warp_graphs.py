@@ -20,13 +20,16 @@ made before. A value passed explicitly to `warp.jax_callable` is kept. CPU runs 
 from __future__ import annotations
 
 import functools
+import hashlib
 import inspect
+import os
 import warnings
 from typing import Any
 
 GRAPH_CACHE_MAX = 4096  # captured graphs kept per callable: far above what an epoch needs (~150 in all)
 
 _installed_limit: int | None = None
+STABLE_IDS_VAR = "BULBJAX_STABLE_WARP_IDS"  # set (1/true/yes/on): `install()` also calls `stable_call_ids()`
 
 
 def _registry() -> dict[Any, Any]:
@@ -59,6 +62,8 @@ def install(limit: int = GRAPH_CACHE_MAX) -> None:
     for c in list(_registry().values()):
         if c.graph_cache_max is not None and c.graph_cache_max < limit:
             c.graph_cache_max = limit
+    if os.environ.get(STABLE_IDS_VAR, "").strip().lower() in ("1", "true", "yes", "on"):
+        stable_call_ids()
 
 
 def limits() -> dict[str, int | None]:
@@ -75,3 +80,53 @@ def graph_mode(name: str | None, device: Any) -> Any:
     import warp
 
     return warp.JaxCallableGraphMode[name.upper()]
+
+
+def _signature_id(name: str, args: tuple[Any, ...], kwargs: dict[str, Any]) -> int:
+    """A 63-bit id of one call's signature: the target, each array argument's shape and dtype, each
+    static argument's value, the keyword arguments. Equal in every process for an equal call."""
+    parts = [name]
+    for a in args:
+        shape, dtype = getattr(a, "shape", None), getattr(a, "dtype", None)
+        parts.append(f"{tuple(shape)}:{dtype}" if shape is not None and dtype is not None else repr(a))
+    parts += [f"{k}={kwargs[k]!r}" for k in sorted(kwargs)]
+    digest = hashlib.blake2b("|".join(parts).encode(), digest_size=8).digest()
+    return int.from_bytes(digest, "little") & (2**63 - 1)
+
+
+def stable_call_ids() -> bool:
+    """Give each Warp JAX call an id taken from its signature instead of a per-process counter.
+
+    Warp numbers every trace of a `jax_callable` (`call_id`) or `jax_kernel` (`launch_id`) call
+    with a counter and writes the number into the lowered program, where the handler finds the
+    trace's static arguments by it. Two traces of the same program therefore lower to different
+    text, and JAX's persistent compilation cache (keyed on that text) never serves a program with
+    MJX-Warp in it to a second trace in the same process: each re-trace of an env step, a reset or
+    an epoch compiles again (a 12-world GeomOnIncline reset: 11 s on 2 CPU cores, every time).
+    With the id a hash of the call's signature (target, argument shapes and dtypes, static values),
+    equal calls share one id and one record of their static arguments (which are equal), and equal
+    programs lower to equal text. Returns False (and changes nothing) when this Warp has no such
+    counters."""
+    try:
+        from warp._src.jax import ffi
+    except ImportError:
+        return False
+    patched = False
+    for cls, counter in ((getattr(ffi, "FfiCallable", None), "call_id"), (getattr(ffi, "FfiKernel", None), "launch_id")):
+        if cls is None or getattr(cls.__call__, "_bulbjax_stable_ids", False):
+            patched = patched or cls is not None
+            continue
+        source = inspect.getsource(cls.__call__)
+        if f"self.{counter} += 1" not in source:  # another Warp: leave it alone
+            continue
+        original = cls.__call__
+
+        def __call__(self: Any, *args: Any, _original: Any = original, _counter: str = counter, **kwargs: Any) -> Any:
+            setattr(self, _counter, _signature_id(self.name, args, kwargs))
+            return _original(self, *args, **kwargs)
+
+        functools.update_wrapper(__call__, original)
+        __call__._bulbjax_stable_ids = True  # type: ignore[attr-defined]
+        cls.__call__ = __call__
+        patched = True
+    return patched
