@@ -15,6 +15,8 @@ epoch to the next, so the set of graphs stops growing after the first epoch of e
 `install()` (called when an environment is built) makes `GRAPH_CACHE_MAX` the default of
 `warp.jax_callable`, through which MJX makes its callables, and raises the limit of callables
 made before. A value passed explicitly to `warp.jax_callable` is kept. CPU runs never capture.
+With `$BULBJAX_STABLE_WARP_IDS` set it also numbers Warp's calls by their signature
+(`stable_call_ids()`), so that re-traced programs load from JAX's persistent compilation cache.
 """
 
 from __future__ import annotations
@@ -95,38 +97,40 @@ def _signature_id(name: str, args: tuple[Any, ...], kwargs: dict[str, Any]) -> i
 
 
 def stable_call_ids() -> bool:
-    """Give each Warp JAX call an id taken from its signature instead of a per-process counter.
+    """Give each Warp JAX callable's call an id taken from its signature, not a per-process counter.
 
-    Warp numbers every trace of a `jax_callable` (`call_id`) or `jax_kernel` (`launch_id`) call
-    with a counter and writes the number into the lowered program, where the handler finds the
-    trace's static arguments by it. Two traces of the same program therefore lower to different
-    text, and JAX's persistent compilation cache (keyed on that text) never serves a program with
-    MJX-Warp in it to a second trace in the same process: each re-trace of an env step, a reset or
-    an epoch compiles again (a 12-world GeomOnIncline reset: 11 s on 2 CPU cores, every time).
-    With the id a hash of the call's signature (target, argument shapes and dtypes, static values),
-    equal calls share one id and one record of their static arguments (which are equal), and equal
-    programs lower to equal text. Returns False (and changes nothing) when this Warp has no such
-    counters."""
+    Warp numbers every trace of a `jax_callable` call (`call_id`) with a counter and writes the
+    number into the lowered program, where the handler finds the trace's static arguments by it.
+    Two traces of the same program therefore lower to different text, and JAX's persistent
+    compilation cache (keyed on that text) never serves a program with MJX-Warp in it to a second
+    trace in the same process: each re-trace of an env step, a reset or an epoch compiles again (a
+    12-world GeomOnIncline reset: ~10 s on 2 CPU cores, every time). With the id a hash of the
+    call's signature (target, argument shapes and dtypes, static values), equal calls share one id
+    and one record of their static arguments (which are equal), and equal programs lower to equal
+    text. (Warp's `jax_kernel` has a counter too; MJX does not use it, so it is left alone.)
+    Returns False, changing nothing, when this Warp's callable has no such counter."""
     try:
         from warp._src.jax import ffi
     except ImportError:
         return False
-    patched = False
-    for cls, counter in ((getattr(ffi, "FfiCallable", None), "call_id"), (getattr(ffi, "FfiKernel", None), "launch_id")):
-        if cls is None or getattr(cls.__call__, "_bulbjax_stable_ids", False):
-            patched = patched or cls is not None
-            continue
+    cls = getattr(ffi, "FfiCallable", None)
+    if cls is None:
+        return False
+    if getattr(cls.__call__, "_bulbjax_stable_ids", False):
+        return True
+    try:
         source = inspect.getsource(cls.__call__)
-        if f"self.{counter} += 1" not in source:  # another Warp: leave it alone
-            continue
-        original = cls.__call__
+    except (OSError, TypeError):  # no source to check against: leave it alone
+        return False
+    if "self.call_id += 1" not in source:  # another Warp: leave it alone
+        return False
+    original = cls.__call__
 
-        def __call__(self: Any, *args: Any, _original: Any = original, _counter: str = counter, **kwargs: Any) -> Any:
-            setattr(self, _counter, _signature_id(self.name, args, kwargs))
-            return _original(self, *args, **kwargs)
+    @functools.wraps(original)
+    def __call__(self: Any, *args: Any, **kwargs: Any) -> Any:
+        self.call_id = _signature_id(self.name, args, kwargs)
+        return original(self, *args, **kwargs)
 
-        functools.update_wrapper(__call__, original)
-        __call__._bulbjax_stable_ids = True  # type: ignore[attr-defined]
-        cls.__call__ = __call__
-        patched = True
-    return patched
+    __call__._bulbjax_stable_ids = True  # type: ignore[attr-defined]
+    cls.__call__ = __call__
+    return True
