@@ -60,7 +60,7 @@ def test_stable_warp_call_ids_make_retraces_lower_to_the_same_program() -> None:
     import bulbjax
     from bulbjax.envs import warp_graphs
 
-    assert warp_graphs.stable_call_ids()  # installed (idempotent): this Warp has the counters
+    assert warp_graphs.stable_call_ids(), "this Warp's jax_callable has no call_id counter to replace: recheck"
     env = bulbjax.make("CartPole", num_envs=2, resolution=16)
     s = jax.jit(env.reset)(jax.random.PRNGKey(0))
     a = jax.numpy.ones((2,), jax.numpy.int32)
