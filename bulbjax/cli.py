@@ -1,4 +1,4 @@
-"""Command line: `bulbjax run | report | fit | recon | envs | render` (parsing only: the flags map
+"""Command line: `bulbjax run | report | fit | recon | envs | render | reproduce` (parsing only: the flags map
 to `bulbjax.experiment.resolve`, which resolves the settings; the run loop is
 `bulbjax.experiment.run`, the offline fit `bulbjax.experiment.offline`)."""
 
@@ -432,6 +432,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     d.add_argument("--show-targets", action="store_true",
                    help="Rearrange: draw the targets as discs on the tray floor (bulb's frames have none)")
     d.set_defaults(fn=cmd_render)
+    from bulbjax.reproduce.cli import add_parser as add_reproduce
+
+    add_reproduce(sub)
     argv = list(sys.argv[1:] if argv is None else argv)
     args = p.parse_args(argv)
     args.argv = argv
