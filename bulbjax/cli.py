@@ -166,6 +166,11 @@ def cmd_report(args: argparse.Namespace) -> int:
                          "add --compare-rl, to pool the seeds of runs of one configuration "
                          "--merge-seeds --out DIR")
     run_dir = args.run_dirs[0]
+    if os.path.exists(os.path.join(run_dir, "plan.json")):  # a `bulbjax reproduce` folder: its page
+        from bulbjax.reproduce import results
+
+        print(f"results: {results.write(run_dir, results.read_summary(run_dir))}")
+        return 0
     tab = report.redraw(run_dir)
     print(f"{tab}\nplot: {os.path.join(run_dir, 'fig2.png')}\ntable: {os.path.join(run_dir, 'table.md')}")
     return 0

@@ -256,6 +256,7 @@ def write_reports(run_dir: str, records: Sequence[dict[str, Any]], cfg: Any,
 
         verdicts, epochs = findings_objects.check_objects(records, cfg.env, cfg.version, last=last,
                                                           regions=regions.newest(run_dir))
+        verdicts += findings.added_learner_rows(records, spec, epochs)
         body = findings_objects.markdown(verdicts, epochs, len(seeds))
         which = "Figs. 3 and 5"
     else:

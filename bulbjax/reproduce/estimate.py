@@ -142,3 +142,17 @@ def hms(seconds: float) -> str:
     """Seconds as h:mm:ss."""
     s = int(round(max(0.0, seconds)))
     return f"{s // 3600}:{s % 3600 // 60:02d}:{s % 60:02d}"
+
+
+def times_markdown() -> str:
+    """The table of `epoch_times.json` as markdown (docs/reproduce.md holds it; a test keeps the
+    two equal)."""
+    table = json.loads(resources.files("bulbjax.reproduce").joinpath(TIMES_FILE).read_text())
+    lines = ["| device | preset | s per epoch, 1 seed | + per further seed | start-up cold / warm (s) | source |",
+             "|---|---|---|---|---|---|"]
+    for kind, presets in table["kinds"].items():
+        for preset, t in presets.items():
+            lines.append(f"| {kind} | {preset} | {t['epoch_s']} | {t.get('extra_seed_s', 0)} | "
+                         f"{t['startup_cold_s']} / {t['startup_warm_s']} | "
+                         f"{t.get('derived') or t.get('measured') or ''} |")
+    return "\n".join(lines)
