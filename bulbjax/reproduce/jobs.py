@@ -75,7 +75,7 @@ def command(out: str, job: Job, epoch_s: float, max_minutes: float = 0.0, source
         cols = fig4_learners(learners)
         cmd = [*base, "recon", job_dir(out, source), "--out", d]
         return cmd + (["--learners", ",".join(cols)] if cols else [])
-    every = max(10, int(CHECKPOINT_SECONDS / max(epoch_s, 1e-3)))
+    every = job.checkpoint_every or max(10, int(CHECKPOINT_SECONDS / max(epoch_s, 1e-3)))
     stretch = ["--epochs", str(job.epochs), "--checkpoint-every", str(every)]
     if max_minutes > 0:
         stretch += ["--max-minutes", f"{max_minutes:.2f}"]

@@ -41,6 +41,7 @@ class FigureSpec:
     # seeds per job: 1 keeps every GPU busy on a plan of many jobs; the quick scale puts a
     # preset's seeds in one job, so it starts (compiles) once
     seeds_per_job: int = 1
+    checkpoint_every: int = 0  # epochs between a job's checkpoints (0: about every 5 minutes)
 
     def epochs_for(self, preset: str) -> int:
         return dict(self.epochs_of).get(preset, self.epochs)
@@ -81,12 +82,13 @@ def figure_specs(scale: str) -> dict[str, FigureSpec]:
                                recon_every=40, seeds_per_job=2, flags=("--bf16",)),
         }
     tiny = ("--small", "--learners", "vae,vae_rpl")
+    rearrange = ("--small", "--learners", "vae_rpl,spair")
     return {
-        "fig2": FigureSpec("fig2", TITLES["fig2"], _FIG2, 2, 2, probe_every=1, flags=tiny),
+        "fig2": FigureSpec("fig2", TITLES["fig2"], _FIG2, 2, 2, probe_every=1, flags=tiny, checkpoint_every=1),
         "fig3": FigureSpec("fig3", TITLES["fig3"], ("fig3-rearrange-geom",), 2, 2, probe_every=1,
-                           recon_every=2, flags=("--small", "--learners", "vae_rpl,spair")),
+                           recon_every=2, flags=rearrange, checkpoint_every=1),
         "fig5": FigureSpec("fig5", TITLES["fig5"], ("fig5-rearrange-ycb",), 2, 2, probe_every=1,
-                           recon_every=2, flags=("--small", "--learners", "vae_rpl,spair")),
+                           recon_every=2, flags=rearrange, checkpoint_every=1),
     }
 
 
@@ -109,6 +111,7 @@ class Job:
     flags: tuple[str, ...] = ()
     after: str | None = None  # the job this one reads (Fig. 4: the Fig. 2 run it redraws)
     seeds: int = 1
+    checkpoint_every: int = 0  # epochs between checkpoints (0: about every 5 minutes of epochs)
 
     def as_dict(self) -> dict[str, Any]:
         return dataclasses.asdict(self)
@@ -172,7 +175,8 @@ def _run_jobs(s: FigureSpec, preset: str, add_learners: Sequence[str],
         n = min(s.seeds_per_job, s.seeds - first)
         name = f"seed{first}" if n == 1 else f"seeds{first}-{first + n - 1}"
         out.append(Job(f"{preset}/{name}", s.name, "run", preset, first, s.epochs_for(preset),
-                       f"runs/{preset}/{name}", s.probe_every, s.recon_every, flags, seeds=n))
+                       f"runs/{preset}/{name}", s.probe_every, s.recon_every, flags, seeds=n,
+                       checkpoint_every=s.checkpoint_every))
     return out
 
 
