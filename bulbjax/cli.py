@@ -167,7 +167,8 @@ def cmd_report(args: argparse.Namespace) -> int:
                          "--merge-seeds --out DIR")
     run_dir = args.run_dirs[0]
     tab = report.redraw(run_dir)
-    print(f"{tab}\nplot: {os.path.join(run_dir, 'fig2.png')}\ntable: {os.path.join(run_dir, 'table.md')}")
+    plot = "curves.png" if report.is_offline(run_dir) else "fig2.png"  # `bulbjax fit` folders
+    print(f"{tab}\nplot: {os.path.join(run_dir, plot)}\ntable: {os.path.join(run_dir, 'table.md')}")
     return 0
 
 
