@@ -172,7 +172,8 @@ def cmd_report(args: argparse.Namespace) -> int:
         print(f"results: {results.write(run_dir, results.read_summary(run_dir))}")
         return 0
     tab = report.redraw(run_dir)
-    print(f"{tab}\nplot: {os.path.join(run_dir, 'fig2.png')}\ntable: {os.path.join(run_dir, 'table.md')}")
+    plot = "curves.png" if report.is_offline(run_dir) else "fig2.png"  # `bulbjax fit` folders
+    print(f"{tab}\nplot: {os.path.join(run_dir, plot)}\ntable: {os.path.join(run_dir, 'table.md')}")
     return 0
 
 

@@ -23,6 +23,11 @@ ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 PAGES = ["README.md", *sorted(os.path.relpath(p, ROOT) for p in glob.glob(os.path.join(ROOT, "docs", "*.md")))]
 # pages that also document other scripts' flags: only `bulbjax ...` commands and presets are checked
 COMMAND_PAGES = ["benchmarks/README.md"]
+# the READMEs of docs/ subfolders (result folders) and of benchmarks/diagnostics: their links and
+# the scripts they name must exist
+README_PAGES = sorted({os.path.relpath(p, ROOT)
+                       for p in glob.glob(os.path.join(ROOT, "docs", "*", "**", "README.md"), recursive=True)}
+                      | {"benchmarks/diagnostics/README.md"})
 
 # `bulbjax run`, `.venv/bin/bulbjax run`, `python -m bulbjax.cli run` (not `bulbjax/cli.py`)
 _COMMAND = re.compile(r"(?<![\w/.-])(?:[\w./-]*/)?bulbjax(?:\.cli)?\s+([a-z]+)\b")
@@ -229,7 +234,7 @@ def _anchors(path: str) -> set[str]:
     return set(heads)
 
 
-@pytest.mark.parametrize("page", PAGES + COMMAND_PAGES)
+@pytest.mark.parametrize("page", PAGES + COMMAND_PAGES + README_PAGES)
 def test_relative_links_resolve(page):
     """Every relative link of a page names a file of the repository (and a heading, with #)."""
     with open(os.path.join(ROOT, page), encoding="utf-8") as f:
@@ -251,3 +256,31 @@ def test_slugs_follow_github():
     assert _slug("Several GPUs and hosts") == "several-gpus-and-hosts"
     assert _slug("metrics.jsonl") == "metricsjsonl"
     assert _slug("Interop (`bulbjax/interop/`, host-side adapters)") == "interop-bulbjaxinterop-host-side-adapters"
+
+
+# a path of the repository naming a script: `benchmarks/diagnostics/before_after.py`, `tests/test_run.py`
+_SCRIPT = re.compile(r"(?<![\w./-])((?:benchmarks|bulbjax|tests|examples|pybullet_compat|docs)/"
+                     r"[\w./-]*\.(?:py|sh))\b")
+
+
+def missing_scripts(text: str) -> list[str]:
+    """The repository paths of scripts (`.py`, `.sh`) named anywhere in `text` that do not exist."""
+    return sorted({p for p in _SCRIPT.findall(text) if not os.path.exists(os.path.join(ROOT, p))})
+
+
+@pytest.mark.parametrize("page", PAGES + COMMAND_PAGES + README_PAGES)
+def test_named_scripts_exist(page):
+    """A script a page names by its path exists there (issue 57: the before/after READMEs named
+    `benchmarks/before_after.py` after it moved to `benchmarks/diagnostics/`)."""
+    with open(os.path.join(ROOT, page), encoding="utf-8") as f:
+        gone = missing_scripts(f.read())
+    assert not gone, f"{page} names scripts that do not exist: {', '.join(gone)}"
+
+
+def test_the_script_check_catches_a_moved_script():
+    assert len(README_PAGES) > 20 and "docs/results/before_after_dgrad/README.md" in README_PAGES
+    moved = "made by `benchmarks/before_after.py`:\n    python benchmarks/before_after.py run"
+    assert missing_scripts(moved) == ["benchmarks/before_after.py"]
+    assert not missing_scripts("`benchmarks/diagnostics/before_after.py`, `tests/test_docs.py`, "
+                               "../shared/device/stage-wheels.sh, warp/_src/jax/ffi.py")
+

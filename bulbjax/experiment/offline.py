@@ -375,15 +375,10 @@ def write_outputs(fit: OfflineFit, records: list[dict], states: dict, held: Wind
     predictor dotted), `table.md` (last probe) and `recon.png` (held-out frames and every
     learner's reconstruction, seed 0)."""
     c = fit.config
-    n_upd = max(r["update"] for r in records)
-    title = f"{fit.source.name} offline: {fit.S} seeds, {n_upd} updates"
-    report.plot(records, fit.spec, os.path.join(out_dir, "curves.png"), title, x_key="update",
-                streams=(("rand", "held-out π_rand"),))
-    tab = report.table(records, fit.spec, last=1, x_key="update", streams=(("rand", "held-out π_rand"),))
+    title = report.offline_title(fit.source.name, fit.S, records)
     timing = (f"wall time {wall:.1f} s (data {t_data:.1f} s) on {jax.devices()[0].device_kind}; "
               f"batch {c.base.learner.batch_size} frames, sequential {c.base.seq_len}-step windows")
-    with open(os.path.join(out_dir, "table.md"), "w") as f:
-        f.write(f"# {title}\n\n{tab}\n\n{timing}\n")
+    report.write_offline_reports(out_dir, records, fit.spec, title, footer=timing)
     save_recon_grid(fit, states, held, os.path.join(out_dir, "recon.png"))
 
 
