@@ -166,6 +166,11 @@ def cmd_report(args: argparse.Namespace) -> int:
                          "add --compare-rl, to pool the seeds of runs of one configuration "
                          "--merge-seeds --out DIR")
     run_dir = args.run_dirs[0]
+    if os.path.exists(os.path.join(run_dir, "claims.json")):  # a results folder: its page's claims tables
+        from bulbjax.reproduce import claims
+
+        print(f"claims tables rewritten: {claims.write_page(run_dir)}")
+        return 0
     if os.path.exists(os.path.join(run_dir, "plan.json")):  # a `bulbjax reproduce` folder: its page
         from bulbjax.reproduce import results
 

@@ -194,3 +194,22 @@ def test_a_tiny_plan_on_two_slots(tmp_path) -> None:
     assert summary["gpus"] == 2 and summary["failed"] == [] and 0 < summary["utilisation"] <= 1
     again = subprocess.run(cmd, capture_output=True, text=True, timeout=300, env=dict(os.environ, JAX_PLATFORMS="cpu"))
     assert again.returncode == 0 and "start " not in again.stdout and "2 done, 0 running" in again.stdout
+
+
+def test_the_results_page_holds_the_generated_claims_tables() -> None:
+    """docs/results.md's claims tables are what `bulbjax report docs/results` writes from the
+    committed folders' findings.md (themselves regenerated from the metrics by
+    tests/test_results_regenerate.py): the page cannot drift from the numbers."""
+    from bulbjax.reproduce import claims
+
+    results = os.path.join(ROOT, "docs", "results")
+    with open(os.path.join(ROOT, "docs", "results.md"), encoding="utf-8") as f:
+        page = f.read()
+    assert page.count("<!-- claims:") == len(claims.read_spec(results)["tables"]) >= 3
+    assert claims.render(page, results) == page, "run `bulbjax report docs/results` to regenerate docs/results.md"
+    # and a changed number would show: the generated table depends on the findings
+    assert "**holds**, π_rand +0.345 ± 0.033" in page
+    assert claims.bands("overall, π_rand: a 0.1, b 0.5; b - a = +0.400 ± 0.050; overall, π_curr: a 0.2, b 0.2; "
+                        "b - a = +0.000 ± 0.010") == "π_rand +0.400 ± 0.050; π_curr +0.000 ± 0.010"
+    with pytest.raises(ValueError, match="does not define"):
+        claims.render("<!-- claims:nope -->\n<!-- /claims:nope -->", results)
