@@ -9,6 +9,7 @@ file, camera, reset distribution, state, reward and termination.
 from __future__ import annotations
 
 import os
+from importlib import resources
 from typing import Any, Sequence
 
 import jax
@@ -31,11 +32,22 @@ from bulbjax.eval.spec import StateEntry
 ASSET_DIR_ENV = "BULBJAX_MJCF_DIR"
 
 
+MJCF_FOLDER = "mjcf"  # package data of `bulbjax.envs` (pyproject.toml's package-data)
+
+
 def asset_dir() -> str:
-    """Folder of the MJCF files: `$BULBJAX_MJCF_DIR`, else the repo's `mjcf_assets/`."""
-    here = os.path.dirname(os.path.abspath(__file__))
-    default = os.path.normpath(os.path.join(here, "..", "..", "mjcf_assets"))
-    return os.environ.get(ASSET_DIR_ENV, default)
+    """Folder of the MJCF files: `$BULBJAX_MJCF_DIR`, else `bulbjax/envs/mjcf/`, package data
+    found through `importlib.resources`, so that an installed wheel finds its models as a
+    checkout does. MuJoCo reads files by path: a package imported from a zip archive needs
+    `$BULBJAX_MJCF_DIR`."""
+    given = os.environ.get(ASSET_DIR_ENV)
+    if given:
+        return given
+    folder = resources.files("bulbjax.envs").joinpath(MJCF_FOLDER)
+    if not isinstance(folder, os.PathLike):
+        raise ValueError(f"bulbjax's MJCF files are inside an archive ({folder}), which MuJoCo cannot "
+                         f"read: install bulbjax unzipped, or set {ASSET_DIR_ENV} to a folder holding them")
+    return os.fspath(folder)
 
 
 @struct.dataclass
