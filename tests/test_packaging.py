@@ -2,7 +2,7 @@
 file bulbjax reads at run time (the MJCF models, package data found through
 `importlib.resources`), and installed into an empty folder outside the checkout it makes an
 environment and runs `bulbjax envs` from another working directory, with the checkout's own
-copy out of reach."""
+copy out of reach; on a machine without the NVIDIA driver, without Warp's line about it."""
 
 from __future__ import annotations
 
@@ -76,6 +76,10 @@ def test_installed_wheel_makes_an_environment(installed, tmp_path):
     r = _python(installed, str(tmp_path), "-c", code)
     assert r.returncode == 0, r.stderr[-4000:]
     assert "lowdim (2, 4)" in r.stdout
+    from bulbjax.envs import render
+
+    if not render._cuda_driver_loads():  # a CPU-only machine: Warp's no-driver line is not printed
+        assert "NVIDIA CUDA driver" not in r.stderr, r.stderr
 
 
 def test_installed_cli_lists_the_environments(installed, tmp_path):
