@@ -20,7 +20,7 @@ from flax import struct
 from mujoco import mjx
 
 from bulbjax.envs import warp_graphs
-from bulbjax.envs.batch import add_counts, nonfinite, where_tree
+from bulbjax.envs.batch import add_counts, nonfinite, prng_key, where_tree
 from bulbjax.envs.camera import PAN_CAMERAS, CameraConfig, add_bulb_camera, pan_cameras, static_view, view_poses
 from bulbjax.envs.colours import NUM_SCHEMES, scheme_table
 from bulbjax.envs.env_config import EnvConfig, check_config
@@ -106,7 +106,7 @@ class MjxPixelEnv:
     camera: CameraConfig
     state_spec: tuple[StateEntry, ...] = ()
     episode_length: int = 1000
-    solved_return: float = 0.0
+    solved_return: float | None = None  # the return counted as solved; None: the domain has none
     discrete: bool = False
     num_actions: int | None = None
     action_size: int = 1
@@ -265,8 +265,9 @@ class MjxPixelEnv:
         return (self.resolution, self.resolution, 3)
 
     def reset(self, key: jax.Array) -> EnvState:
-        """Start `num_envs` episodes; `key` is one PRNG key."""
-        return self.reset_keys(jax.random.split(key, self.num_envs))
+        """Start `num_envs` episodes; `key` is one PRNG key (`jax.random.PRNGKey(seed)`, or a
+        typed `jax.random.key(seed)`); anything else is a ValueError that says so."""
+        return self.reset_keys(jax.random.split(prng_key(key), self.num_envs))
 
     def reset_keys(self, keys: jax.Array) -> EnvState:
         """Start `num_envs` episodes from per-world keys `[num_envs, 2]` (`reset(key)` splits

@@ -200,6 +200,9 @@ def resolve_offline(preset: str | None = None, *, overrides: Mapping[str, Any] |
     if env is None and not preset:
         raise ValueError("fit needs --env (an environment of `bulbjax envs`, or SyntheticMovers) or --preset")
     synth = env == synthetic.NAME
+    if env is not None and not synth and env not in registry.env_names():
+        raise ValueError(f"unknown environment {env!r}; available: {', '.join(registry.env_names())} "
+                         f"and, for `bulbjax fit` only, {synthetic.NAME}")
     if synth:  # SyntheticMovers' own defaults, under what was given
         overrides = {"resolution": 32, "sequence_length": 8, **overrides, "multicolour": False}
     base = resolve(preset, overrides=overrides, learner=learner, learner_options=learner_options,
