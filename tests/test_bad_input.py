@@ -81,10 +81,12 @@ def test_gymnasium_vector_env_refuses_actions_outside_its_space():
     # the first bad value, its world, how many worlds, the space and the fix (issue 58: the
     # batch's min..max was named)
     with pytest.raises(gymnasium.error.InvalidAction,
-                       match=r"invalid action `5` \(world 2; 1 world\(s\) not an integer in \[0, 2\)\)\. "
-                             r"The supported action_space is `Discrete\(2\)`: CartPole's actions are integers"):
+                       match=r"invalid action `5` \(world 2; 1 world\(s\) not an integer in \[0, 2\)\)"
+                             r"\. The supported action_space is `Discrete\(2\)`: CartPole's actions "
+                             r"are integers"):
         discrete.step(np.array([0, 1, 5]))
-    with pytest.raises(gymnasium.error.InvalidAction, match=r"invalid action `-1` \(world 0; 2 world\(s\)"):
+    with pytest.raises(gymnasium.error.InvalidAction,
+                       match=r"invalid action `-1` \(world 0; 2 world\(s\)"):
         discrete.step(np.array([-1, 1, 2]))
     with pytest.raises(gymnasium.error.InvalidAction, match=r"invalid action `0.5` \(world 1;"):
         discrete.step(np.array([0.0, 0.5, 1.0]))
@@ -106,8 +108,8 @@ def test_gymnasium_single_discrete_env_names_the_bad_action():
     state = env.unwrapped._state
     for bad in (2, 0.7, -1, np.nan):
         with pytest.raises(gymnasium.error.InvalidAction,
-                           match=rf"invalid action `{bad}`\. The supported action_space is `Discrete\(2\)`: "
-                                 r"CartPole's actions are integers in \[0, 2\)$"):
+                           match=rf"invalid action `{bad}`\. The supported action_space is "
+                                 r"`Discrete\(2\)`: CartPole's actions are integers in \[0, 2\)$"):
             env.step(bad)
     with pytest.raises(ValueError, match="takes one integer action"):
         env.step(np.array([0, 1]))
@@ -120,15 +122,19 @@ def test_reset_and_make_name_what_they_take():
     env = bulbjax.make("CartPole", num_envs=2, render=False)
     for bad, given in ((0, "int 0"), (np.zeros(3, np.uint32), r"uint32 \(3,\)"),
                        (jax.random.split(jax.random.PRNGKey(0)), r"uint32 \(2, 2\)")):
-        with pytest.raises(ValueError, match=rf"reset takes one PRNG key, e\.g\. jax\.random\.PRNGKey\(0\).*{given}"):
+        with pytest.raises(ValueError,
+                           match=rf"reset takes one PRNG key, e\.g\. jax\.random\.PRNGKey\(0\).*{given}"):
             env.reset(bad)
     with pytest.raises(ValueError, match=r"reset takes one PRNG key.*int32 \(\)"):
         jax.eval_shape(env.reset, 0)  # an int traced under jit
     typed = jax.eval_shape(env.reset, jax.random.key(0))  # a typed key is taken as its data
     raw = jax.eval_shape(env.reset, jax.random.PRNGKey(0))
-    assert jax.tree.map(lambda x: (x.shape, x.dtype), typed) == jax.tree.map(lambda x: (x.shape, x.dtype), raw)
-    with pytest.raises(ValueError, match=r"render must be True, False or an observation \(rgb, depth, pointcloud\), "
-                                         r"got 'rgbd'"):
+    def shapes(tree):
+        return jax.tree.map(lambda x: (x.shape, x.dtype), tree)
+
+    assert shapes(typed) == shapes(raw)
+    with pytest.raises(ValueError, match=r"render must be True, False or an observation "
+                                         r"\(rgb, depth, pointcloud\), got 'rgbd'"):
         bulbjax.make("CartPole", num_envs=2, render="rgbd")
 
 

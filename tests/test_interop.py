@@ -208,7 +208,7 @@ def test_single_env_check_env():
     check_env(env, skip_close_check=True)
     obs, info = env.reset(seed=1)
     assert info["state"].shape == (4,) and env.render().shape == (32, 32, 3)
-    env.render_mode = None  # as made without render_mode: None, and a warning that says how (issue 58)
+    env.render_mode = None  # as made without render_mode: None, and a warning saying how (issue 58)
     with pytest.warns(UserWarning, match=r'render_mode="rgb_array"'):
         assert env.render() is None
     env.render_mode = "rgb_array"
@@ -293,8 +293,8 @@ def test_register_envs():
     spec = gymnasium.spec("bulbjax/InvertedPendulumMulticolour-v0")
     assert spec.vector_entry_point is not None and spec.nondeterministic is False
     # gymnasium.make_vec hands the spec's max_episode_steps to the vector entry point
-    venv = gymnasium.make_vec("bulbjax/CartPole-v0", num_envs=2, vectorization_mode="vector_entry_point",
-                              obs="state", render=False)
+    venv = gymnasium.make_vec("bulbjax/CartPole-v0", num_envs=2,
+                              vectorization_mode="vector_entry_point", obs="state", render=False)
     assert isinstance(venv, BulbjaxVectorEnv) and venv.num_envs == 2
     with pytest.raises(ValueError, match="truncate episodes at the domain's 200 steps"):
         gymnasium.make_vec("bulbjax/CartPole-v0", num_envs=2, vectorization_mode="vector_entry_point",
@@ -313,7 +313,7 @@ def test_importing_interop_gym_registers(tmp_path):
             "assert 'bulbjax.gym' not in sys.modules\n"
             "print(sorted(i for i in gymnasium.registry if i.startswith('bulbjax/'))[:1])\n")
     env = {**os.environ, "PYTHONPATH": root}
-    r = subprocess.run([sys.executable, "-c", code], cwd=str(tmp_path), env=env, capture_output=True, text=True,
-                       timeout=300)
+    r = subprocess.run([sys.executable, "-c", code], cwd=str(tmp_path), env=env, capture_output=True,
+                       text=True, timeout=300)
     assert r.returncode == 0, r.stderr[-3000:]
     assert "bulbjax/Ant-v0" in r.stdout

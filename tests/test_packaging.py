@@ -21,9 +21,9 @@ SOURCES = ("pyproject.toml", "README.md", "bulbjax", "pybullet_compat")
 
 
 def _pip(*args: str, cwd: str) -> None:
-    r = subprocess.run([sys.executable, "-m", "pip", *args], cwd=cwd, capture_output=True, text=True,
-                       timeout=300)
-    assert r.returncode == 0, f"pip {' '.join(args)} failed:\n{r.stdout[-3000:]}\n{r.stderr[-3000:]}"
+    r = subprocess.run([sys.executable, "-m", "pip", *args], cwd=cwd, capture_output=True,
+                       text=True, timeout=300)
+    assert r.returncode == 0, f"pip {' '.join(args)}:\n{r.stdout[-3000:]}\n{r.stderr[-3000:]}"
 
 
 @pytest.fixture(scope="module")
@@ -31,17 +31,19 @@ def installed(tmp_path_factory) -> str:
     """The wheel built (no build isolation: the test extra brings `wheel`) from a copy of the
     sources (the checkout stays untouched by build/ and egg-info) and installed with
     `pip install --target` into an empty folder; returns that folder."""
-    pytest.importorskip("wheel", reason="building a wheel with setuptools < 70.1 needs `wheel` (the test extra)")
+    pytest.importorskip("wheel", reason="setuptools < 70.1 builds wheels with `wheel` (test extra)")
     tmp = tmp_path_factory.mktemp("packaging")
     src = tmp / "src"
     src.mkdir()
     for name in SOURCES:
         path = os.path.join(ROOT, name)
         if os.path.isdir(path):
-            shutil.copytree(path, src / name, ignore=shutil.ignore_patterns("__pycache__", "*.egg-info"))
+            shutil.copytree(path, src / name,
+                            ignore=shutil.ignore_patterns("__pycache__", "*.egg-info"))
         else:
             shutil.copy(path, src / name)
-    _pip("wheel", "--no-deps", "--no-build-isolation", "-q", "-w", str(tmp / "wheels"), str(src), cwd=str(tmp))
+    _pip("wheel", "--no-deps", "--no-build-isolation", "-q", "-w", str(tmp / "wheels"), str(src),
+         cwd=str(tmp))
     wheels = os.listdir(tmp / "wheels")
     assert len(wheels) == 1 and wheels[0].endswith(".whl"), wheels
     wheel = str(tmp / "wheels" / wheels[0])
@@ -61,14 +63,16 @@ def _python(site: str, cwd: str, *args: str) -> subprocess.CompletedProcess:
     MJCF folder given."""
     env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "BULBJAX_MJCF_DIR")}
     env["PYTHONPATH"] = site
-    return subprocess.run([sys.executable, *args], cwd=cwd, env=env, capture_output=True, text=True, timeout=600)
+    return subprocess.run([sys.executable, *args], cwd=cwd, env=env, capture_output=True,
+                          text=True, timeout=600)
 
 
 def test_installed_wheel_makes_an_environment(installed, tmp_path):
     code = ("import os, sys, jax, bulbjax\n"
             "from bulbjax.envs.base import asset_dir\n"
             f"site = os.path.realpath({installed!r})\n"
-            "assert os.path.realpath(bulbjax.__file__).startswith(site + os.sep), bulbjax.__file__\n"
+            "here = os.path.realpath(bulbjax.__file__)\n"
+            "assert here.startswith(site + os.sep), here\n"
             "assert os.path.realpath(asset_dir()).startswith(site + os.sep), asset_dir()\n"
             "env = bulbjax.make('CartPole', num_envs=2, render=False)\n"
             "state = jax.jit(env.reset)(jax.random.PRNGKey(0))\n"

@@ -45,8 +45,9 @@ def asset_dir() -> str:
         return given
     folder = resources.files("bulbjax.envs").joinpath(MJCF_FOLDER)
     if not isinstance(folder, os.PathLike):
-        raise ValueError(f"bulbjax's MJCF files are inside an archive ({folder}), which MuJoCo cannot "
-                         f"read: install bulbjax unzipped, or set {ASSET_DIR_ENV} to a folder holding them")
+        raise ValueError(f"bulbjax's MJCF files are inside an archive ({folder}), which MuJoCo "
+                         f"cannot read: install bulbjax unzipped, or set {ASSET_DIR_ENV} to a folder "
+                         "holding them")
     return os.fspath(folder)
 
 

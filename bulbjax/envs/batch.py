@@ -58,6 +58,8 @@ def prng_key(key: Any) -> jax.Array:
         key = jax.random.key_data(key)
         dtype, shape = key.dtype, key.shape
     if dtype != jnp.uint32 or shape != (2,):
-        given = f"{type(key).__name__} {key!r}" if dtype is None else f"an array of {dtype} {tuple(shape)}"
-        raise ValueError(f"reset takes one PRNG key, e.g. jax.random.PRNGKey(0) (uint32 [2]), not {given}")
+        given = (f"{type(key).__name__} {key!r}" if dtype is None
+                 else f"an array of {dtype} {tuple(shape)}")
+        raise ValueError("reset takes one PRNG key, e.g. jax.random.PRNGKey(0) (uint32 [2]), "
+                         f"not {given}")
     return key

@@ -59,8 +59,8 @@ def make(name: str, num_envs: int = 64, resolution: int = 64, render: bool | str
         raise ValueError(f"unknown environment {name!r}; available: {', '.join(env_names())}")
     if isinstance(render, str):
         if render not in OBSERVATIONS:
-            raise ValueError(f"render must be True, False or an observation ({', '.join(OBSERVATIONS)}), "
-                             f"got {render!r}")
+            raise ValueError("render must be True, False or an observation "
+                             f"({', '.join(OBSERVATIONS)}), got {render!r}")
         observation, render = render, True
     else:
         observation = "rgb"

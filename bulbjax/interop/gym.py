@@ -168,8 +168,8 @@ class _Core:
                 ok = (a >= 0) & (a < env.num_actions) & (np.mod(a, 1) == 0)  # NaN fails each
             if not ok.all():
                 rule = f"not an integer in [0, {env.num_actions})"
-                raise InvalidAction(self._invalid(a[~ok][0].item(), np.flatnonzero(~ok), rule,
-                                                  f"{env.name}'s actions are integers in [0, {env.num_actions})"))
+                fix = f"{env.name}'s actions are integers in [0, {env.num_actions})"
+                raise InvalidAction(self._invalid(a[~ok][0].item(), np.flatnonzero(~ok), rule, fix))
             return a.astype(np.int32)
         if a.shape == (n,) and env.action_size == 1:
             a = a[:, None]
@@ -320,8 +320,9 @@ class BulbjaxVectorEnv(VectorEnv):
 def _warn_no_render_mode(maker: str) -> None:
     """What gymnasium's own envs do when `render()` is called without a render mode: a warning
     (render() then returns None)."""
-    gymnasium.logger.warn(f'render() returns frames only with render_mode="rgb_array": make the env with '
-                          f'{maker}(..., render_mode="rgb_array") (or gymnasium.make(..., render_mode="rgb_array"))')
+    gymnasium.logger.warn('render() returns frames only with render_mode="rgb_array": make the env '
+                          f'with {maker}(..., render_mode="rgb_array") (or gymnasium.make(..., '
+                          'render_mode="rgb_array"))')
 
 
 def _masked(values: dict[str, np.ndarray], mask: np.ndarray) -> dict[str, Any]:
@@ -422,15 +423,16 @@ def make_env(name: str, obs: str = "pixels", render_mode: str | None = None, **m
 
 def register_envs(prefix: str = "bulbjax") -> list[str]:
     """Register every bulbjax domain with gymnasium as `<prefix>/<Name>-v0` (single env through
-    `gymnasium.make`, vector env through `gymnasium.make_vec(..., vectorization_mode="vector_entry_point")`),
-    with the domain's episode length as the spec's `max_episode_steps`. Importing this module
+    `gymnasium.make`, vector env through `gymnasium.make_vec(...,
+    vectorization_mode="vector_entry_point")`), with the domain's episode length as the spec's `max_episode_steps`. Importing this module
     (or `bulbjax.gym`) already did it with the default prefix."""
     ids = []
     for name in bulbjax.env_names():
         env_id = f"{prefix}/{name}-v0"
         if env_id not in gymnasium.registry:
             gymnasium.register(env_id, entry_point=_entry(name), vector_entry_point=_vector_entry(name),
-                               max_episode_steps=env_class(name).episode_length, nondeterministic=False)
+                               max_episode_steps=env_class(name).episode_length,
+                               nondeterministic=False)
         ids.append(env_id)
     return ids
 
@@ -442,13 +444,15 @@ def _entry(name: str):
 
 
 def _vector_entry(name: str):
-    def make(num_envs: int = 1, max_episode_steps: int | None = None, **kwargs: Any) -> BulbjaxVectorEnv:
+    def make(num_envs: int = 1, max_episode_steps: int | None = None,
+             **kwargs: Any) -> BulbjaxVectorEnv:
         # gymnasium.make_vec hands over the spec's max_episode_steps: a bulbjax env truncates its
         # episodes itself, at the domain's length, and a vector env has no TimeLimit to wrap it in
         length = env_class(name).episode_length
         if max_episode_steps not in (None, length):
-            raise ValueError(f"bulbjax/{name} vector envs truncate episodes at the domain's {length} steps; "
-                             f"max_episode_steps={max_episode_steps} is not supported (leave it out)")
+            raise ValueError(f"bulbjax/{name} vector envs truncate episodes at the domain's "
+                             f"{length} steps; max_episode_steps={max_episode_steps} is not "
+                             "supported (leave it out)")
         return make_vec(name, num_envs, **kwargs)
     return make
 
