@@ -58,6 +58,7 @@ if _cache.strip().lower() not in ("", "0", "off", "false", "no"):  # compile_cac
 COMPILE_BOUND = (
     "test_experiment.py", "test_object_probe.py", "test_recon.py", "test_rl_sequential.py",
     "test_extending.py", "test_run.py", "test_sharding.py", "test_distributed.py", "test_kill_resume.py",
+    "test_plugins.py",
 )
 
 
