@@ -227,16 +227,19 @@ def title_of(cfg: Any, epochs_done: int) -> str:
 
 def write_reports(run_dir: str, records: Sequence[dict[str, Any]], cfg: Any,
                   spec: Sequence[StateEntry], solved_return: float | None = None,
-                  footer: str = "") -> str:
+                  footer: str = "", source_dir: str | None = None) -> str:
     """`fig2.png`, `table.md`, `findings.md` (the paper's Fig. 2 claims checked, `findings`) (and `objects.png` when learners with boxes were probed in a
-    domain with objects) of a run from its records (all epochs written so far); returns the table. Epochs whose seeds are not all written yet (a run in progress) are left out."""
+    domain with objects) of a run from its records (all epochs written so far); returns the table. Epochs whose seeds are not all written yet (a run in progress) are left out.
+    `source_dir`: the run folder whose `regions_<epoch>.json` the object findings read, where
+    the reports go elsewhere (default `run_dir`)."""
     seeds = sorted({r["seed"] for r in records})
     per_epoch: dict[int, int] = {}
     for r in records:
         per_epoch[r["epoch"]] = per_epoch.get(r["epoch"], 0) + 1
     records = [r for r in records if per_epoch[r["epoch"]] == len(seeds)]
     if not probed(records):
-        raise ValueError(f"{run_dir} has no probed epoch yet: nothing to plot (wait for the first epoch)")
+        raise ValueError(f"{source_dir or run_dir} has no probed epoch yet: nothing to plot "
+                         "(wait for the first epoch)")
     done = len({r["epoch"] for r in records})
     title = title_of(cfg, done)
     plot(records, spec, os.path.join(run_dir, "fig2.png"), title, solved_return=solved_return)
@@ -254,8 +257,9 @@ def write_reports(run_dir: str, records: Sequence[dict[str, Any]], cfg: Any,
 
         from bulbjax.eval import regions
 
+        newest = regions.newest(source_dir or run_dir)
         verdicts, epochs = findings_objects.check_objects(records, cfg.env, cfg.version, last=last,
-                                                          regions=regions.newest(run_dir))
+                                                          regions=newest)
         body = findings_objects.markdown(verdicts, epochs, len(seeds))
         which = "Figs. 3 and 5"
     else:
@@ -277,15 +281,19 @@ def report_spec(state_spec: Sequence[StateEntry], records: Sequence[dict]) -> tu
     return tuple(state_spec) if widths == {len(state_spec)} else spec
 
 
-def redraw(run_dir: str) -> str:
-    """`bulbjax report RUN_DIR`: fig2.png and table.md again from config.json and metrics.jsonl
-    (also while the run is still writing them: incomplete epochs are left out)."""
+def redraw(run_dir: str, out_dir: str | None = None) -> str:
+    """`bulbjax report RUN_DIR [--out OUT]`: fig2.png, table.md and findings.md again from
+    config.json and metrics.jsonl (also while the run is still writing them: incomplete epochs
+    are left out), into `out_dir` (created; default the run folder itself)."""
     from bulbjax.envs.registry import env_class
 
     cfg, _ = read_run_config(run_dir)
     records = read_jsonl(metrics_path(run_dir), tolerate_partial=True)
     cls = env_class(cfg.env)
-    return write_reports(run_dir, records, cfg, report_spec(cls.state_spec, records), cls.solved_return,
+    out_dir = run_dir if out_dir is None else out_dir
+    os.makedirs(out_dir, exist_ok=True)
+    return write_reports(out_dir, records, cfg, report_spec(cls.state_spec, records),
+                         cls.solved_return, source_dir=run_dir,
                          footer=f"redrawn by `bulbjax report` from {len(records)} records")
 
 
