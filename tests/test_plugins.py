@@ -142,6 +142,7 @@ def test_spec_forms_register_once(plugin_dir):
                             r"folder on PYTHONPATH"),
     ("broken_learners:Mine", r"cannot import 'broken_learners' \(RuntimeError: the GPU is on fire\)$"),
     ("my_learners:Nope", r"my_learners has no 'Nope'; it has the learner classes TinyPCA$"),
+    ("my_learners:vae", r"my_learners has no 'vae'"),  # a built-in's name is no module's learner
     ("my_learners:NOT_A_LEARNER", r"int 3 is neither a learner class \(with init, update, encode\)"),
     ("my_learners:dataclasses", r"module .* is neither a learner class"),
     ("vae=my_learners:TinyPCA", r"the name 'vae' is another learner's; give this one another name"),

@@ -200,17 +200,23 @@ def load_learner_spec(spec: str) -> str:
     finally:
         for new in set(_REGISTRY) - before:  # every learner this spec's import registered
             _PROVIDER.setdefault(new, key)
-    _PROVIDER.setdefault(got, key)  # also where the module was imported before (by the caller)
+    _PROVIDER.setdefault(got, key)  # also where the caller imported the module before
     _LOADED[key] = got
     return got
+
+
+def _belongs(reg: Registration, module: Any) -> bool:
+    """Whether a registration's factory (or the class it wraps) is defined in `module`."""
+    made = getattr(reg.factory, "__wrapped__", reg.factory)
+    return getattr(made, "__module__", None) == module.__name__
 
 
 def _load(key: str) -> str:
     name, target, attr = _split(key)
     module = _import(key, target)
     if not hasattr(module, attr):
-        if attr in _REGISTRY and name in (None, attr):  # a name its import registered
-            return attr
+        if attr in _REGISTRY and name in (None, attr) and _belongs(_REGISTRY[attr], module):
+            return attr  # a name its import registered (a built-in `vae` is nobody's plugin)
         learners = sorted(n for n, v in vars(module).items() if not n.startswith("_")
                           and inspect.isclass(v)
                           and all(callable(getattr(v, m, None)) for m in _PROTOCOL))
