@@ -44,7 +44,7 @@ from typing import Any, Callable
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 REPO = os.path.dirname(HERE)
-# Use this working tree's bulbjax (and its mjcf_assets), not an installed copy.
+# Use this working tree's bulbjax (and its MJCF files), not an installed copy.
 sys.path.insert(0, REPO)
 
 import jax  # noqa: E402

@@ -176,9 +176,10 @@ def cmd_report(args: argparse.Namespace) -> int:
 
         print(f"results: {results.write(run_dir, results.read_summary(run_dir))}")
         return 0
-    tab = report.redraw(run_dir)
+    out = args.out or run_dir
+    tab = report.redraw(run_dir, out)
     plot = "curves.png" if report.is_offline(run_dir) else "fig2.png"  # `bulbjax fit` folders
-    print(f"{tab}\nplot: {os.path.join(run_dir, plot)}\ntable: {os.path.join(run_dir, 'table.md')}")
+    print(f"{tab}\nplot: {os.path.join(out, plot)}\ntable: {os.path.join(out, 'table.md')}")
     return 0
 
 
@@ -206,8 +207,9 @@ def cmd_fit(args: argparse.Namespace) -> int:
                      header=" ".join(["bulbjax", *getattr(args, "argv", [])])):
         offline.run(cfg, args.out, cache_dir=args.cache_dir, max_minutes=args.max_minutes, seed=args.seed,
                     resume=args.resume, overwrite=args.overwrite)
-    print(f"curves: {args.out}/curves.png, {args.out}/curves.jsonl; table: {args.out}/table.md; "
-          f"reconstructions: {args.out}/recon.png")
+    recon = os.path.join(args.out, "recon.png")
+    print(f"curves: {args.out}/curves.png, {args.out}/curves.jsonl; table: {args.out}/table.md"
+          + (f"; reconstructions: {recon}" if os.path.exists(recon) else ""))
     return 0
 
 
@@ -236,8 +238,9 @@ def cmd_envs(args: argparse.Namespace) -> int:
             variant = f"(+{MULTICOLOUR_SUFFIX})"
         else:
             variant = f"(versions 0-{versions - 1}, random)" if versions else "(one scene)"
+        solved = "-" if cls.solved_return is None else f"{cls.solved_return:g}"
         print(f"{name:<24} {variant} action {act}, episode {cls.episode_length}, "
-              f"solved {cls.solved_return:g}; state: {_spec_summary(cls.state_spec)}")
+              f"solved {solved}; state: {_spec_summary(cls.state_spec)}")
     return 0
 
 
@@ -278,18 +281,43 @@ def _save_png(path: str, image) -> None:
     plt.imsave(path, image)
 
 
+class HelpFormatter(argparse.HelpFormatter):
+    """Every option's default in `bulbjax CMD --help`, taken from the parser (so it cannot drift
+    from the code), unless its help already says it or there is none (None, False)."""
+
+    def _get_help_string(self, action: argparse.Action) -> str:
+        text = action.help or ""
+        d = action.default
+        if not action.option_strings or d is None or d is False or d == argparse.SUPPRESS:
+            return text
+        if "default" in text:
+            return text
+        return f"{text} (default: %(default)s)"
+
+
+def learners_help(names: Sequence[str], defaults: str) -> str:
+    """`--learners`' help: the registered names (`learners.learner_names()`), and the plugin forms
+    (`bulbjax.learners.plugins`)."""
+    return (f"comma-separated learner names: {','.join(names)} ({defaults}); or a learner of "
+            "your own as MODULE:NAME or path/to/file.py:NAME (imported; NAME its learner class, "
+            "factory or registered name: docs/extending.md), or a name of an installed "
+            "package's `bulbjax.learners` entry point")
+
+
 def main(argv: Sequence[str] | None = None) -> int:
-    p = argparse.ArgumentParser(prog="bulbjax", description=__doc__)
+    from bulbjax.experiment.config import PRESETS
+    from bulbjax.learners import learner_names
+
+    presets = ", ".join(PRESETS)
+    p = argparse.ArgumentParser(prog="bulbjax", description=__doc__, formatter_class=HelpFormatter)
     sub = p.add_subparsers(dest="cmd", required=True)
-    r = sub.add_parser("run", help="train PPO + unsupervised learners and probe their latents")
+    r = sub.add_parser("run", help="train PPO + unsupervised learners and probe their latents",
+                       formatter_class=HelpFormatter)
     r.add_argument("--preset", default=None,
-                   help="named settings (fig2-cartpole, fig2-invpend, fig2-halfcheetah, fig2-ant, "
-                        "fig3-rearrange-geom); "
-                        "the flags below override it")
-    r.add_argument("--env", default=None, help="environment (default CartPole)")
+                   help=f"named settings ({presets}); the flags below override it")
+    r.add_argument("--env", default=None, help="environment (`bulbjax envs`; default CartPole)")
     r.add_argument("--learners", default=None,
-                   help="comma-separated: vae,vae_rpl,beta_vae,svae,pred,dsa,spair,spair6,stdim,curl or any "
-                        "registered learner (default the first three)")
+                   help=learners_help(learner_names(), "default vae,vae_rpl,beta_vae"))
     r.add_argument("--seeds", type=int, default=None, help="seeds run side by side (default 3)")
     r.add_argument("--epochs", type=int, default=None, help="epochs (default 50)")
     r.add_argument("--sequence-length", type=int, default=None,
@@ -381,7 +409,8 @@ def main(argv: Sequence[str] | None = None) -> int:
                    help="write recon_<epoch>.png (held-out frames above every learner's reconstruction, "
                         "seed 0) and, with spair, boxes_<epoch>.png every N epochs and at the end (0: none)")
     r.set_defaults(fn=cmd_run)
-    rc = sub.add_parser("recon", help="redraw a run's reconstruction (and SPAIR box) figures from a checkpoint")
+    rc = sub.add_parser("recon", formatter_class=HelpFormatter,
+                        help="redraw a run's reconstruction (and SPAIR box) figures from a checkpoint")
     rc.add_argument("run_dir", metavar="RUN_DIR")
     rc.add_argument("--epoch", type=int, default=None, help="the checkpoint of E epochs done (default the newest)")
     rc.add_argument("--learners", default=None, help="comma-separated subset of the run's learners (default all)")
@@ -389,7 +418,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     rc.add_argument("--frames", type=int, default=8, help="frames per row (default 8)")
     rc.add_argument("--out", default=None, help="folder of the PNGs (default RUN_DIR)")
     rc.set_defaults(fn=cmd_recon)
-    rp = sub.add_parser("report", help="redraw fig2.png and table.md of a run folder from its metrics.jsonl")
+    rp = sub.add_parser("report", formatter_class=HelpFormatter,
+                        help="redraw fig2.png and table.md of a run folder from its metrics.jsonl")
     rp.add_argument("run_dirs", metavar="RUN_DIR", nargs="+")
     rp.add_argument("--compare-rl", action="store_true",
                     help="PPO return of several runs (state / pixels / latent:<learner>) in one plot, "
@@ -397,14 +427,18 @@ def main(argv: Sequence[str] | None = None) -> int:
     rp.add_argument("--merge-seeds", action="store_true",
                     help="one report over the seeds of several runs of one configuration made with "
                          "different --seed (e.g. half the seeds on each of two GPUs), into --out")
-    rp.add_argument("--out", default=None, help="folder of the --compare-rl outputs (default: the "
-                                                 "first run's parent folder) or of --merge-seeds")
+    rp.add_argument("--out", default=None,
+                    help="folder of the outputs: fig2.png, table.md, findings.md of one run "
+                         "(default: RUN_DIR itself), of --merge-seeds (required), or of "
+                         "--compare-rl (default: the first run's parent folder)")
     rp.set_defaults(fn=cmd_report)
     o = sub.add_parser("fit", help="offline: train learners on one cached random-policy dataset, "
-                                   "probe every M updates")
+                                   "probe every M updates", formatter_class=HelpFormatter)
     o.add_argument("--env", default=None, help="an environment (`bulbjax envs`) or SyntheticMovers")
-    o.add_argument("--preset", default=None, help="run settings of a preset (e.g. fig2-invpend)")
-    o.add_argument("--learners", default=None, help="comma-separated learners (default: the preset's or vae,vae_rpl,beta_vae)")
+    o.add_argument("--preset", default=None, help=f"run settings of a preset ({presets})")
+    o.add_argument("--learners", default=None,
+                   help=learners_help(learner_names(),
+                                      "default the preset's, else vae,vae_rpl,beta_vae"))
     o.add_argument("--updates", type=int, default=5000, help="learner updates")
     o.add_argument("--probe-every", type=int, default=250, help="probe every M updates")
     o.add_argument("--seeds", type=int, default=None, help="learner seeds, vmapped (default 3)")
@@ -422,22 +456,24 @@ def main(argv: Sequence[str] | None = None) -> int:
     o.add_argument("--seed", type=int, default=0, help="base PRNG seed of the learners")
     o.add_argument("--max-minutes", type=float, default=0.0,
                    help="stop cleanly before this wall time, probe and write the plots (0: no limit)")
-    o.add_argument("--out", default="runs/fit")
+    o.add_argument("--out", default="runs/fit",
+                   help="folder of the fit's curves, table, checkpoints and dataset cache")
     o.add_argument("--resume", action="store_true",
                    help="continue the fit in --out from its checkpoint (same flags; a larger --updates extends it)")
     o.add_argument("--overwrite", action="store_true",
                    help="start afresh in an --out folder that holds a fit, replacing its curves and checkpoints "
                         "(without it such a folder is an error that names the fit)")
     o.set_defaults(fn=cmd_fit)
-    e = sub.add_parser("envs", help="list the environments")
+    e = sub.add_parser("envs", help="list the environments", formatter_class=HelpFormatter)
     e.set_defaults(fn=cmd_envs)
-    d = sub.add_parser("render", help="save a strip of frames")
-    d.add_argument("--env", default="CartPole")
-    d.add_argument("--out", default="frames.png")
-    d.add_argument("--frames", type=int, default=8)
-    d.add_argument("--steps", type=int, default=10)
-    d.add_argument("--resolution", type=int, default=64)
-    d.add_argument("--seed", type=int, default=0)
+    d = sub.add_parser("render", help="save a strip of frames", formatter_class=HelpFormatter)
+    d.add_argument("--env", default="CartPole", help="environment (`bulbjax envs`)")
+    d.add_argument("--out", default="frames.png", help="the PNG written: the frames side by side")
+    d.add_argument("--frames", type=int, default=8, help="frames in the strip, one world each")
+    d.add_argument("--steps", type=int, default=10,
+                   help="random-action steps before the frames are taken")
+    d.add_argument("--resolution", type=int, default=64, help="frame size in pixels (square)")
+    d.add_argument("--seed", type=int, default=0, help="PRNG seed of the reset and the actions")
     d.add_argument("--version", default="0",
                    help="object version of the multi-object domains (Incline 0-5, Rearrange 0-11), or random (one per frame)")
     d.add_argument("--show-targets", action="store_true",

@@ -231,6 +231,7 @@ def _check_resumable(out_dir: str, now: dict[str, Any]) -> None:
         raise ValueError(f"--resume: {path} does not exist; is {out_dir} the --out of a `bulbjax fit`?")
     with open(path) as f:
         saved = json.load(f)
+    saved.get("base", {}).setdefault("learner_modules", [])  # fits written before the field
     diff = [k for k in sorted(set(saved["offline"]) | set(now["offline"]))
             if k != "updates" and saved["offline"].get(k) != now["offline"].get(k)]
     diff += [k for k in ("base", "source", "seed") if saved.get(k) != now.get(k)]
@@ -383,9 +384,16 @@ def write_outputs(fit: OfflineFit, records: list[dict], states: dict, held: Wind
 
 
 def save_recon_grid(fit: OfflineFit, states: dict, held: Windows, path: str, n: int = 8) -> None:
-    """Row 0: `n` consecutive held-out frames (one window); then one row per learner (seed 0).
-    Drawn by `bulbjax.experiment.figures` (the paper's Fig. 4 layout)."""
+    """Row 0: `n` consecutive held-out frames (one window); then one row per learner that has
+    `reconstruct` (seed 0; the contrastive ones and others without it have none, and with none
+    at all no figure is written). Drawn by `bulbjax.experiment.figures` (the paper's Fig. 4
+    layout)."""
     from bulbjax.experiment import figures
 
-    figures.recon_figure(path, fit.learners, figures.seed_params(states, 0), held,
+    learners = {n: x for n, x in fit.learners.items() if hasattr(x, "reconstruct")}
+    if not learners:
+        if os.path.exists(path):  # an earlier fit's, in an overwritten folder
+            os.remove(path)
+        return
+    figures.recon_figure(path, learners, figures.seed_params(states, 0), held,
                          figures.FigureConfig(frames=n), title=f"{fit.source.name}: held-out frames, seed 0")

@@ -105,13 +105,15 @@ def title_of(cfg: Any, epochs_done: int) -> str:
 
 def write_reports(run_dir: str, records: Sequence[dict[str, Any]], cfg: Any,
                   spec: Sequence[StateEntry], solved_return: float | None = None,
-                  footer: str = "", figures: bool = True) -> str:
+                  footer: str = "", figures: bool = True, source_dir: str | None = None) -> str:
     """`fig2.png`, `table.md`, `findings.md` (the paper's Fig. 2 claims checked, `findings`) (and
     `objects.png` when learners with boxes were probed in a domain with objects) of a run from its
     records (all epochs written so far); returns the table. Epochs whose seeds are not all
     written yet (a run in progress) are left out, and so are the probes of epochs that only some
     seeds were probed at (merged runs whose metrics were reduced differently): the table says
-    which. `figures=False` writes the Markdown files only (tests of the committed results)."""
+    which. `figures=False` writes the Markdown files only (tests of the committed results).
+    `source_dir`: the run folder whose `regions_<epoch>.json` the object findings read, where
+    the reports go elsewhere (default `run_dir`)."""
     seeds = sorted({r["seed"] for r in records})
     per_epoch: dict[int, int] = {}
     for r in records:
@@ -119,7 +121,8 @@ def write_reports(run_dir: str, records: Sequence[dict[str, Any]], cfg: Any,
     records = [r for r in records if per_epoch[r["epoch"]] == len(seeds)]
     records, partial = drop_partial_probes(records, len(seeds))
     if not probed(records):
-        raise ValueError(f"{run_dir} has no probed epoch yet: nothing to plot (wait for the first epoch)")
+        raise ValueError(f"{source_dir or run_dir} has no probed epoch yet: nothing to plot "
+                         "(wait for the first epoch)")
     done = len({r["epoch"] for r in records})
     title = title_of(cfg, done)
     if figures:
@@ -141,8 +144,9 @@ def write_reports(run_dir: str, records: Sequence[dict[str, Any]], cfg: Any,
 
         from bulbjax.eval import regions
 
+        newest = regions.newest(source_dir or run_dir)
         verdicts, epochs = findings_objects.check_objects(records, cfg.env, cfg.version, last=last,
-                                                          regions=regions.newest(run_dir))
+                                                          regions=newest)
         verdicts += findings.added_learner_rows(records, spec, epochs)
         body = findings_objects.markdown(verdicts, epochs, len(seeds))
         which = "Figs. 3 and 5"
@@ -183,22 +187,28 @@ def report_spec(state_spec: Sequence[StateEntry], records: Sequence[dict]) -> tu
     return tuple(state_spec) if widths == {len(state_spec)} else spec
 
 
-def redraw(run_dir: str, figures: bool = True) -> str:
-    """`bulbjax report RUN_DIR`: the reports again from config.json and metrics.jsonl (also while
-    the run is still writing them: incomplete epochs are left out); an offline fit's folder
-    (`bulbjax fit`: config.json with `offline`, `curves.jsonl`) gets its `curves.png` and
-    `table.md` again (`redraw_offline`). `figures=False`: the Markdown files only."""
+def redraw(run_dir: str, out_dir: str | None = None, figures: bool = True) -> str:
+    """`bulbjax report RUN_DIR [--out OUT]`: the reports again from config.json and metrics.jsonl
+    (also while the run is still writing them: incomplete epochs are left out), into `out_dir`
+    (created; default the run folder itself); an offline fit's folder (`bulbjax fit`: config.json
+    with `offline`, `curves.jsonl`) gets its `curves.png` and `table.md` again
+    (`redraw_offline`). `figures=False`: the Markdown files only."""
     from bulbjax.envs.registry import env_class
 
     if is_offline(run_dir):
+        if out_dir is not None and os.path.abspath(out_dir) != os.path.abspath(run_dir):
+            raise ValueError(f"{run_dir} is an offline fit's folder: `bulbjax report` redraws it in place "
+                             "(leave out --out)")
         with open(os.path.join(run_dir, "config.json")) as f:
             return redraw_offline(run_dir, json.load(f), figures)
     cfg, _ = read_run_config(run_dir)
     records = read_jsonl(metrics_path(run_dir), tolerate_partial=True)
     cls = env_class(cfg.env)
-    return write_reports(run_dir, records, cfg, report_spec(cls.state_spec, records), cls.solved_return,
-                         footer=f"redrawn by `bulbjax report` from {len(records)} records",
-                         figures=figures)
+    out_dir = run_dir if out_dir is None else out_dir
+    os.makedirs(out_dir, exist_ok=True)
+    return write_reports(out_dir, records, cfg, report_spec(cls.state_spec, records),
+                         cls.solved_return, source_dir=run_dir, figures=figures,
+                         footer=f"redrawn by `bulbjax report` from {len(records)} records")
 
 
 def is_offline(run_dir: str) -> bool:
