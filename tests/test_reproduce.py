@@ -213,3 +213,27 @@ def test_the_results_page_holds_the_generated_claims_tables() -> None:
                         "b - a = +0.000 ± 0.010") == "π_rand +0.400 ± 0.050; π_curr +0.000 ± 0.010"
     with pytest.raises(ValueError, match="does not define"):
         claims.render("<!-- claims:nope -->\n<!-- /claims:nope -->", results)
+
+
+def test_an_added_learner_joins_every_run_job(tmp_path, monkeypatch) -> None:
+    """`--add-learner MODULE:NAME` loads the learner (a module outside the package), and every
+    run job of the plan runs it beside the preset's learners; the recon job draws it too."""
+    (tmp_path / "my_plugin_mod.py").write_text(
+        "from bulbjax.learners import make_learner\n"
+        "def Mine(latent_dim, config, action_dim):\n"
+        "    return make_learner('vae', latent_dim, config, action_dim)\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    said: list[str] = []
+    s = reproduce("fig2-invpend,fig4", "paper", str(tmp_path / "out"), dry_run=True,
+                  add_learners=["my_plugin_mod:Mine"], log=said.append)
+    assert s["jobs_planned"] == 7 and "fig4/fig2-invpend" in said[0]
+    jobs = plan_jobs("fig2-invpend", "paper", ["my_plugin_mod:Mine"])
+    assert all(j.flags[-1].endswith(",my_plugin_mod:Mine") for j in jobs)
+    from bulbjax.reproduce.main import _learners_of
+
+    assert _learners_of(["Mine"])(jobs[0])[-1] == "Mine"
+    assert plan.fig4_learners(_learners_of(["Mine"])(jobs[0])) == ["vae_rpl", "svae", "pred", "dsa", "Mine"]
+    assert plan.fig4_learners(["vae_rpl", "stdim", "dsa"]) == ["vae_rpl", "dsa"]  # no reconstruct: no row
+    with pytest.raises(ValueError, match="cannot import|No module"):
+        reproduce("fig2-invpend", "paper", str(tmp_path / "o2"), dry_run=True, add_learners=["no_mod_xyz:Mine"],
+                  log=said.append)

@@ -27,27 +27,19 @@ from bulbjax.reproduce.queue import Queue, Slot
 
 
 def learner_names(specs: Sequence[str]) -> list[str]:
-    """The registered names of `--add-learner` specs (`name`, or `pkg.module:Name` imported and
-    registered by `bulbjax.learners.registry.load_learner_spec`); a clear error for one that does
-    not load or clashes with a preset's learner."""
-    from bulbjax.learners.registry import learner_names as known
+    """The registered names of `--add-learner` specs (a registered name, `pkg.module:Name` or
+    `path/file.py:Name`, imported and registered by `bulbjax.learners.plugins.load_learner_spec`);
+    a clear one-line error for one that does not load or is one of the paper's learners."""
+    from bulbjax.learners import learner_names as known
+    from bulbjax.learners.plugins import parse_learner_list
 
+    paper = {n for p in PRESETS.values() for n in p.learners}
     out = []
     for spec in specs:
-        if ":" in spec:
-            from bulbjax.learners import registry
-
-            load = getattr(registry, "load_learner_spec", None)
-            if load is None:
-                raise ValueError(f"--add-learner {spec}: this bulbjax cannot import learners by module path; "
-                                 "give a registered learner's name")
-            name = load(spec)
-        elif spec in known():
-            name = spec
-        else:
+        (name,) = parse_learner_list([spec])  # a name, a spec loaded, or an installed package's learner
+        if name not in known():
             raise ValueError(f"--add-learner {spec!r}: not a registered learner; give pkg.module:Name of your "
                              f"learner (docs/extending.md) or one of: {', '.join(known())}")
-        paper = {n for p in PRESETS.values() for n in p.learners}
         if name in paper:
             raise ValueError(f"--add-learner {spec}: {name!r} is already in the paper's runs; add a learner of "
                              "your own")

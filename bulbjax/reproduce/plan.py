@@ -197,12 +197,15 @@ def _with_learners(flags: Sequence[str], preset: str, add: Sequence[str],
 
 
 def fig4_learners(learners: Sequence[str]) -> list[str]:
-    """The Fig. 4 columns a run can draw: the paper's (`FIG4_LEARNERS`) it has, then any added
-    learner beyond the paper's set."""
-    from bulbjax.experiment.config import PRESETS as P
+    """The Fig. 4 columns a run can draw: the paper's (`FIG4_LEARNERS`) it has, then each learner
+    beyond the paper's set that reconstructs frames (an added one without `reconstruct` has no
+    row to draw)."""
+    from bulbjax.learners import LearnerConfig, make_learner
 
-    paper = set(P["fig2-invpend"].learners) | {"spair", "spair6", "stdim", "curl"}
-    return [n for n in FIG4_LEARNERS if n in learners] + [n for n in learners if n not in paper]
+    paper = {n for p in PRESETS.values() for n in p.learners} | {"stdim", "curl"}
+    extra = [n for n in learners if n not in paper
+             and hasattr(make_learner(n, latent_dim=2, config=LearnerConfig(), action_dim=1), "reconstruct")]
+    return [n for n in FIG4_LEARNERS if n in learners] + extra
 
 
 # ---------------------------------------------------------------------------- shards
