@@ -56,7 +56,9 @@ def _stretch_options(args: argparse.Namespace) -> dict:
 def _per_gpu(args: argparse.Namespace) -> int | None:
     """On a host with several GPUs (`--layout auto` or `processes`): run one process per GPU
     (`bulbjax.local_processes`: in one process the GPUs would take turns in MJX-Warp's Python
-    callbacks) and return its exit code; None where one process is the layout."""
+    callbacks) and return its exit code; None where one process is the layout. What would make
+    every worker refuse the run (the folder, a resume's settings or process count) is refused
+    here, in one line, before any worker starts."""
     from bulbjax import local_processes
 
     gpus = local_processes.visible_gpus()[: args.devices or None]
@@ -69,8 +71,9 @@ def _per_gpu(args: argparse.Namespace) -> int | None:
 
     settings = _settings(args)
     if args.resume:  # the seed count of the run being resumed
-        seeds = resolve_resume(args.resume, args.preset, seed=args.seed, probe_every=args.probe_every,
-                               **settings, **_stretch_options(args))[0].seeds
+        cfg, opts = resolve_resume(args.resume, args.preset, seed=args.seed, probe_every=args.probe_every,
+                                   **settings, **_stretch_options(args))
+        seeds = cfg.seeds
     else:
         seeds = resolve(args.preset, **settings).seeds
     n = local_processes.process_count(seeds, len(gpus))
@@ -79,6 +82,12 @@ def _per_gpu(args: argparse.Namespace) -> int | None:
               f"(every process runs as many seeds: give --seeds a multiple of {len(gpus)} to use all)", flush=True)
     if n < 2:
         return None
+    if args.resume:
+        from bulbjax.experiment.config import read_run_config
+        from bulbjax.experiment.run import check_processes, check_resume
+
+        check_resume(args.resume, cfg, opts)
+        check_processes(args.resume, read_run_config(args.resume)[1], processes=n)
     return local_processes.run_per_gpu(args.argv, gpus[:n], args.resume or args.out or "runs/latest")
 
 
@@ -87,10 +96,20 @@ def cmd_run(args: argparse.Namespace) -> int:
     starts from its own config.json, and `run.check_resume` refuses any flag that changes what it
     computes: only --epochs may grow it) and hand over to `bulbjax.experiment.run.run`."""
     from bulbjax import distributed
+    from bulbjax.experiment.rundir import check_out_dir, log_name
 
     dist = distributed.DistributedConfig.from_env(
         coordinator=args.coordinator, num_processes=args.num_processes, process_id=args.process_id,
         local_device_ids=_parse_ids(args.local_devices), auto=args.distributed)
+    if args.resume and args.overwrite:
+        raise ValueError("--resume continues the run in its folder and --overwrite deletes it: give one of them")
+    if args.resume and args.out is not None and os.path.abspath(args.out) != os.path.abspath(args.resume):
+        raise ValueError(f"--resume {args.resume} continues that run in its own folder; leave out --out {args.out}")
+    out = args.resume or args.out or "runs/latest"
+    # before any process starts or joins: a run in the way or an unwritable folder is one line (a
+    # resume's missing folder is left to resolve_resume's message, not created here)
+    if not args.resume or os.path.isdir(out):
+        check_out_dir(out, resume=bool(args.resume), overwrite=args.overwrite)
     if not dist.wanted and args.layout in ("auto", "processes"):
         spread = _per_gpu(args)
         if spread is not None:
@@ -103,22 +122,15 @@ def cmd_run(args: argparse.Namespace) -> int:
     from bulbjax.experiment.console import log_to_file
     from bulbjax.experiment.resolve import parse_compiler_options, resolve, resolve_resume
     from bulbjax.experiment.run import run
-    from bulbjax.experiment.rundir import check_out_dir, log_name
 
-    if args.resume and args.overwrite:
-        raise ValueError("--resume continues the run in its folder and --overwrite deletes it: give one of them")
     settings = _settings(args)
     if args.resume:
-        if args.out is not None and os.path.abspath(args.out) != os.path.abspath(args.resume):
-            raise ValueError(f"--resume {args.resume} continues that run in its own folder; leave out --out {args.out}")
         cfg, opts = resolve_resume(args.resume, args.preset, seed=args.seed, probe_every=args.probe_every,
                                    **settings, **_stretch_options(args))
-        out = args.resume
     else:
         cfg = resolve(args.preset, **settings)
         opts = RunOptions(seed=0 if args.seed is None else args.seed,
                           probe_every=1 if args.probe_every is None else args.probe_every, **_stretch_options(args))
-        out = args.out or "runs/latest"
     local = jax.local_devices()
     if args.devices is not None and not 1 <= args.devices <= len(local):
         raise ValueError(f"--devices {args.devices}: this machine has {len(local)} local devices")
@@ -126,8 +138,6 @@ def cmd_run(args: argparse.Namespace) -> int:
     devices = [d for p in range(jax.process_count())
                for d in [x for x in jax.devices() if x.process_index == p][: args.devices or None]]
     compiler_options = parse_compiler_options(args.xla_option or [])
-    # before anything is built: a run in the way or an unwritable folder is a one-line error
-    check_out_dir(out, resume=bool(args.resume), overwrite=args.overwrite)
     argv = ["bulbjax", *getattr(args, "argv", [])]
     with log_to_file(os.path.join(out, log_name(jax.process_index())), fresh=args.overwrite, header=" ".join(argv)):
         run(cfg, opts, out, resume=bool(args.resume), overwrite=args.overwrite, devices=devices, argv=argv,
@@ -442,7 +452,34 @@ def main(argv: Sequence[str] | None = None) -> int:
         return args.fn(args)
     except (ValueError, FloatingPointError) as err:
         print(f"bulbjax: error: {err}", file=sys.stderr)
+        _leave_failed_run(2)
         return 2
+    except (Exception, KeyboardInterrupt):
+        from bulbjax import distributed
+
+        if distributed.active():  # its traceback now, then out without JAX's shutdown barrier
+            import traceback
+
+            traceback.print_exc()
+            _leave_failed_run(1)
+        raise
+
+
+def _leave_failed_run(code: int) -> None:
+    """A process of a multi-process run that failed exits now, its error printed: on the way out
+    JAX would wait at its shutdown barrier (up to 5 minutes) for processes that wait for this one
+    in a collective. The launcher (or the cluster manager) stops them; with process 0 gone its
+    coordination service goes and the others stop too. Nothing for one process."""
+    from bulbjax import distributed
+
+    if not distributed.active():
+        return
+    for stream in (sys.stdout, sys.stderr):
+        try:
+            stream.flush()
+        except (OSError, ValueError):
+            pass
+    os._exit(code)
 
 
 if __name__ == "__main__":

@@ -167,10 +167,10 @@ def saved_processes(raw: dict[str, Any]) -> int:
     return int(raw.get("provenance", {}).get("processes", 1))
 
 
-def check_processes(run_dir: str, raw: dict[str, Any]) -> None:
-    """Raise ValueError when this resume runs with another process count than the run: each
-    process's checkpoints hold its own seed groups."""
-    saved, now = saved_processes(raw), jax.process_count()
+def check_processes(run_dir: str, raw: dict[str, Any], processes: int | None = None) -> None:
+    """Raise ValueError when this resume runs with another process count (`processes`, default
+    this run's) than the run: each process's checkpoints hold its own seed groups."""
+    saved, now = saved_processes(raw), jax.process_count() if processes is None else processes
     if saved != now:
         raise ValueError(f"--resume {run_dir}: the run was made by {saved} process(es) and this resume has {now}; "
                          f"each process checkpoints its own seeds, so resume with {saved} process(es) "
