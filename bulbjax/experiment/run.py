@@ -37,7 +37,7 @@ import jax
 
 from bulbjax import distributed
 from bulbjax.experiment import report, rundir
-from bulbjax.experiment.checkpoint import CHECKPOINT_DIR, Checkpointer
+from bulbjax.experiment.checkpoint import CHECKPOINT_DIR, Checkpointer, CheckpointWriteError
 from bulbjax.experiment.console import StageLog
 from bulbjax.experiment.config import IDENTITY, ExperimentConfig, RunOptions, read_run_config, run_options_of
 from bulbjax.experiment.groups import SeedGroups
@@ -322,8 +322,9 @@ def run(cfg: ExperimentConfig, opts: RunOptions, run_dir: str, *, resume: bool =
     else:
         raw["provenance"] = stretch
     # cleanup_tmp: a checkpoint a killed stretch left half-written goes (each process writes its own)
+    # background: each process's checkpoint files are written while the next epochs run
     ckpt = Checkpointer(run_dir, keep=opts.keep, process=jax.process_index() if groups.processes > 1 else None,
-                        cleanup_tmp=True)
+                        cleanup_tmp=True, background=True)
     # init and the epochs this run uses, traced before anything else in this process so that a
     # resumed stretch compiles the same programs as the fresh one (and hits the compile cache);
     # probe_every is part of a run's identity, so fresh and resumed stretches trace the same ones
@@ -418,6 +419,7 @@ def run(cfg: ExperimentConfig, opts: RunOptions, run_dir: str, *, resume: bool =
             if saved != epoch:
                 _save(ckpt, run_dir, epoch, rs, key)
                 saved = epoch
+            _save(ckpt, run_dir, epoch, None, None)  # the last write finished (or its error raised)
     finally:
         bar.close()
         ckpt.close()
@@ -442,10 +444,16 @@ def run(cfg: ExperimentConfig, opts: RunOptions, run_dir: str, *, resume: bool =
 
 
 def _save(ckpt: Checkpointer, run_dir: str, epoch: int, rs: Any, key: Any) -> None:
-    """The checkpoint of `epoch` epochs done; a failed write stops the run with a clear error
-    (the checkpoints before it stay: orbax renames a checkpoint's folder only once complete)."""
+    """The checkpoint of `epoch` epochs done (`rs` None: only wait for the one being written); a
+    failed write, this one's or an earlier background one's, stops the run with a clear error (the
+    checkpoints before it stay: a checkpoint's folder is renamed only once complete)."""
     try:
-        ckpt.save(epoch, {"run": rs, "key": key}, {"epoch": epoch})
+        if rs is None:
+            ckpt.wait()
+        else:
+            ckpt.save(epoch, {"run": rs, "key": key}, {"epoch": epoch})
+    except CheckpointWriteError as err:
+        raise _write_failed(run_dir, f"the checkpoint of epoch {err.epoch}", err.__cause__ or err) from err
     except Exception as err:  # OSError, or tensorstore's errors for a full or read-only disk
         raise _write_failed(run_dir, f"the checkpoint of epoch {epoch}", err) from err
 
