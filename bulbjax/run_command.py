@@ -94,7 +94,7 @@ def cmd_run(args: argparse.Namespace) -> int:
 
     from bulbjax import distributed
     from bulbjax.experiment.console import StageLog, process_start_time
-    from bulbjax.experiment.rundir import check_out_dir, log_name
+    from bulbjax.experiment.rundir import check_out_dir
 
     t_start = process_start_time()
     said: list[str] = []  # the start-up lines before the log file opens: copied into it
