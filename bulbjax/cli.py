@@ -7,38 +7,11 @@ from __future__ import annotations
 import argparse
 import os
 import sys
+import time
 from typing import Sequence
 
-
-def _settings(args: argparse.Namespace) -> dict:
-    """The flags of `run` and `fit` as `bulbjax.experiment.resolve`'s arguments (the flags given;
-    text values are parsed and checked there)."""
-    flags = (("env", "env"), ("seeds", "seeds"), ("epochs", "epochs"), ("sequence_length", "sequence_length"),
-             ("learners", "learners"), ("version", "version"), ("rl_input", "rl_input"), ("rl_frames", "rl_frames"),
-             ("seed_loop", "learner_seed_loop"), ("programs", "programs"), ("ppo_updates", "ppo_updates_per_epoch"),
-             ("resolution", "resolution"), ("graph_mode", "graph_mode"))
-    overrides = {field: getattr(args, flag) for flag, field in flags if getattr(args, flag, None) is not None}
-    if getattr(args, "multicolour", False):
-        overrides["multicolour"] = True
-    learner = {}
-    if getattr(args, "lr", None) is not None:
-        learner["lr"] = args.lr
-    if getattr(args, "bf16", False):
-        learner["compute_dtype"] = "bfloat16"
-    if getattr(args, "rnn_unroll", None) is not None:
-        learner["rnn_unroll"] = args.rnn_unroll
-    return dict(overrides=overrides, learner=learner, learner_options=getattr(args, "learner_option", None) or (),
-                small=bool(getattr(args, "small", False)), ppo_options=getattr(args, "ppo_option", None) or ())
-
-
-def _parse_ids(text: str | None) -> tuple[int, ...] | None:
-    """`--local-devices 0,1` -> (0, 1)."""
-    if text is None:
-        return None
-    try:
-        return tuple(int(x) for x in text.split(",") if x.strip())
-    except ValueError as err:
-        raise ValueError(f"--local-devices {text!r} must be device numbers separated by commas, e.g. 0,1") from err
+from bulbjax.run_command import _settings, leave_failed_run
+from bulbjax.run_command import cmd_run as _cmd_run
 
 
 def build_config(args: argparse.Namespace):
@@ -48,92 +21,9 @@ def build_config(args: argparse.Namespace):
     return resolve(args.preset, **_settings(args))
 
 
-def _stretch_options(args: argparse.Namespace) -> dict:
-    return dict(checkpoint_every=args.checkpoint_every, keep=args.keep, max_minutes=args.max_minutes,
-                stop_after=args.stop_after, tensorboard=args.tensorboard, recon_every=args.recon_every)
-
-
-def _per_gpu(args: argparse.Namespace) -> int | None:
-    """On a host with several GPUs (`--layout auto` or `processes`): run one process per GPU
-    (`bulbjax.local_processes`: in one process the GPUs would take turns in MJX-Warp's Python
-    callbacks) and return its exit code; None where one process is the layout."""
-    from bulbjax import local_processes
-
-    gpus = local_processes.visible_gpus()[: args.devices or None]
-    if len(gpus) < 2:
-        if args.layout == "processes":
-            raise ValueError(f"--layout processes runs one process per GPU and this host has {len(gpus)} "
-                             "(CUDA_VISIBLE_DEVICES / nvidia-smi): leave --layout at auto")
-        return None
-    from bulbjax.experiment.resolve import resolve, resolve_resume
-
-    settings = _settings(args)
-    if args.resume:  # the seed count of the run being resumed
-        seeds = resolve_resume(args.resume, args.preset, seed=args.seed, probe_every=args.probe_every,
-                               **settings, **_stretch_options(args))[0].seeds
-    else:
-        seeds = resolve(args.preset, **settings).seeds
-    n = local_processes.process_count(seeds, len(gpus))
-    if n < len(gpus):
-        print(f"{seeds} seeds on {len(gpus)} GPUs: {n} process(es), one GPU each, {len(gpus) - n} GPU(s) idle "
-              f"(every process runs as many seeds: give --seeds a multiple of {len(gpus)} to use all)", flush=True)
-    if n < 2:
-        return None
-    return local_processes.run_per_gpu(args.argv, gpus[:n], args.resume or args.out or "runs/latest")
-
-
 def cmd_run(args: argparse.Namespace) -> int:
-    """Map the flags to (config, options, folder) (`bulbjax.experiment.resolve`; a resumed run
-    starts from its own config.json, and `run.check_resume` refuses any flag that changes what it
-    computes: only --epochs may grow it) and hand over to `bulbjax.experiment.run.run`."""
-    from bulbjax import distributed
-
-    dist = distributed.DistributedConfig.from_env(
-        coordinator=args.coordinator, num_processes=args.num_processes, process_id=args.process_id,
-        local_device_ids=_parse_ids(args.local_devices), auto=args.distributed)
-    if not dist.wanted and args.layout in ("auto", "processes"):
-        spread = _per_gpu(args)
-        if spread is not None:
-            return spread
-    # before anything else touches JAX's devices: a multi-process run joins its peers first
-    distributed.initialize(dist)
-    import jax
-
-    from bulbjax.experiment.config import RunOptions
-    from bulbjax.experiment.console import log_to_file
-    from bulbjax.experiment.resolve import parse_compiler_options, resolve, resolve_resume
-    from bulbjax.experiment.run import run
-    from bulbjax.experiment.rundir import check_out_dir, log_name
-
-    if args.resume and args.overwrite:
-        raise ValueError("--resume continues the run in its folder and --overwrite deletes it: give one of them")
-    settings = _settings(args)
-    if args.resume:
-        if args.out is not None and os.path.abspath(args.out) != os.path.abspath(args.resume):
-            raise ValueError(f"--resume {args.resume} continues that run in its own folder; leave out --out {args.out}")
-        cfg, opts = resolve_resume(args.resume, args.preset, seed=args.seed, probe_every=args.probe_every,
-                                   **settings, **_stretch_options(args))
-        out = args.resume
-    else:
-        cfg = resolve(args.preset, **settings)
-        opts = RunOptions(seed=0 if args.seed is None else args.seed,
-                          probe_every=1 if args.probe_every is None else args.probe_every, **_stretch_options(args))
-        out = args.out or "runs/latest"
-    local = jax.local_devices()
-    if args.devices is not None and not 1 <= args.devices <= len(local):
-        raise ValueError(f"--devices {args.devices}: this machine has {len(local)} local devices")
-    # every process's first D local devices (D: --devices, default all of them)
-    devices = [d for p in range(jax.process_count())
-               for d in [x for x in jax.devices() if x.process_index == p][: args.devices or None]]
-    compiler_options = parse_compiler_options(args.xla_option or [])
-    # before anything is built: a run in the way or an unwritable folder is a one-line error
-    check_out_dir(out, resume=bool(args.resume), overwrite=args.overwrite)
-    argv = ["bulbjax", *getattr(args, "argv", [])]
-    with log_to_file(os.path.join(out, log_name(jax.process_index())), fresh=args.overwrite, header=" ".join(argv)):
-        run(cfg, opts, out, resume=bool(args.resume), overwrite=args.overwrite, devices=devices, argv=argv,
-            compiler_options=compiler_options, layout="groups" if args.layout == "processes" else args.layout)
-    distributed.shutdown()
-    return 0
+    """`bulbjax run` (`bulbjax.run_command.cmd_run`)."""
+    return _cmd_run(args)
 
 
 def cmd_recon(args: argparse.Namespace) -> int:
@@ -308,6 +198,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     from bulbjax.experiment.config import PRESETS
     from bulbjax.learners import learner_names
 
+    t_main = time.time()  # the end of Python's start-up and imports (`bulbjax run` says how long they took)
+
     presets = ", ".join(PRESETS)
     p = argparse.ArgumentParser(prog="bulbjax", description=__doc__, formatter_class=HelpFormatter)
     sub = p.add_subparsers(dest="cmd", required=True)
@@ -405,6 +297,10 @@ def main(argv: Sequence[str] | None = None) -> int:
                         "runs, not what it computes), e.g. xla_gpu_enable_command_buffer=FUSION,CUBLAS,WHILE")
     r.add_argument("--tensorboard", action="store_true",
                    help="also write the metrics as TensorBoard events under RUN_DIR/tb (needs tensorboardX)")
+    r.add_argument("--compile-only", action="store_true",
+                   help="a warm-up: build, trace and compile init and the epoch of these settings into the "
+                        "compile cache, run nothing and write no run folder (the next run of the same "
+                        "settings, and its resumes, load them)")
     r.add_argument("--recon-every", type=int, default=0, metavar="N",
                    help="write recon_<epoch>.png (held-out frames above every learner's reconstruction, "
                         "seed 0) and, with spair, boxes_<epoch>.png every N epochs and at the end (0: none)")
@@ -484,7 +380,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     add_reproduce(sub)
     argv = list(sys.argv[1:] if argv is None else argv)
     args = p.parse_args(argv)
-    args.argv = argv
+    args.argv, args.t_main = argv, t_main
     from bulbjax import compile_cache
 
     compile_cache.enable()  # reruns of a configuration load its executables ($BULBJAX_COMPILE_CACHE=off: no cache)
@@ -492,7 +388,17 @@ def main(argv: Sequence[str] | None = None) -> int:
         return args.fn(args)
     except (ValueError, FloatingPointError) as err:
         print(f"bulbjax: error: {err}", file=sys.stderr)
+        leave_failed_run(2)
         return 2
+    except (Exception, KeyboardInterrupt):
+        from bulbjax import distributed
+
+        if distributed.active():  # its traceback now, then out without JAX's shutdown barrier
+            import traceback
+
+            traceback.print_exc()
+            leave_failed_run(1)
+        raise
 
 
 if __name__ == "__main__":

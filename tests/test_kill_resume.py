@@ -62,7 +62,7 @@ def test_kills_at_the_worst_moments_resume_exactly(tmp_path):
     # the start-up stages, in order, on the console of the fresh stretch and of a resumed one
     fresh = _stages(str(work / "run0_s0.console"))
     assert _in_order(fresh, ["building the environment and learners ...", "tracing and lowering init and the epoch ...",
-                             "compiling and running init ...", "compiling the epoch ...", "first epoch (0) ...",
+                             "compiling init ...", "running init ...", "compiling the epoch ...", "first epoch (0) ...",
                              "first epoch (0): "]), fresh
     resumed = _stages(str(work / "run0_s2.console"))
     assert _in_order(resumed, ["building the environment and learners ...", "tracing and lowering the epoch ...",
