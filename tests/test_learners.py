@@ -297,10 +297,9 @@ def test_conv_forms_do_not_change_the_learner(name: str) -> None:
 
 def test_conv_forms_are_checked() -> None:
     # 0 picks the padding by compute dtype: 8 channels for bf16's tensor-core kernels, none in float32
-    assert LearnerConfig().conv_forms == {"channel_pad": 1, "bias_grad": "split", "edge_layers": "strided",
-                                          "relu_grad": "input"}
+    assert LearnerConfig().conv_forms == {"channel_pad": 1, "bias_grad": "split", "edge_layers": "strided"}
     assert LearnerConfig(compute_dtype="bfloat16").conv_forms == {"channel_pad": 8, "bias_grad": "split",
-                                                                  "edge_layers": "blocked", "relu_grad": "input"}
+                                                                  "edge_layers": "blocked"}
     assert LearnerConfig(compute_dtype="bfloat16", edge_layers="strided").conv_forms["edge_layers"] == "strided"
     assert LearnerConfig(compute_dtype="bfloat16", channel_pad=1).conv_forms["channel_pad"] == 1
     with pytest.raises(ValueError, match="channel_pad"):
@@ -309,38 +308,6 @@ def test_conv_forms_are_checked() -> None:
         LearnerConfig(bias_grad="dot")
     with pytest.raises(ValueError, match="edge_layers"):
         LearnerConfig(edge_layers="tiled")
-    with pytest.raises(ValueError, match="relu_grad"):
-        LearnerConfig(relu_grad="both")
-
-
-@pytest.mark.parametrize("name", ["vae", "svae", "stdim"])
-def test_relu_from_its_output_is_the_same_update_bit_for_bit(name: str) -> None:
-    """`relu_grad="output"` (the backward reads the activation, `networks.relu_out`) takes the
-    same update as flax's ReLU, bit for bit: the mask y > 0 is x > 0 exactly. Also where a
-    pre-activation is exactly 0 (and NaN: no gradient either way)."""
-    from bulbjax.learners.networks import relu
-
-    x = jnp.array([-1.0, 0.0, 2.0, jnp.nan, -0.0])
-    for f in (lambda v: relu(v, "input"), lambda v: relu(v, "output")):
-        np.testing.assert_array_equal(np.asarray(jax.grad(lambda v: jnp.sum(f(v) * 3.0))(x)),
-                                      np.array([0.0, 0.0, 3.0, 0.0, 0.0]))
-    cfg = LearnerConfig(conv_features=(8, 8, 16, 16), hidden=32, batch_size=4, sequence_length=3)
-    a = make_learner(name, LATENT, cfg, action_dim=1)
-    b = make_learner(name, LATENT, dataclasses.replace(cfg, relu_grad="output"), action_dim=1)
-    s = a.init(jax.random.PRNGKey(0), (32, 32, 3))
-    rng = np.random.default_rng(0)
-    if name == "vae":
-        batch = jnp.asarray(rng.integers(0, 256, (4, 32, 32, 3), dtype=np.uint8))
-    else:
-        lw = a.window_length
-        batch = Windows(frames=jnp.asarray(rng.integers(0, 256, (2, lw, 32, 32, 3), dtype=np.uint8)),
-                        actions=jnp.asarray(rng.uniform(-1, 1, (2, lw, 1)), jnp.float32),
-                        states=jnp.zeros((2, lw, 4), jnp.float32), valid=jnp.ones((2, lw), bool))
-    ua, ma = jax.jit(a.update)(s, batch, jax.random.PRNGKey(1))
-    ub, mb = jax.jit(b.update)(s, batch, jax.random.PRNGKey(1))
-    assert float(ma["loss"]) == float(mb["loss"])
-    for p, q in zip(jax.tree.leaves(ua.params), jax.tree.leaves(ub.params)):
-        np.testing.assert_array_equal(np.asarray(q), np.asarray(p))
 
 
 def test_unknown_decoder_form_is_refused() -> None:

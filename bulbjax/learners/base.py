@@ -32,7 +32,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from bulbjax.learners.networks import BIAS_GRADS, DECONV_IMPLS, EDGE_LAYERS, RELU_GRADS
+from bulbjax.learners.networks import BIAS_GRADS, DECONV_IMPLS, EDGE_LAYERS
 from bulbjax.learners.temporal import LSTM_GRADS
 
 COMPUTE_DTYPES: tuple[str, ...] = ("float32", "bfloat16")
@@ -79,11 +79,6 @@ class LearnerConfig:
     # in bf16 (10% faster VAE updates on the H100), strided in float32 (equal on the H100,
     # slower on the CPU); benchmarks/README.md, "Edge layers over pixel blocks".
     edge_layers: str = "auto"
-    # What the conv stacks' ReLUs keep for their backward: "input" (flax's nn.relu: the
-    # pre-activation) or "output" (networks.relu_out: the activation itself; the same mask and
-    # gradients, and the pre-activation then has one use, which lets XLA fuse bias and ReLU
-    # into cuDNN's forward convolution). Same numbers; a speed setting.
-    relu_grad: str = "input"
     # Sequential learners only (svae, pred, dsa); the frame learners ignore these.
     sequence_length: int = 24  # steps per window (paper: 24 pendulums, 16 locomotion)
     pred_horizon: int = 4  # PRED reconstructs sequence_length + pred_horizon frames
@@ -136,8 +131,6 @@ class LearnerConfig:
             raise ValueError(f"channel_pad must be >= 0 (1: no padding, 0: 8 in bf16 else 1), got {self.channel_pad!r}")
         if self.bias_grad not in BIAS_GRADS:
             raise ValueError(f"bias_grad must be one of {BIAS_GRADS}, got {self.bias_grad!r}")
-        if self.relu_grad not in RELU_GRADS:
-            raise ValueError(f"relu_grad must be one of {RELU_GRADS}, got {self.relu_grad!r}")
         if self.edge_layers not in ("auto", *EDGE_LAYERS):
             raise ValueError(f"edge_layers must be one of {('auto', *EDGE_LAYERS)}, got {self.edge_layers!r}")
         if self.sequence_length < 2:
@@ -181,7 +174,7 @@ class LearnerConfig:
         bf16 = self.compute_dtype == "bfloat16"
         pad = self.channel_pad or (8 if bf16 else 1)
         edge = self.edge_layers if self.edge_layers != "auto" else ("blocked" if bf16 else "strided")
-        return {"channel_pad": pad, "bias_grad": self.bias_grad, "edge_layers": edge, "relu_grad": self.relu_grad}
+        return {"channel_pad": pad, "bias_grad": self.bias_grad, "edge_layers": edge}
 
 
 def parse_learner_options(items: Sequence[str]) -> dict[str, Any]:

@@ -44,7 +44,7 @@ import optax
 
 from bulbjax.data.augment import random_shift
 from bulbjax.learners.base import LearnerConfig, LearnerState, Metrics
-from bulbjax.learners.networks import Conv4x4, check_edge_layers, check_frame_shape, lecun_normal_flat, relu
+from bulbjax.learners.networks import Conv4x4, check_edge_layers, check_frame_shape, lecun_normal_flat
 from bulbjax.learners.registry import register_learner
 
 
@@ -60,7 +60,6 @@ class ContrastiveEncoder(nn.Module):
     channel_pad: int = 1
     bias_grad: str = "reduce"
     edge_layers: str = "strided"
-    relu_grad: str = "input"  # see networks.relu
 
     @nn.compact
     def __call__(self, x: jax.Array) -> tuple[jax.Array, jax.Array]:
@@ -70,13 +69,11 @@ class ContrastiveEncoder(nn.Module):
         at = max(len(self.features) - 2, 0)
         for i, f in enumerate(self.features):
             blocked = i == 0 and self.edge_layers == "blocked"
-            h = relu(Conv4x4(f, self.dtype, self.channel_pad, self.bias_grad, blocked, name=f"conv{i}")(h),
-                     self.relu_grad)
+            h = nn.relu(Conv4x4(f, self.dtype, self.channel_pad, self.bias_grad, blocked, name=f"conv{i}")(h))
             if i == at:
                 local = h
         dense = dict(param_dtype=jnp.float32, kernel_init=lecun_normal_flat)
-        g = relu(nn.Dense(self.hidden, dtype=self.dtype, name="fc", **dense)(h.reshape((h.shape[0], -1))),
-                 self.relu_grad)
+        g = nn.relu(nn.Dense(self.hidden, dtype=self.dtype, name="fc", **dense)(h.reshape((h.shape[0], -1))))
         z = nn.Dense(self.latent_dim, name="latent", **dense)(g.astype(jnp.float32))
         return z, local.astype(jnp.float32)
 

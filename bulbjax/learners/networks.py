@@ -135,38 +135,6 @@ def add_bias(h: jax.Array, b: jax.Array, grad: str = "reduce") -> jax.Array:
     return h + b if grad == "reduce" else _add_bias_split(h, b)
 
 
-RELU_GRADS: tuple[str, ...] = ("input", "output")  # relu's backward reads its input, or its output
-
-
-@jax.custom_vjp
-def relu_out(x: jax.Array) -> jax.Array:
-    """`max(x, 0)` whose backward reads the output (`g` where the output is > 0), not the input:
-    the same mask (max(x, 0) > 0 exactly where x > 0), so the same gradient bit for bit, but the
-    pre-activation then has one use, and XLA can fuse bias and ReLU into cuDNN's
-    convolution (`__cudnn$convBiasActivationForward`) instead of separate passes."""
-    return jnp.maximum(x, 0)
-
-
-def _relu_out_fwd(x: jax.Array) -> tuple[jax.Array, jax.Array]:
-    y = jnp.maximum(x, 0)
-    return y, y
-
-
-def _relu_out_bwd(y: jax.Array, g: jax.Array) -> tuple[jax.Array]:
-    return (jnp.where(y > 0, g, jnp.zeros_like(g)),)
-
-
-relu_out.defvjp(_relu_out_fwd, _relu_out_bwd)
-
-
-def relu(x: jax.Array, grad: str = "input") -> jax.Array:
-    """ReLU; `grad` picks what its backward reads ("input": flax's `nn.relu`; "output":
-    `relu_out`). Same values and gradients."""
-    if grad not in RELU_GRADS:
-        raise ValueError(f"unknown relu_grad {grad!r}; accepted: {', '.join(RELU_GRADS)}")
-    return nn.relu(x) if grad == "input" else relu_out(x)
-
-
 def _conv_down(u: jax.Array, w: jax.Array) -> jax.Array:
     """4x4 stride-2 'SAME' convolution [B, 2H, 2W, Cout] -> [B, H, W, Cin], w [4, 4, Cout, Cin]."""
     return jax.lax.conv_general_dilated(u, w, (2, 2), ((1, 1), (1, 1)), dimension_numbers=_NHWC)
@@ -244,7 +212,7 @@ def check_edge_layers(edge_layers: str) -> None:
 
 
 def conv_layers(x: jax.Array, features: tuple[int, ...], dtype: jnp.dtype, channel_pad: int = 1,
-                bias_grad: str = "reduce", edge_layers: str = "strided", relu_grad: str = "input") -> jax.Array:
+                bias_grad: str = "reduce", edge_layers: str = "strided") -> jax.Array:
     """The shared conv stack, flattened: frames [B, R, R, 3] -> [B, (R/2^n)^2 * features[-1]].
 
     Call it inside a module's `nn.compact` method: the layers become that module's
@@ -257,7 +225,7 @@ def conv_layers(x: jax.Array, features: tuple[int, ...], dtype: jnp.dtype, chann
     for i, f in enumerate(features):
         blocked = i == 0 and edge_layers == "blocked"
         h = Conv4x4(f, dtype, channel_pad, bias_grad, blocked, name=f"conv{i}")(h)
-        h = relu(h, relu_grad)
+        h = nn.relu(h)
     return h.reshape((h.shape[0], -1))
 
 
@@ -271,14 +239,12 @@ class ConvEncoder(nn.Module):
     channel_pad: int = 1  # see Conv4x4
     bias_grad: str = "reduce"
     edge_layers: str = "strided"  # see conv_layers
-    relu_grad: str = "input"  # see relu
 
     @nn.compact
     def __call__(self, x: jax.Array) -> tuple[jax.Array, jax.Array]:
-        h = conv_layers(x, self.features, self.dtype, self.channel_pad, self.bias_grad, self.edge_layers,
-                        self.relu_grad)
+        h = conv_layers(x, self.features, self.dtype, self.channel_pad, self.bias_grad, self.edge_layers)
         dense = dict(param_dtype=jnp.float32, kernel_init=lecun_normal_flat)
-        h = relu(nn.Dense(self.hidden, dtype=self.dtype, name="fc", **dense)(h), self.relu_grad)
+        h = nn.relu(nn.Dense(self.hidden, dtype=self.dtype, name="fc", **dense)(h))
         h = h.astype(jnp.float32)
         mean = nn.Dense(self.latent_dim, name="mean", **dense)(h)
         logvar = nn.Dense(self.latent_dim, name="logvar", **dense)(h)
@@ -399,7 +365,6 @@ class DeconvDecoder(nn.Module):
     # "blocked": the last layer as a 3x3 convolution to 2x2 pixel blocks (the sub-pixel form,
     # the transpose of `blocked_conv_down`) whatever `impl`; "strided": as `impl` says.
     edge_layers: str = "strided"
-    relu_grad: str = "input"  # see relu
 
     @nn.compact
     def __call__(self, z: jax.Array) -> jax.Array:
@@ -411,8 +376,8 @@ class DeconvDecoder(nn.Module):
         )
         start = self.resolution // 2 ** len(self.features)
         dense = dict(dtype=self.dtype, param_dtype=jnp.float32, kernel_init=lecun_normal_flat)
-        h = relu(nn.Dense(self.hidden, name="fc", **dense)(z.astype(self.dtype)), self.relu_grad)
-        h = relu(nn.Dense(start * start * self.features[-1], name="fc_grid", **dense)(h), self.relu_grad)
+        h = nn.relu(nn.Dense(self.hidden, name="fc", **dense)(z.astype(self.dtype)))
+        h = nn.relu(nn.Dense(start * start * self.features[-1], name="fc_grid", **dense)(h))
         h = h.reshape((h.shape[0], start, start, self.features[-1]))
         out_features = (*reversed(self.features[:-1]), self.channels)
         for i, f in enumerate(out_features):
@@ -429,7 +394,7 @@ class DeconvDecoder(nn.Module):
                     f, (4, 4), strides=(2, 2), padding="SAME", name=f"deconv{i}", **dense
                 )(h)
             if i < len(out_features) - 1:
-                h = relu(h, self.relu_grad)
+                h = nn.relu(h)
         return h.astype(jnp.float32)
 
 
@@ -447,15 +412,13 @@ class FrameFeatures(nn.Module):
     channel_pad: int = 1  # see Conv4x4
     bias_grad: str = "reduce"
     edge_layers: str = "strided"  # see conv_layers
-    relu_grad: str = "input"  # see relu
 
     @nn.compact
     def __call__(self, x: jax.Array) -> jax.Array:
-        h = conv_layers(x, self.features, self.dtype, self.channel_pad, self.bias_grad, self.edge_layers,
-                        self.relu_grad)
+        h = conv_layers(x, self.features, self.dtype, self.channel_pad, self.bias_grad, self.edge_layers)
         if self.hidden:
             dense = dict(dtype=self.dtype, param_dtype=jnp.float32, kernel_init=lecun_normal_flat)
-            h = relu(nn.Dense(self.hidden, name="fc", **dense)(h), self.relu_grad)
+            h = nn.relu(nn.Dense(self.hidden, name="fc", **dense)(h))
         return h.astype(jnp.float32)
 
 
