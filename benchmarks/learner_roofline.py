@@ -14,6 +14,8 @@ by neither: by its kernels' efficiency on small shapes, or by launches. Writes
 `<out-dir>/roofline_<device>_<stamp>.json` and prints a markdown table (docs/performance.md).
 
 GPU: python benchmarks/learner_roofline.py --kernels
+(XLA:GPU's cost analysis counts no FLOPs: take them from the lowered program on the CPU with
+`--flops-only`, then `--merge ROOFLINE_JSON --flops-json FLOPS_JSON`.)
 CPU smoke run: python benchmarks/learner_roofline.py --learners vae,pred --batch 16 --steps 2 --small
 """
 
@@ -70,7 +72,7 @@ def measure(name: str, a: argparse.Namespace) -> dict[str, Any]:
     t0 = time.perf_counter()
     compiled = lowered.compile()
     compile_s = time.perf_counter() - t0
-    flops = cost(lowered).get("flops", float("nan"))
+    flops = cost(lowered).get("flops", float("nan"))  # XLA:GPU's analysis may have none: --flops-json
     moved = cost(compiled).get("bytes accessed", float("nan"))
     for k in keys[: a.warmup]:
         state, _ = compiled(state, batch, k)
@@ -100,6 +102,50 @@ def measure(name: str, a: argparse.Namespace) -> dict[str, Any]:
             row["launches_per_update"] = dev["launches_per_update"]
             row["top_kernels"] = dev["top"][:5]
     return row
+
+
+def lowered_flops(name: str, a: argparse.Namespace) -> float:
+    """FLOPs of one update from its lowered (unoptimised) program: shapes only, no compile."""
+    from bench_throughput import BenchSettings, learner_batch
+
+    cfg = LearnerConfig(batch_size=a.batch, compute_dtype=a.dtype, sequence_length=a.sequence_length,
+                        rnn_unroll=a.rnn_unroll)
+    learner = make_learner(name, latent_dim=a.latent_dim, config=cfg, action_dim=1)
+    s = BenchSettings(vae_batch=a.batch, resolution=a.resolution, latent_dim=a.latent_dim, seed=0)
+    state = jax.eval_shape(lambda k: learner.init(k, (a.resolution, a.resolution, 3)), jax.random.PRNGKey(0))
+    batch = learner_batch(learner, name, s, np.random.default_rng(0))
+    return cost(jax.jit(learner.update).lower(state, batch, jax.random.PRNGKey(1)))["flops"]
+
+
+def flops_only(a: argparse.Namespace) -> dict[str, Any]:
+    out = {n: lowered_flops(n, a) for n in [x.strip() for x in a.learners.split(",") if x.strip()]}
+    os.makedirs(a.out_dir, exist_ok=True)
+    path = os.path.join(a.out_dir, f"flops_{dt.datetime.now().strftime('%Y%m%d_%H%M%S')}.json")
+    with open(path, "w") as f:
+        json.dump({"settings": vars(a), "flops": out}, f, indent=1)
+    print(json.dumps(out, indent=1))
+    return out
+
+
+def merge(a: argparse.Namespace) -> dict[str, Any]:
+    """An earlier run's rows with FLOPs from `--flops-json`, limits and table recomputed."""
+    with open(a.merge) as f:
+        run = json.load(f)
+    with open(a.flops_json) as f:
+        flops = json.load(f)["flops"]
+    for r in run["rows"]:
+        if "error" not in r and not r["flops"] == r["flops"]:  # NaN: the device's analysis had none
+            r["flops"], r["flops_from"] = flops[r["learner"]], os.path.basename(a.flops_json)
+        if "error" not in r:
+            r["limits"] = limits(r, run["device_kind"])
+    run["table"] = table(run["rows"], run["device_kind"])
+    run["merged_with"] = os.path.basename(a.flops_json)
+    print(run["table"])
+    out = a.merge.replace(".json", "_flops.json")
+    with open(out, "w") as f:
+        json.dump(run, f, indent=1, default=str)
+    print(f"wrote {out}", file=sys.stderr)
+    return run
 
 
 def limits(row: dict[str, Any], kind: str) -> dict[str, Any]:
@@ -149,8 +195,19 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     p.add_argument("--warmup", type=int, default=3)
     p.add_argument("--kernels", action="store_true", help="GPU busy time and top kernels from a profiler trace")
     p.add_argument("--small", action="store_true", help="CPU-sized networks (a smoke run)")
+    p.add_argument("--flops-only", action="store_true",
+                   help="only each update's FLOPs from its lowered program (lowering, no compile: runs on the CPU); "
+                        "writes flops_<stamp>.json for --flops-json")
+    p.add_argument("--flops-json", default=None,
+                   help="FLOPs per learner (a --flops-only file) where the device's cost analysis has none")
+    p.add_argument("--merge", default=None, metavar="ROOFLINE_JSON",
+                   help="recompute an earlier run's table with --flops-json (no measuring)")
     p.add_argument("--out-dir", default=os.path.join(HERE, "results"))
     a = p.parse_args(argv)
+    if a.flops_only:
+        return flops_only(a)
+    if a.merge:
+        return merge(a)
     dev = jax.devices()[0]
     kind = dev.device_kind
     rows = []
