@@ -409,8 +409,12 @@ def run_torch_reference(s: BenchSettings) -> dict[str, Any]:
         log("torch reference: " + shlex.join(cmd))
         try:
             proc = subprocess.run(cmd, timeout=s.torch_timeout_s)
-        except subprocess.TimeoutExpired:
-            return {"available": False, "reason": f"torch reference timed out after {s.torch_timeout_s} s"}
+        except subprocess.TimeoutExpired:  # what it measured before the timeout (written after each form)
+            why = f"torch reference timed out after {s.torch_timeout_s} s"
+            if os.path.exists(out):
+                with open(out) as f:
+                    return {**json.load(f), "reason": why}
+            return {"available": False, "reason": why}
         if proc.returncode != 0 or not os.path.exists(out):
             return {"available": False, "reason": f"torch reference exited with status {proc.returncode}"}
         with open(out) as f:

@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 import time
 import traceback
@@ -237,11 +238,22 @@ def time_graph_updates(settings: TorchBenchSettings, device: torch.device, dtype
             "finite": bool(torch.isfinite(torch.tensor(final))), **({"kernels": kernels} if kernels else {})}
 
 
-def run_reference(settings: TorchBenchSettings, device: torch.device) -> dict[str, Any]:
-    """All (mode, dtype) measurements; a failing one is recorded with its error and skipped."""
+def run_reference(settings: TorchBenchSettings, device: torch.device,
+                  partial: Any = None) -> dict[str, Any]:
+    """All (mode, dtype) measurements; a failing one is recorded with its error and skipped.
+    `partial(info)` is called with the results so far after each one (the script writes them,
+    so a run cut short by its caller's timeout keeps what it measured)."""
     if device.type == "cuda":
         torch.backends.cudnn.benchmark = True
-    results: list[dict[str, Any]] = []
+
+    class _Results(list):
+        def append(self, r: dict[str, Any]) -> None:
+            super().append(r)
+            if partial is not None:
+                partial({"available": True, "partial": True, "torch_version": torch.__version__,
+                         "device": device.type, "settings": asdict(settings), "results": list(self)})
+
+    results = _Results()
     modes = [False, True] if settings.compile else [False]
     for compiled in modes:
         for dtype in settings.dtypes:
@@ -314,7 +326,14 @@ def main(argv: list[str] | None = None) -> None:
                                   kernels_top=a.kernels_top, forms=forms,
                                   form_dtypes=tuple(a.form_dtypes.split(",")))
     name = ("cuda" if torch.cuda.is_available() else "cpu") if a.device == "auto" else a.device
-    info = run_reference(settings, torch.device(name))
+    def write(obj: dict[str, Any]) -> None:
+        if a.json_out != "-":
+            tmp = f"{a.json_out}.tmp"
+            with open(tmp, "w") as f:
+                json.dump(obj, f, indent=2)
+            os.replace(tmp, a.json_out)
+
+    info = run_reference(settings, torch.device(name), partial=write)
     text = json.dumps(info, indent=2)
     if a.json_out == "-":
         print(text)
