@@ -6,9 +6,10 @@ buffer, the bulk of a run's state as on a GPU preset) is made once per way of wr
 a checkpoint after every epoch, in this process (one compile for all: `run(experiment=...)`). The
 loop's stall per checkpoint is the time `run._save` blocks it (`Checkpointer.save`: the host copy,
 and for a synchronous write the whole write); the wait for the last background write at the end is
-reported apart. Ways: `orbax` (one process's checkpoints, synchronous: what a one-process run
-writes), `files` (a multi-process run's `ProcessFiles`, synchronous: before issue 56) and
-`files-background` (the same written in a thread while the loop goes on: now).
+reported apart. Ways: `orbax` (one process's checkpoints, synchronous: before issue 56),
+`orbax-background` (orbax's asynchronous save of host copies: a one-process run now), `files` (a
+multi-process run's `ProcessFiles`, synchronous: before) and `files-background` (the same written
+in a thread while the loop goes on: a multi-process run now).
 
     PYTHONPATH=. python benchmarks/bench_checkpoint_stall.py --epochs 6 --replay-mult 8
 """
@@ -31,7 +32,7 @@ def main(argv: list[str] | None = None) -> dict:
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument("--epochs", type=int, default=6)
     p.add_argument("--replay-mult", type=int, default=8, help="replay capacity x this (state size)")
-    p.add_argument("--ways", default="orbax,files,files-background")
+    p.add_argument("--ways", default="orbax,orbax-background,files,files-background")
     p.add_argument("--json", default=None, help="write the numbers here too")
     a = p.parse_args(argv)
 
@@ -61,8 +62,8 @@ def main(argv: list[str] | None = None) -> dict:
             (final if rs is None else stalls).append(time.perf_counter() - t)
 
         def make(run_dir, keep=2, process=None, cleanup_tmp=False, background=False, way=way):
-            if way == "orbax":
-                return real_ckpt(run_dir, keep=keep, cleanup_tmp=cleanup_tmp)
+            if way.startswith("orbax"):
+                return real_ckpt(run_dir, keep=keep, cleanup_tmp=cleanup_tmp, background=way == "orbax-background")
             return real_ckpt(run_dir, keep=keep, process=0, cleanup_tmp=cleanup_tmp,
                              background=way == "files-background")
 

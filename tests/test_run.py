@@ -479,7 +479,9 @@ def test_failed_checkpoint_write_keeps_the_last_one(exp, straight, tmp_path, mon
         run(exp.config, RunOptions(checkpoint_every=1), d, experiment=exp, progress=False, log=lambda s: None)
     monkeypatch.undo()
     assert rundir.checkpoint_steps(d) == [1] and rundir.partial_checkpoints(d)
-    assert len(_lines(d)) == 4  # epochs 0 and 1 were written before the checkpoint failed
+    # checkpoint 2 is written in the background while epoch 2 runs: its failure stops the run at
+    # the next checkpoint, with epochs 0-2 in metrics.jsonl (ahead of the newest checkpoint, never behind)
+    assert len(_lines(d)) == 6
     said = []
     run(exp.config, RunOptions(), d, resume=True, experiment=exp, progress=False, log=said.append)
     assert any("resuming" in s and "at epoch 1" in s for s in said)

@@ -12,10 +12,13 @@ env, seeds or device count) is refused with a clear error instead of being misre
 A checkpoint is only taken between jitted calls (after an epoch, or after a chunk of epochs once
 several run in one call), so every saved state is a state the run loop itself held.
 
-`background=True` (the run loop's): a process's checkpoint files are written in a thread while the
-loop goes on (`ProcessFiles`); the loop waits only for the host copy of the state (the next epoch
-reuses the device buffers: they are donated) and, at its next checkpoint or at the end, for the
-previous write. A write that failed raises `CheckpointWriteError` there, naming its epoch.
+`background=True` (the run loop's): checkpoints are written while the loop goes on, by orbax's
+asynchronous save (one process) or a thread of `ProcessFiles` (each process of a multi-process
+run); the loop waits only for the host copy of the state (the next epoch reuses the device
+buffers: they are donated, and on the CPU a fetched array may share them) and, at its next
+checkpoint or at the end, for the previous write. A write that failed raises
+`CheckpointWriteError` there, naming its epoch. Checkpoints saved from host copies restore into
+device arrays as before (orbax reads them by the restore target's shapes and shardings).
 """
 
 from __future__ import annotations
@@ -73,13 +76,18 @@ class Checkpointer:
         # one process of a multi-process run saves the states of its own devices' seed groups in
         # a folder of its own, as host copies in plain files (`ProcessFiles`: orbax writes numpy
         # arrays on process 0 only and refuses one process's device arrays there)
-        self.host_arrays = process is not None
+        # a background write reads host copies (the device buffers are donated to the next epoch)
+        self.host_arrays = process is not None or background
+        self.background = background
+        self._pending: int | None = None  # the epoch orbax is still writing (background)
+        self._reported = False  # a background write's failure was raised by `wait`
         if process is not None:
             self.directory = os.path.join(self.directory, f"process_{process}")
             self._files = ProcessFiles(self.directory, keep, cleanup_tmp, background=background)
             return
+        # background: orbax's asynchronous save (its write and rename in orbax's thread)
         opts = ocp.CheckpointManagerOptions(max_to_keep=keep, create=True, cleanup_tmp_directories=cleanup_tmp,
-                                            enable_async_checkpointing=False)
+                                            enable_async_checkpointing=background)
         self._mngr = ocp.CheckpointManager(self.directory, options=opts)
 
     def steps(self) -> list[int]:
@@ -105,9 +113,13 @@ class Checkpointer:
         if self._files:
             self._files.save(int(epoch), flat, meta)
             return
+        self.wait()  # the previous write ended (its error raised, naming its epoch)
         self._mngr.save(int(epoch), args=ocp.args.Composite(state=ocp.args.StandardSave(flat),
                                                             meta=ocp.args.JsonSave(meta)), force=True)
-        self._mngr.wait_until_finished()
+        if self.background:
+            self._pending = int(epoch)
+        else:
+            self._mngr.wait_until_finished()
 
     def restore(self, like: Any, epoch: int | None = None) -> tuple[Any, dict[str, Any], int]:
         """The checkpoint of `epoch` (default the newest) as a pytree shaped like `like` (arrays
@@ -130,7 +142,7 @@ class Checkpointer:
                              f"({diff}); it was written with another configuration, code version or "
                              "device count. Resume with the run's own config.json on the same number "
                              "of devices, or start a new run")
-        if self.host_arrays:  # numpy on the host, then onto the devices the state lives on
+        if self._files:  # numpy on the host, then onto the devices the state lives on
             got = {k: jax.device_put(v, getattr(leaves[int(k)], "sharding", None)) for k, v in got.items()}
         else:
             abstract = {f"{i:05d}": jax.ShapeDtypeStruct(x.shape, x.dtype, sharding=getattr(x, "sharding", None))
@@ -151,17 +163,27 @@ class Checkpointer:
         if it failed."""
         if self._files:
             self._files.wait()
+        elif self._pending is not None:
+            epoch, self._pending = self._pending, None
+            try:
+                self._mngr.wait_until_finished()
+            except Exception as err:  # noqa: BLE001  (OSError, tensorstore's errors: a full disk)
+                self._reported = True
+                raise CheckpointWriteError(epoch, err) from err
 
     def close(self) -> None:
         """Wait for a write in progress (its error, if any, is raised by `wait`, not here) and
         close the manager."""
-        if self._files:
-            try:
-                self._files.wait()
-            except CheckpointWriteError:
-                pass
+        try:
+            self.wait()
+        except CheckpointWriteError:
+            pass
         if self._mngr is not None:
-            self._mngr.close()
+            try:
+                self._mngr.close()
+            except Exception:  # noqa: BLE001  (orbax raises a failed write's error again)
+                if not self._reported:
+                    raise
 
 
 class ProcessFiles:
