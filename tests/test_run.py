@@ -368,8 +368,11 @@ def test_resumed_process_compiles_the_same_epoch_program():
     here = os.path.dirname(os.path.abspath(__file__))
     script = _PROGRAM_SCRIPT.format(tests=here)
     modes = ("fresh", "resume", "epoch_first", "init_traced_twice")
+    # Warp's own per-trace numbering (the test suite turns on the signature ids, under which an
+    # epoch traced first lowers to the same text: tests/test_compile_cache.py)
+    env = dict(os.environ, BULBJAX_STABLE_WARP_IDS="0")
     procs = {o: subprocess.Popen([sys.executable, "-c", script, o], stdout=subprocess.PIPE, text=True,
-                                 cwd=os.path.dirname(here))
+                                 cwd=os.path.dirname(here), env=env)
              for o in modes}
     out = {o: p.communicate(timeout=900)[0].strip().splitlines()[-1] for o, p in procs.items()}
     assert all(p.returncode == 0 for p in procs.values()), out
