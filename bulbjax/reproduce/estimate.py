@@ -154,5 +154,5 @@ def times_markdown() -> str:
         for preset, t in presets.items():
             lines.append(f"| {kind} | {preset} | {t['epoch_s']} | {t.get('extra_seed_s', 0)} | "
                          f"{t['startup_cold_s']} / {t['startup_warm_s']} | "
-                         f"{t.get('derived') or t.get('measured') or ''} |")
+                         f"{'measured: ' + t['measured'] if t.get('measured') else 'derived: ' + t.get('derived', '')} |")
     return "\n".join(lines)
