@@ -254,36 +254,24 @@ def run_reference(settings: TorchBenchSettings, device: torch.device,
                          "device": device.type, "settings": asdict(settings), "results": list(self)})
 
     results = _Results()
-    modes = [False, True] if settings.compile else [False]
-    for compiled in modes:
-        for dtype in settings.dtypes:
-            label = f"{'compile' if compiled else 'eager'} {dtype}"
-            print(f"[torch] {label} ...", file=sys.stderr, flush=True)
-            try:
-                r = time_updates(settings, device, dtype, compiled)
-                print(f"[torch] {label}: {r['updates_per_s']:.2f} updates/s "
-                      f"(warm-up {r['warmup_s']:.1f} s)", file=sys.stderr, flush=True)
-            except Exception as e:  # noqa: BLE001 - a failed variant must not end the benchmark
-                traceback.print_exc(file=sys.stderr)
-                r = {"mode": "compile" if compiled else "eager", "dtype": dtype,
-                     "error": f"{type(e).__name__}: {e}"[:2000]}
-            results.append(r)
-            if device.type == "cuda":
-                torch.cuda.empty_cache()
-    for form in settings.forms:
-        for dtype in settings.form_dtypes:
-            label = f"{form} {dtype}"
-            print(f"[torch] {label} ...", file=sys.stderr, flush=True)
-            try:
-                r = time_graph_updates(settings, device, dtype, form)
-                print(f"[torch] {label}: {r['updates_per_s']:.2f} updates/s "
-                      f"(warm-up and capture {r['warmup_s']:.1f} s)", file=sys.stderr, flush=True)
-            except Exception as e:  # noqa: BLE001 - a failed form must not end the benchmark
-                traceback.print_exc(file=sys.stderr)
-                r = {"mode": form, "dtype": dtype, "error": f"{type(e).__name__}: {e}"[:2000]}
-            results.append(r)
-            if device.type == "cuda":
-                torch.cuda.empty_cache()
+    # (label, mode, timer): eager and torch.compile, then the strongest forms (whole update in a graph)
+    cases = [(f"{'compile' if c else 'eager'} {d}", "compile" if c else "eager",
+              lambda d=d, c=c: time_updates(settings, device, d, c), d)
+             for c in ([False, True] if settings.compile else [False]) for d in settings.dtypes]
+    cases += [(f"{form} {d}", form, lambda d=d, form=form: time_graph_updates(settings, device, d, form), d)
+              for form in settings.forms for d in settings.form_dtypes]
+    for label, mode, timer, dtype in cases:
+        print(f"[torch] {label} ...", file=sys.stderr, flush=True)
+        try:
+            r = timer()
+            print(f"[torch] {label}: {r['updates_per_s']:.2f} updates/s "
+                  f"(warm-up {r['warmup_s']:.1f} s)", file=sys.stderr, flush=True)
+        except Exception as e:  # noqa: BLE001 - a failed case must not end the benchmark
+            traceback.print_exc(file=sys.stderr)
+            r = {"mode": mode, "dtype": dtype, "error": f"{type(e).__name__}: {e}"[:2000]}
+        results.append(r)
+        if device.type == "cuda":
+            torch.cuda.empty_cache()
     ok = [r for r in results if "updates_per_s" in r]
     best: dict[str, Any] = {}
     for dtype in {r["dtype"] for r in ok}:
