@@ -16,7 +16,8 @@ def _settings(args: argparse.Namespace) -> dict:
     flags = (("env", "env"), ("seeds", "seeds"), ("epochs", "epochs"), ("sequence_length", "sequence_length"),
              ("learners", "learners"), ("version", "version"), ("rl_input", "rl_input"), ("rl_frames", "rl_frames"),
              ("seed_loop", "learner_seed_loop"), ("programs", "programs"), ("ppo_updates", "ppo_updates_per_epoch"),
-             ("resolution", "resolution"), ("graph_mode", "graph_mode"), ("probe_variants", "probe_variants"))
+             ("resolution", "resolution"), ("graph_mode", "graph_mode"),
+             ("probe_variants", "probe_variants"))
     overrides = {field: getattr(args, flag) for flag, field in flags if getattr(args, flag, None) is not None}
     if getattr(args, "multicolour", False):
         overrides["multicolour"] = True
@@ -157,11 +158,12 @@ def cmd_report(args: argparse.Namespace) -> int:
         return 0
     if getattr(args, "probe_protocol", False):
         if not args.out:
-            raise ValueError("--probe-protocol writes table.md into a folder: give it with --out DIR "
-                             "(e.g. docs/results/probe_protocol)")
+            raise ValueError("--probe-protocol writes table.md into a folder: give it with "
+                             "--out DIR (e.g. docs/results/probe_protocol)")
         from bulbjax.experiment import protocol
 
-        print(protocol.probe_protocol_table(args.run_dirs, getattr(args, "fp32", None) or (), args.out))
+        fp32 = getattr(args, "fp32", None) or ()
+        print(protocol.probe_protocol_table(args.run_dirs, fp32, args.out))
         print(f"table: {os.path.join(args.out, 'table.md')}")
         return 0
     if args.merge_seeds:
@@ -337,10 +339,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     r.add_argument("--probe-every", type=int, default=None,
                    help="probe every k epochs (and at the first and last; default 1); plots keep epochs on the x axis")
     r.add_argument("--probe-variants", default=None, metavar="LIST",
-                   help="probe-protocol variants computed beside the present probe, comma-separated: common "
-                        "(one probe set for every learner), window (sequential learners' whole window), raw "
-                        "(raw MAE per group), or none (default: the fig2 presets all three, else none; "
-                        "docs/probes.md)")
+                   help="probe-protocol variants computed beside the present probe, "
+                        "comma-separated: common (one probe set for every learner), window "
+                        "(sequential learners' whole window), raw (raw MAE per group), or none "
+                        "(default: the fig2 presets all three, else none; docs/probes.md)")
     r.add_argument("--resume", default=None, metavar="RUN_DIR",
                    help="continue the run in RUN_DIR from its newest checkpoint with its own config.json "
                         "(flags that would change it are an error; --epochs may extend it)")
@@ -401,14 +403,15 @@ def main(argv: Sequence[str] | None = None) -> int:
                     help="one report over the seeds of several runs of one configuration made with "
                          "different --seed (e.g. half the seeds on each of two GPUs), into --out")
     rp.add_argument("--probe-protocol", action="store_true",
-                    help="the Fig. 2 claims of the runs (one per domain, made with --probe-variants) under "
-                         "each probe variant side by side, into --out/table.md")
+                    help="the Fig. 2 claims of the runs (one per domain, made with "
+                         "--probe-variants) under each probe variant side by side, into "
+                         "--out/table.md")
     rp.add_argument("--fp32", action="append", default=None, metavar="RUN_DIR",
-                    help="with --probe-protocol: a domain's second run in fp32, its verdicts as the last "
-                         "column (repeatable, one per domain)")
-    rp.add_argument("--out", default=None, help="folder of the --compare-rl outputs (default: the "
-                                                 "first run's parent folder), of --merge-seeds or of "
-                                                 "--probe-protocol")
+                    help="with --probe-protocol: a domain's second run in fp32, its verdicts "
+                         "as the last column (repeatable, one per domain)")
+    rp.add_argument("--out", default=None,
+                    help="folder of the --compare-rl outputs (default: the first run's parent "
+                         "folder), of --merge-seeds or of --probe-protocol")
     rp.set_defaults(fn=cmd_report)
     o = sub.add_parser("fit", help="offline: train learners on one cached random-policy dataset, "
                                    "probe every M updates")

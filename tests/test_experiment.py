@@ -418,7 +418,8 @@ def test_presets_and_cli_overrides():
 
 # ---------------------------------------------------------------- probe-protocol variants (issue 59)
 VARIANTS = ("common", "window", "raw")
-WITH_VARIANTS = ALL[:5]  # all but dsa (the longest compile): a prefix of ALL, so the same draws as `run`'s
+# all but dsa (the longest compile): a prefix of ALL, so the same draws as `run`'s
+WITH_VARIANTS = ALL[:5]
 
 
 @pytest.fixture(scope="module")
@@ -426,7 +427,8 @@ def run_variants():
     """The fixture `run`'s experiment with every probe variant and without dsa: its init and first
     epoch under the same keys (learner i of a run draws with key i: a prefix of `run`'s learners
     gets `run`'s draws)."""
-    exp = Experiment(dataclasses.replace(tiny_six_config(), learners=WITH_VARIANTS, probe_variants=VARIANTS))
+    cfg = dataclasses.replace(tiny_six_config(), learners=WITH_VARIANTS, probe_variants=VARIANTS)
+    exp = Experiment(cfg)
     rs0 = exp.init(jax.random.PRNGKey(0))
     probe_set0 = jax.device_get(rs0.probe_set)
     rs1, m1 = exp.epoch(rs0, jax.random.PRNGKey(1))
@@ -438,8 +440,10 @@ def test_variants_leave_the_present_probe_unchanged(run, run_variants):
     (same keys), bit for bit, up to the variants' own keys; so does the run state."""
     exp, _, _, m1, *_, rs1 = run
     expv, _, rsv, mv = run_variants
-    keep = lambda m: {k: ({n: v[n] for n in WITH_VARIANTS} if k in ("learners", "probes") else v)  # noqa: E731
-                      for k, v in m.items()}
+    def keep(m: dict) -> dict:  # the metrics of `WITH_VARIANTS`
+        return {k: ({n: v[n] for n in WITH_VARIANTS} if k in ("learners", "probes") else v)
+                for k, v in m.items()}
+
     plain = records.epoch_records(0, keep(m1), exp.spec)
     withv = records.epoch_records(0, mv, expv.spec, VARIANTS)
     assert len(plain) == len(withv) == SEEDS
@@ -463,10 +467,11 @@ def test_common_probe_set_is_the_same_pairs_for_every_learner(run, run_variants)
     common = {n: m["probes"][n]["variants"]["common"] for n in WITH_VARIANTS}
     present = {n: m["probes"][n]["rand"]["baseline"] for n in WITH_VARIANTS}
     for stream in ("curr", "rand"):
+        first = common["vae"][stream]
         for n in WITH_VARIANTS[1:]:
-            np.testing.assert_array_equal(common[n][stream]["baseline"], common["vae"][stream]["baseline"])
-            np.testing.assert_array_equal(common[n][stream]["spread"], common["vae"][stream]["spread"])
-        assert not all(np.array_equal(common[n][stream]["mae"], common["vae"][stream]["mae"]) for n in WITH_VARIANTS)
+            np.testing.assert_array_equal(common[n][stream]["baseline"], first["baseline"])
+            np.testing.assert_array_equal(common[n][stream]["spread"], first["spread"])
+        assert not all(np.array_equal(common[n][stream]["mae"], first["mae"]) for n in WITH_VARIANTS)
     assert not all(np.array_equal(present[n], present["vae"]) for n in WITH_VARIANTS)
     # the random-policy part: ceil(16 / 2 / 4) = 2 windows of L = 4 steps per seed, from init's windows
     w = set0.windows
@@ -490,10 +495,12 @@ def test_whole_window_latent_has_the_learners_window_size(run):
     buf = jax.tree.map(lambda x: x[0], rs1.windows[buffer_key(0.5)])
     for name in ("svae", "pred", "dsa"):
         learner, params = exp.learners[name], jax.tree.map(lambda x: x[0], rs1.learners[name].params)
-        (tz, ts), z = jax.jit(lambda p, b: (pv.window_pairs(learner, p, b), learner.encode(p, b.windows)))(params, buf)
-        l, d = learner.sequence_length, exp.env.state_dim
-        assert l == 4 and tz.shape == (buf.capacity, l * learner.latent_dim) and ts.shape == (buf.capacity, d)
+        pairs = jax.jit(lambda p, b: (pv.window_pairs(learner, p, b), learner.encode(p, b.windows)))
+        (tz, ts), z = pairs(params, buf)
+        l, c = learner.sequence_length, buf.capacity
+        assert l == 4 and tz.shape == (c, l * learner.latent_dim) and ts.shape == (c, exp.env.state_dim)
         np.testing.assert_array_equal(tz.reshape(z.shape), z)
         np.testing.assert_array_equal(ts, buf.windows.states[:, l - 1])
-        ctx = probe.context_latents(z, pv.context_of(learner, exp.config.probe))
-        np.testing.assert_array_equal(pv.held_step_latents(ctx, pv.context_of(learner, exp.config.probe)), z)
+        context = pv.context_of(learner, exp.config.probe)
+        ctx = probe.context_latents(z, context)
+        np.testing.assert_array_equal(pv.held_step_latents(ctx, context), z)

@@ -31,7 +31,8 @@ def test_raw_mae_known_answer() -> None:
     s = summarise(mae, base, ref, SPEC)
     raw = records.raw_summary(s)
     pos, vel = raw["groups"]["position"], raw["groups"]["velocity"]
-    assert pos["mae"] == pytest.approx((0.1 + 0.3 + 0.5) / 3) and pos["baseline"] == pytest.approx(8.0 / 3)
+    assert pos["mae"] == pytest.approx((0.1 + 0.3 + 0.5) / 3)
+    assert pos["baseline"] == pytest.approx(8.0 / 3)
     assert vel["mae"] == pytest.approx((0.2 + 0.4) / 2) and vel["baseline"] == pytest.approx(3.5)
     assert (pos["n"], pos["units"], vel["units"]) == (3, ["1", "m"], ["m/s", "rad/s"])
     assert raw["overall"]["mae"] == pytest.approx(0.3) and raw["overall"]["n"] == 5
@@ -140,7 +141,8 @@ def test_probe_protocol_table(tmp_path) -> None:
     with pytest.raises(ValueError, match="no run of their domain"):
         protocol.probe_protocol_table([cart], [fp32])
     from bulbjax.cli import main
-    assert main(["report", run, cart, "--probe-protocol", "--fp32", fp32, "--out", str(tmp_path / "cli")]) == 0
+    cli = ["report", run, cart, "--probe-protocol", "--fp32", fp32, "--out", str(tmp_path / "cli")]
+    assert main(cli) == 0
     assert (tmp_path / "cli" / "table.md").read_text() == text
     assert main(["report", run, "--probe-protocol"]) == 2  # --out missing: a one-line error
 
@@ -149,13 +151,15 @@ def test_report_of_a_run_with_variants(tmp_path) -> None:
     """table.md gets the variants' rows and the raw section; findings.md the claims under each."""
     recs = synthetic({"present": PRESENT, "common": COMMON, "window": WINDOW})
     for r in recs:  # raw as epoch_records writes it: from the present probe's entries
-        r["probes"] = {n: {st: summarise(np.full(5, 0.3), np.ones(5), np.ones(5), SPEC) for st in ("curr", "rand")}
-                       for n in FIG2}
-        r["probes_raw"] = {n: {st: records.raw_summary(x) for st, x in p.items()} for n, p in r["probes"].items()}
+        one = summarise(np.full(5, 0.3), np.ones(5), np.ones(5), SPEC)
+        r["probes"] = {n: {"curr": one, "rand": one} for n in FIG2}
+        r["probes_raw"] = {n: {"curr": records.raw_summary(one), "rand": records.raw_summary(one)}
+                           for n in FIG2}
     tab = report.table(recs, SPEC, last=3)
     assert "| svae (window) | π_rand |" in tab and "| vae (common) | π_curr |" in tab
     assert "## Raw MAE (probe variant `raw`)" in tab and "position (1, m)" in tab
-    assert "| vae | π_rand | 0.300 ± 0.000 | 0.300 ± 0.000 | 0.300 ± 0.000 |" in tab.split("## Raw MAE")[1]
+    raw = tab.split("## Raw MAE")[1]
+    assert "| vae | π_rand | 0.300 ± 0.000 | 0.300 ± 0.000 | 0.300 ± 0.000 |" in raw
 
 
 def test_the_switch_and_old_run_folders(tmp_path) -> None:
@@ -168,9 +172,10 @@ def test_the_switch_and_old_run_folders(tmp_path) -> None:
     del old["probe_variants"]
     assert config_from_dict(old).probe_variants == ()
     assert resolve("fig2-invpend", overrides={"probe_variants": "none"}).probe_variants == ()
-    assert resolve(overrides={"learners": "vae,svae", "probe_variants": "window,raw"}).probe_variants == \
-        ("window", "raw")
-    assert resolve_offline("fig2-invpend", small=True).base.probe_variants == ()  # fit: the present probe only
+    given = resolve(overrides={"learners": "vae,svae", "probe_variants": "window,raw"})
+    assert given.probe_variants == ("window", "raw")
+    # bulbjax fit: the present probe only
+    assert resolve_offline("fig2-invpend", small=True).base.probe_variants == ()
     with pytest.raises(ValueError, match="probe_variants must be distinct names of common, window, raw"):
         resolve(overrides={"probe_variants": "common,linear"})
     # a run without sequential learners (e.g. a fig2 preset with --learners vae_rpl) has no window variant

@@ -177,7 +177,8 @@ class ExperimentConfig:
         bad = [v for v in self.probe_variants if v not in PROBE_VARIANTS]
         if bad or len(set(self.probe_variants)) != len(self.probe_variants):
             raise ValueError(f"probe_variants must be distinct names of {', '.join(PROBE_VARIANTS)} "
-                             f"(e.g. --probe-variants common,window,raw), got {self.probe_variants!r}")
+                             "(e.g. --probe-variants common,window,raw), got "
+                             f"{self.probe_variants!r}")
         if not (self.version == "random" or (isinstance(self.version, int) and self.version >= 0)):
             raise ValueError(f"version must be an int >= 0 or 'random', got {self.version!r}")
         for name in ("seeds", "epochs", "num_envs", "ppo_updates_per_epoch", "learner_batches",

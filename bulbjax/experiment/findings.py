@@ -15,12 +15,16 @@ from typing import Any, Sequence
 import numpy as np
 
 from bulbjax.eval.spec import StateEntry
-from bulbjax.experiment.records import STREAMS, VARIANT_SOURCES, ci90, groups_of, per_seed_error, probed
+from bulbjax.experiment.records import (STREAMS, VARIANT_SOURCES, ci90, groups_of, per_seed_error,
+                                        probed)
 
 PENDULUMS = ("CartPole", "InvertedPendulum")
 LOCOMOTION = ("HalfCheetah", "Ant")
 SEQUENTIAL = ("svae", "pred", "dsa")
 CONTRASTIVE = ("stdim", "curl")
+
+
+Part = tuple[str, float, float]  # a paired difference: what, mean, half-width of its 90% band
 
 
 @dataclasses.dataclass(frozen=True)
@@ -34,7 +38,7 @@ class Verdict:
     verdict: str
     detail: str
     learners: tuple[str, ...] = ()
-    parts: tuple[tuple[str, float, float], ...] = ()
+    parts: tuple[Part, ...] = ()
 
 
 def paired_verdict(lower: np.ndarray, higher: np.ndarray) -> tuple[str, float, float]:
@@ -49,14 +53,16 @@ def paired_verdict(lower: np.ndarray, higher: np.ndarray) -> tuple[str, float, f
 
 
 def _lower(records, a: str, b: str, stream: str, group: str | None, epochs,
-           source: tuple[str, str] = VARIANT_SOURCES["present"]) -> tuple[str, str, tuple[str, float, float]]:
+           source: tuple[str, str] = VARIANT_SOURCES["present"]) -> tuple[str, str, Part]:
     """Verdict, numbers and the paired difference for "a's error is lower than b's" (paired over
     seeds), the errors read from `source` (`records.VARIANT_SOURCES`)."""
-    ea, eb = (per_seed_error(records, x, stream, group, epochs, probes=source[0], value=source[1]) for x in (a, b))
+    ea, eb = (per_seed_error(records, x, stream, group, epochs, probes=source[0], value=source[1])
+              for x in (a, b))
     verdict, mean, half = paired_verdict(ea, eb)
-    what = group or "overall"
-    return verdict, (f"{what}, {stream_label(stream)}: {a} {_mean(ea)}, {b} {_mean(eb)}; "
-                     f"{b} - {a} = {mean:+.3f} ± {half:.3f}"), (f"{b} - {a}, {what}, {stream_label(stream)}", mean, half)
+    what, where = group or "overall", stream_label(stream)
+    detail = (f"{what}, {where}: {a} {_mean(ea)}, {b} {_mean(eb)}; "
+              f"{b} - {a} = {mean:+.3f} ± {half:.3f}")
+    return verdict, detail, (f"{b} - {a}, {what}, {where}", mean, half)
 
 
 def _mean(x: np.ndarray) -> str:
@@ -90,12 +96,17 @@ def check(records: Sequence[dict[str, Any]], spec: Sequence[StateEntry], env: st
     vel = _velocity_group(spec)
     out: list[Verdict] = []
 
-    def lower(a: str, b: str, stream: str, group: str | None) -> tuple[str, str, tuple[str, float, float]]:
+    def lower(a: str, b: str, stream: str, group: str | None) -> tuple[str, str, Part]:
         return _lower(records, a, b, stream, group, epochs, source)
 
     def one(claim: str, names: tuple[str, ...], parts: list, verdict: str | None = None) -> Verdict:
-        return Verdict(claim, verdict or _combine([v for v, *_ in parts]), "; ".join(d for _, d, _ in parts),
-                       names, tuple(p for *_, p in parts))
+        """A claim decided by `parts` (`lower`'s): all hold -> holds (`_combine`), unless given."""
+        return Verdict(claim, verdict or _combine([v for v, *_ in parts]),
+                       "; ".join(d for _, d, _ in parts), names, tuple(p for *_, p in parts))
+
+    def both(name: str, group: str | None) -> list:
+        """`name` below vae_rpl on `group`, on π_rand and π_curr."""
+        return [lower(name, "vae_rpl", s, group) for s in ("rand", "curr")]
 
     def missing(*names: str) -> str | None:
         lack = [n for n in names if n not in have]
@@ -120,11 +131,12 @@ def check(records: Sequence[dict[str, Any]], spec: Sequence[StateEntry], env: st
     for name in SEQUENTIAL:
         claim = f"sequential learners better on velocity: {name} below vae_rpl on {vel or 'velocity'}"
         if vel is None:
-            out.append(Verdict(claim, "not tested (no velocity group in this domain's state)", "", (name, "vae_rpl")))
+            out.append(Verdict(claim, "not tested (no velocity group in this domain's state)", "",
+                               (name, "vae_rpl")))
         elif m := missing(name, "vae_rpl"):
             out.append(Verdict(claim, m, "", (name, "vae_rpl")))
         else:
-            out.append(one(claim, (name, "vae_rpl"), [lower(name, "vae_rpl", s, vel) for s in ("rand", "curr")]))
+            out.append(one(claim, (name, "vae_rpl"), both(name, vel)))
 
     claim = "PRED best on the pendulums (pred's error below every other learner's on π_rand)"
     others = tuple(sorted(have - {"pred"}))
@@ -150,7 +162,7 @@ def check(records: Sequence[dict[str, Any]], spec: Sequence[StateEntry], env: st
             if m := missing("vae_rpl"):
                 out.append(Verdict(claim, m, "", (name, "vae_rpl")))
                 continue
-            out.append(one(claim, (name, "vae_rpl"), [lower(name, "vae_rpl", s, group) for s in ("rand", "curr")]))
+            out.append(one(claim, (name, "vae_rpl"), both(name, group)))
     if variant == "present":
         out += _probe_agreement(records, epochs)
     return out, epochs
@@ -193,7 +205,7 @@ def markdown(verdicts: Sequence[Verdict], epochs: Sequence[int], seeds: int) -> 
     return "\n".join(lines)
 
 
-# ---------------------------------------------------------------------------- probe-protocol variants
+# ------------------------------------------------------------------------- probe-protocol variants
 # Column heads of the variants' verdicts (`records.VARIANT_SOURCES`; "fp32": the present probe
 # of a second run in fp32, `bulbjax.experiment.protocol`).
 VARIANT_LABELS = {"present": "present probe", "common": "common probe set",
@@ -247,17 +259,18 @@ def variants_markdown(sets: dict[str, list[Verdict]], epochs: Sequence[int], see
     """The claims (rows) under each variant (columns) of `sets` (`variant_checks`, or with an
     "fp32" column added), one cell per claim and variant (`variant_cell`)."""
     cols = list(sets)
-    lines = ["| claim (paper, Fig. 2) | " + " | ".join(VARIANT_LABELS.get(c, c) for c in cols) + " |",
-             "|---|" + "---|" * len(cols)]
+    head = " | ".join(VARIANT_LABELS.get(c, c) for c in cols)
+    lines = [f"| claim (paper, Fig. 2) | {head} |", "|---|" + "---|" * len(cols)]
     for i, v in enumerate(sets[cols[0]]):
-        cells = [variant_cell(sets[c][i], c) if i < len(sets[c]) and sets[c][i].claim == v.claim else "–"
-                 for c in cols]
+        same = [c for c in cols if i < len(sets[c]) and sets[c][i].claim == v.claim]
+        cells = [variant_cell(sets[c][i], c) if c in same else "–" for c in cols]
         lines.append(f"| {v.claim} | " + " | ".join(cells) + " |")
-    lines += ["", f"Epochs {', '.join(map(str, epochs))}; {seeds} seeds; each cell: the verdict and the "
-              "paired difference (higher - lower error, mean ± 90% Student-t band over seeds) that decides "
-              "it. present probe: each learner's probe fit on its own replay (sequential learners: steps "
-              "t-1, t); common probe set: every learner's probe fit on the same pairs; whole window: the "
-              "sequential learners' whole window's latent -> the state at its last step, every learner "
-              "scored on the held-out windows' last steps; raw MAE: the present probe's MAE averaged over a "
-              "group's entries in the state's units (docs/probes.md, \"Variants of the protocol\")."]
+    lines += ["", f"Epochs {', '.join(map(str, epochs))}; {seeds} seeds; each cell: the verdict "
+              "and the paired difference (higher - lower error, mean ± 90% Student-t band over "
+              "seeds) that decides it. present probe: each learner's probe fit on its own replay "
+              "(sequential learners: steps t-1, t); common probe set: every learner's probe fit on "
+              "the same pairs; whole window: the sequential learners' whole window's latent -> "
+              "the state at its last step, every learner scored on the held-out windows' last "
+              "steps; raw MAE: the present probe's MAE averaged over a group's entries in the "
+              "state's units (docs/probes.md, \"Variants of the protocol\")."]
     return "\n".join(lines)

@@ -76,8 +76,8 @@ class Experiment:
         # Object-level probe (multi-object domains): names and states -> image positions (px)
         # of the true objects, None for domains without objects in the state (nothing computed).
         self.probing = Probing(self.team, c.probe, c.probe_train_frames, c.resolution,
-                               object_pixels(self.env), objects.default_radius(c.resolution), self.targets,
-                               c.probe_variants_run)
+                               object_pixels(self.env), objects.default_radius(c.resolution),
+                               self.targets, c.probe_variants_run)
         self.common_probes = "common" in c.probe_variants  # the common probe set is kept and drawn
         shapes = jax.eval_shape(self._init, jax.random.PRNGKey(0))
         self._state_sh = dev.state_shardings(shapes)
@@ -200,10 +200,11 @@ class Experiment:
         with jax.named_scope("bj.replay"):
             frames, states = self.streams.epoch_frames(steps, k_rep)
             buffers = self.streams.insert_frames(buffers, frames, states, k_rep)
-        fresh = None  # the epoch's new steps: the common probe set's current-policy part (frames or windows)
-        if self.common_probes and not windows:
+        fresh = None  # the epoch's new steps: the common probe set's current-policy part
+        if self.common_probes and not windows:  # frames (as windows of one step)
             index = jnp.broadcast_to(jnp.arange(frames.shape[1]), frames.shape[:2])
-            fresh = pv.fresh_part(pv.frames_as_windows(frames, states, self.action_dim), index, self.N, 1)
+            new = pv.frames_as_windows(frames, states, self.action_dim)
+            fresh = pv.fresh_part(new, index, self.N, 1)
         if windows:
             with jax.named_scope("bj.windows"):
                 k_win = jax.random.fold_in(k_rep, 1)

@@ -55,10 +55,12 @@ def frames_as_windows(frames: jax.Array, states: jax.Array, action_dim: int) -> 
     no action)."""
     s, b = frames.shape[:2]
     return Windows(frames=frames[:, :, None], states=states[:, :, None],
-                   actions=jnp.zeros((s, b, 1, action_dim), jnp.float32), valid=jnp.ones((s, b, 1), bool))
+                   actions=jnp.zeros((s, b, 1, action_dim), jnp.float32),
+                   valid=jnp.ones((s, b, 1), bool))
 
 
-def initial_part(windows: Windows, worlds: int, steps: int, key: jax.Array, length: int) -> ProbeSet:
+def initial_part(windows: Windows, worlds: int, steps: int, key: jax.Array,
+                 length: int) -> ProbeSet:
     """The random-policy part kept from init: `ceil(steps / length)` windows (at most all) drawn
     without replacement, the same for every seed's index, from init's random-policy windows
     `[S, C, >= length]` (or frames as one-step windows), cut to `length` steps; window `i` of
@@ -147,24 +149,27 @@ def held_step_latents(ctx: jax.Array, context: int) -> jax.Array:
     return ctx[..., ctx.shape[-1] - ctx.shape[-1] // context:]
 
 
+Tests = dict[str, tuple[jax.Array, jax.Array, jax.Array]]  # stream -> (latents, states, weights)
+
+
 def fit_scores(key: jax.Array, tz: jax.Array, ts: jax.Array, groups: jax.Array | None,
-               tests: dict[str, tuple[jax.Array, jax.Array, jax.Array]],
-               config: probe.ProbeConfig) -> dict[str, dict[str, jax.Array]]:
+               tests: Tests, config: probe.ProbeConfig) -> dict[str, dict[str, jax.Array]]:
     """An MLP probe (`probe.fit`) on `tz -> ts`, scored on every test stream's `(latents [M,
     Z'], states [M, D], weights [M])`: `{stream: {"mae", "baseline", "spread"}}`, each `[D]`."""
     return scores(probe.fit(key, tz, ts, config, groups=groups), ts, tests)
 
 
-def scores(p: probe.ProbeParams, ts: jax.Array, tests: dict[str, tuple[jax.Array, jax.Array, jax.Array]]
-           ) -> dict[str, dict[str, jax.Array]]:
+def scores(p: probe.ProbeParams, ts: jax.Array, tests: Tests) -> dict[str, dict[str, jax.Array]]:
     """A fitted probe's scores on `tests` (`fit_scores`), its constant predictor the median of
     its training states `ts`."""
-    return {st: {"mae": probe.mae(probe.predict(p, z), s, v), "baseline": probe.constant_baseline(ts, s, v),
-                 "spread": probe.spread(s, v)} for st, (z, s, v) in tests.items()}
+    return {st: {"mae": probe.mae(probe.predict(p, z), s, v),
+                 "baseline": probe.constant_baseline(ts, s, v), "spread": probe.spread(s, v)}
+            for st, (z, s, v) in tests.items()}
 
 
-def variant_latents(learner: Any, params: Any, buf: Any, common: ProbeSet | None, k_common: jax.Array,
-                    config: probe.ProbeConfig, train_frames: int, variants: tuple[str, ...]) -> dict:
+def variant_latents(learner: Any, params: Any, buf: Any, common: ProbeSet | None,
+                    k_common: jax.Array, config: probe.ProbeConfig, train_frames: int,
+                    variants: tuple[str, ...]) -> dict:
     """The learner's half of the variants (one seed; its convolutions): the common pairs'
     latents, states and worlds (`"common"`: `(tz, ts, groups)`) and a sequential learner's
     whole-window pairs (`"window"`: `(tz, ts)`); `buf` is the learner's own buffer."""
@@ -190,17 +195,20 @@ def variant_scores(learner: Any, lat: dict, present: probe.ProbeParams, present_
     held_z = lat["held"]
     if "common" in v:
         tz, ts, groups = v["common"]
-        tests = {st: (held_z[st].reshape((-1, tz.shape[-1])), targets(w.states).reshape((-1, present_ts.shape[-1])),
+        d = present_ts.shape[-1]
+        tests = {st: (held_z[st].reshape((-1, tz.shape[-1])), targets(w.states).reshape((-1, d)),
                       w.valid.reshape(-1)) for st, w in held.items()}
-        out["common"] = fit_scores(jax.random.fold_in(k_common, 1), tz, targets(ts), groups, tests, config)
+        k = jax.random.fold_in(k_common, 1)
+        out["common"] = fit_scores(k, tz, targets(ts), groups, tests, config)
     if "window" in v:
         tz, ts = v["window"]
         ctx = context_of(learner, config)
-        tests = {st: (whole_windows(held_step_latents(held_z[st], ctx)), last_steps(targets(w.states)),
-                      jnp.ones(w.valid.shape[:1], bool)) for st, w in held.items()}
+        tests = {st: (whole_windows(held_step_latents(held_z[st], ctx)),
+                      last_steps(targets(w.states)), jnp.ones(w.valid.shape[:1], bool))
+                 for st, w in held.items()}
         out["window"] = fit_scores(k_fit, tz, targets(ts), None, tests, config)
     elif "window" in variants:
-        tests = {st: (last_steps(held_z[st]), last_steps(targets(w.states)), jnp.ones(w.valid.shape[:1], bool))
-                 for st, w in held.items()}
+        tests = {st: (last_steps(held_z[st]), last_steps(targets(w.states)),
+                      jnp.ones(w.valid.shape[:1], bool)) for st, w in held.items()}
         out["window"] = scores(present, present_ts, tests)
     return out

@@ -129,7 +129,8 @@ def fit_and_score(latents: dict[str, Any], held: dict[str, Windows], key: jax.Ar
     return fit_present(latents, held, key, config, score_objects, targets)[0]
 
 
-def fit_present(latents: dict[str, Any], held: dict[str, Windows], key: jax.Array, config: probe.ProbeConfig,
+def fit_present(latents: dict[str, Any], held: dict[str, Windows], key: jax.Array,
+                config: probe.ProbeConfig,
                 score_objects: Callable[[jax.Array, Windows], dict] | None = None,
                 targets: ProbeTargets | None = None) -> tuple[dict, probe.ProbeParams, jax.Array]:
     """`fit_and_score`'s scores, with the fitted MLP probe and its training targets (what the
@@ -264,11 +265,13 @@ class Probing:
         return {n: out[n] for n in self.team.learners}
 
     def probe_unit(self, unit: Sequence[str], learners: dict, buffers: dict, held_out: dict,
-                   key: jax.Array, windows: dict | None = None, common: ProbeSet | None = None) -> dict:
+                   key: jax.Array, windows: dict | None = None,
+                   common: ProbeSet | None = None) -> dict:
         """`probe_phase` for one unit (`Team.units`), with the keys its members get in the whole
         phase; its ops carry the scope `bj.probe.<members>`."""
         if "common" in self.variants and common is None:
-            raise ValueError("the 'common' probe variant needs the common probe set (probe_variants.common_set)")
+            raise ValueError("the 'common' probe variant needs the common probe set "
+                             "(probe_variants.common_set)")
         with jax.named_scope(f"bj.probe.{'+'.join(unit)}"):
             return self._probe_unit(unit, learners, buffers, held_out, key, windows, common)
 
@@ -293,12 +296,14 @@ class Probing:
                 train = (f, states, extras["world"])
             lat = probe_latents(learner, lstate.params, train, held, k_c, cfg, frames)
             if variants:
-                lat["variants"] = pv.variant_latents(learner, lstate.params, b, com, k_com, cfg, frames, variants)
+                lat["variants"] = pv.variant_latents(learner, lstate.params, b, com, k_com, cfg,
+                                                     frames, variants)
             return lat
 
         def fit_seed(lat, k_f, k_s, lstate, b, held, com, k_com):
             present = {k: v for k, v in lat.items() if k != "variants"}
-            res, p, ts = fit_present(present, held, k_f, cfg, self.object_scorer(learner), self.targets)
+            score = self.object_scorer(learner)
+            res, p, ts = fit_present(present, held, k_f, cfg, score, self.targets)
             if variants:
                 res["variants"] = pv.variant_scores(learner, lat, p, ts, held, k_com,
                                                     jax.random.fold_in(k_f, pv.WINDOW_FOLD), cfg,
@@ -308,8 +313,9 @@ class Probing:
         keys = t.seed_keys(jax.random.fold_in(key, i))
         k_s, k_p = jax.vmap(jax.random.split)(keys).swapaxes(0, 1)
         buf = t.buffer_of(name, buffers, windows)
-        return {name: probe_over_seeds(t.loop_of(name), latents_seed, fit_seed, k_p,
-                                       k_s, learners[name], buf, held_out, common, self._variant_keys(key))}
+        k_com = self._variant_keys(key)
+        return {name: probe_over_seeds(t.loop_of(name), latents_seed, fit_seed, k_p, k_s,
+                                       learners[name], buf, held_out, common, k_com)}
 
     def _probe_group(self, group: Sequence[str], learners: dict, buffers: dict, held_out: dict,
                      key: jax.Array, common: ProbeSet | None) -> dict:
@@ -333,8 +339,8 @@ class Probing:
                 train = switch_buffer(w, bs, draw, ksm)
                 lat = probe_latents(template, state.params, train, held, kcm, cfg, frames)
                 if variants:  # a frame learner's: the common pairs only
-                    lat["variants"] = pv.variant_latents(template, state.params, None, com, k_com, cfg, frames,
-                                                         variants)
+                    lat["variants"] = pv.variant_latents(template, state.params, None, com, k_com,
+                                                         cfg, frames, variants)
                 return lat
             return t.over_seeds(member, kc, ks, states, which)
 
@@ -343,9 +349,9 @@ class Probing:
                 present = {n: v for n, v in l.items() if n != "variants"}
                 res, p, ts = fit_present(present, held, k, cfg, score, self.targets)
                 if variants:
-                    res["variants"] = pv.variant_scores(template, l, p, ts, held, k_com,
-                                                        jax.random.fold_in(k, pv.WINDOW_FOLD), cfg, targets,
-                                                        variants)
+                    k_w = jax.random.fold_in(k, pv.WINDOW_FOLD)
+                    res["variants"] = pv.variant_scores(template, l, p, ts, held, k_com, k_w, cfg,
+                                                        targets, variants)
                 return res
             return jax.vmap(member)(lat, kf)
 

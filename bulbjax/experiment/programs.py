@@ -105,8 +105,9 @@ class Stages:
             held = t["epoch/eval"].out_info[2]
             common = self.common(rs.probe_set, t["epoch/env"].out_info.fresh, abstract=True)
             for u in self.units:
-                t[self.probe_name(u)] = self.jits[self.probe_name(u)].trace(_members(rs.learners, u), rs.buffers,
-                                                                            held, key, rs.windows, common)
+                probe = self.jits[self.probe_name(u)]
+                t[self.probe_name(u)] = probe.trace(_members(rs.learners, u), rs.buffers, held, key,
+                                                    rs.windows, common)
         return t
 
     def init(self, run: Callable[[str], Callable], key: jax.Array) -> RunState:

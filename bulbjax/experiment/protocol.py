@@ -50,11 +50,12 @@ def domain_table(run_dir: str, fp32_dir: str | None = None, last: int = 3) -> st
     if fp32_dir is not None:
         cfg32, recs32, spec32 = _load(fp32_dir)
         if cfg32.env != cfg.env:
-            raise ValueError(f"the fp32 run {fp32_dir} is of {cfg32.env}, the run {run_dir} of {cfg.env}: "
-                             "give each domain's fp32 run beside its own")
+            raise ValueError(f"the fp32 run {fp32_dir} is of {cfg32.env}, the run {run_dir} of "
+                             f"{cfg.env}: give each domain's fp32 run beside its own")
         sets["fp32"], epochs32 = findings.check(recs32, spec32, cfg32.env, last=last)
-        note += (f"; fp32 run `{fp32_dir}` ({_dtype(cfg32)} learners, {len({r['seed'] for r in recs32})} "
-                 f"seeds, epochs {', '.join(map(str, epochs32))})")
+        seeds32 = len({r["seed"] for r in recs32})
+        note += (f"; fp32 run `{fp32_dir}` ({_dtype(cfg32)} learners, {seeds32} seeds, "
+                 f"epochs {', '.join(map(str, epochs32))})")
     if len(sets) == 1:
         note += "; the run carries no probe variant (made without --probe-variants)"
     return f"## {cfg.env}\n\n{note}.\n\n" + findings.variants_markdown(sets, epochs, seeds)
@@ -73,11 +74,13 @@ def probe_protocol_table(runs: Sequence[str], fp32: Sequence[str] = (), out_dir:
         env = read_run_config(run_dir)[0].env
         sections.append(domain_table(run_dir, envs.pop(env, None), last))
     if envs:
-        raise ValueError(f"fp32 runs of {', '.join(envs)} have no run of their domain among the runs given")
+        raise ValueError(f"fp32 runs of {', '.join(envs)} have no run of their domain among the "
+                         "runs given")
     text = ("# Probe protocol: the Fig. 2 claims under each variant of the probe\n\n"
-            "Is a verdict the latent's or the probe's? Each claim checked with the present probe and with "
-            "each variant computed in the same run (docs/probes.md, \"Variants of the protocol\"), and with "
-            "the present probe of a second run whose learners computed in fp32.\n\n" + "\n\n".join(sections) + "\n")
+            "Is a verdict the latent's or the probe's? Each claim checked with the present probe "
+            "and with each variant computed in the same run (docs/probes.md, \"Variants of the "
+            "protocol\"), and with the present probe of a second run whose learners computed in "
+            "fp32.\n\n" + "\n\n".join(sections) + "\n")
     if out_dir is not None:
         os.makedirs(out_dir, exist_ok=True)
         with open(os.path.join(out_dir, "table.md"), "w") as f:

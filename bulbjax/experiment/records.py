@@ -69,7 +69,8 @@ def epoch_records(epoch: int, metrics: Any, spec: Sequence[StateEntry],
             streams = {k: v for k, v in streams.items() if k != "variants"}
             for v, per_stream in extra.items():
                 rec.setdefault(VARIANT_SOURCES[v][0], {})[name] = {
-                    st: summarise(d["mae"][s], d["baseline"][s], m["ref_spread"][s], spec, spread_D=d["spread"][s])
+                    st: summarise(d["mae"][s], d["baseline"][s], m["ref_spread"][s], spec,
+                                  spread_D=d["spread"][s])
                     for st, d in per_stream.items()}
             rec["probes"][name] = {
                 stream: summarise(d["mae"][s], d["baseline"][s], m["ref_spread"][s], spec,
@@ -88,7 +89,8 @@ def epoch_records(epoch: int, metrics: Any, spec: Sequence[StateEntry],
                     one = {k: v[s] for k, v in d["objects"].items()}
                     rec.setdefault("objects", {}).setdefault(name, {})[stream] = objects.summary_of(one, names)
             if "raw" in variants:
-                rec.setdefault("probes_raw", {})[name] = {st: raw_summary(x) for st, x in rec["probes"][name].items()}
+                rec.setdefault("probes_raw", {})[name] = {st: raw_summary(x)
+                                                          for st, x in rec["probes"][name].items()}
         out.append(rec)
     return out
 
@@ -112,7 +114,8 @@ def raw_summary(summary: dict[str, Any]) -> dict[str, Any]:
 
 
 def variants_of(records: Sequence[dict[str, Any]]) -> list[str]:
-    """The probe variants (`VARIANT_SOURCES`, "present" first) whose errors the probed records carry."""
+    """The probe variants (`VARIANT_SOURCES`, "present" first) whose errors the probed records
+    carry."""
     recs = probed(records)
     return [v for v, (k, _) in VARIANT_SOURCES.items() if any(r.get(k) for r in recs)]
 

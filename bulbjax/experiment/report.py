@@ -210,13 +210,14 @@ def table(records: Sequence[dict[str, Any]], spec: Sequence[StateEntry], last: i
                      "same pairs and validation split, regulariser chosen per entry on it "
                      "(`bulbjax.eval.linear`).")
     if {"common", "window"} & set(variants_of(recs)):
-        lines.append("Rows `<learner> (common)`: the probe fit on the common probe set (the same pairs for every "
-                     "learner of a seed); `<learner> (window)`: sequential learners' whole-window probe, every "
-                     "learner scored on the held-out windows' last steps (docs/probes.md, \"Variants of the "
-                     "protocol\").")
+        lines.append("Rows `<learner> (common)`: the probe fit on the common probe set (the same "
+                     "pairs for every learner of a seed); `<learner> (window)`: sequential learners' "
+                     "whole-window probe, every learner scored on the held-out windows' last steps "
+                     "(docs/probes.md, \"Variants of the protocol\").")
     lines.append(f"Errors: {NORM_NOTE}; raw MAE in each entry's unit in metrics.jsonl.")
     if "raw" in variants_of(recs):
-        lines += ["", "## Raw MAE (probe variant `raw`)", "", raw_table(recs, groups, epochs, x_key, streams)]
+        raw = raw_table(recs, groups, epochs, x_key, streams)
+        lines += ["", "## Raw MAE (probe variant `raw`)", "", raw]
     return "\n".join(lines)
 
 
@@ -238,9 +239,10 @@ def raw_table(recs: Sequence[dict[str, Any]], groups: Sequence[str], epochs: Seq
                 mean, half = ci90(v)
                 cells.append(band(mean, half, int(np.isfinite(v).sum())))
             lines.append(f"| {name} | {label} | " + " | ".join(cells) + " |")
-    return "\n".join(lines + ["", "Plain mean of the group's entries' MAE, each in its own unit (a group "
-                                   "mixing units, e.g. m and rad, adds them as the paper's mean absolute error "
-                                   "does); no normalisation, every entry counted."])
+    lines += ["", "Plain mean of the group's entries' MAE, each in its own unit (a group mixing "
+              "units, e.g. m and rad, adds them as the paper's mean absolute error does); no "
+              "normalisation, every entry counted."]
+    return "\n".join(lines)
 
 
 def clamped_shares(records: Sequence[dict[str, Any]]) -> dict[str, float]:

@@ -117,5 +117,5 @@ class EnvStage(NamedTuple):
     k_learn: jax.Array
     k_eval: jax.Array
     k_probe: jax.Array
-    # the epoch's new steps of the current policy for the common probe set (`probe_variants`), or None
+    # the epoch's new steps of the current policy for the common probe set (`probe_variants`)
     fresh: Any = None

@@ -110,7 +110,7 @@ class Streams:
         return frames[:, : c.replay_capacity], states[:, : c.replay_capacity]
 
     def fill_buffers(self, frames: jax.Array, states: jax.Array, k_keep: jax.Array) -> dict:
-        """The frame buffers filled with `initial_frames`; retained learners keep a share of them."""
+        """The frame buffers filled with `initial_frames`; retained learners keep a share."""
         env = self.dev.env
         c = self.config
         rcfg = replay.ReplayConfig(capacity=c.replay_capacity)
@@ -172,7 +172,8 @@ class Streams:
         pick = jax.random.choice(k_pick, low.shape[0], (c.frames_per_epoch // self.N,), replace=False)
         return self.frames_of_steps(jax.tree.map(lambda x: x[pick], ri), low[pick])
 
-    def insert_frames(self, buffers: dict, frames: jax.Array, states: jax.Array, key: jax.Array) -> dict:
+    def insert_frames(self, buffers: dict, frames: jax.Array, states: jax.Array,
+                      key: jax.Array) -> dict:
         """`epoch_frames` written into every replay buffer (`key`: `replay_phase`'s own)."""
         keys = self.team.seed_keys(jax.random.split(key)[1])
         world = {"world": jnp.broadcast_to(self._world_ids(frames.shape[1]), frames.shape[:2])}
