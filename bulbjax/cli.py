@@ -342,7 +342,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                    help="probe-protocol variants computed beside the present probe, "
                         "comma-separated: common (one probe set for every learner), window "
                         "(sequential learners' whole window), raw (raw MAE per group), or none "
-                        "(default: the fig2 presets all three, else none; docs/probes.md)")
+                        "(default none; docs/probes.md)")
     r.add_argument("--resume", default=None, metavar="RUN_DIR",
                    help="continue the run in RUN_DIR from its newest checkpoint with its own config.json "
                         "(flags that would change it are an error; --epochs may extend it)")

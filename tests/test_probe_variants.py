@@ -164,13 +164,14 @@ def test_report_of_a_run_with_variants(tmp_path) -> None:
 
 def test_the_switch_and_old_run_folders(tmp_path) -> None:
     assert ExperimentConfig().probe_variants == ()
-    for name in ("fig2-cartpole", "fig2-invpend", "fig2-halfcheetah", "fig2-ant"):
-        assert preset(name).probe_variants == ("common", "window", "raw")
-    assert preset("fig3-rearrange-geom").probe_variants == ()
+    for name in ("fig2-cartpole", "fig2-invpend", "fig3-rearrange-geom"):  # +43% per probed epoch (CPU)
+        assert preset(name).probe_variants == ()
+    on = resolve("fig2-invpend", overrides={"probe_variants": "common,window,raw"})
+    assert on.probe_variants == ("common", "window", "raw") and on.probe_variants_run == on.probe_variants
     # a config.json written before the field reads back without variants (resumes and reports as made)
-    old = dataclasses.asdict(preset("fig2-invpend"))
+    old = dataclasses.asdict(on)
     del old["probe_variants"]
-    assert config_from_dict(old).probe_variants == ()
+    assert config_from_dict(old) == on.replace(probe_variants=())
     assert resolve("fig2-invpend", overrides={"probe_variants": "none"}).probe_variants == ()
     given = resolve(overrides={"learners": "vae,svae", "probe_variants": "window,raw"})
     assert given.probe_variants == ("window", "raw")
@@ -178,8 +179,8 @@ def test_the_switch_and_old_run_folders(tmp_path) -> None:
     assert resolve_offline("fig2-invpend", small=True).base.probe_variants == ()
     with pytest.raises(ValueError, match="probe_variants must be distinct names of common, window, raw"):
         resolve(overrides={"probe_variants": "common,linear"})
-    # a run without sequential learners (e.g. a fig2 preset with --learners vae_rpl) has no window variant
-    frames_only = resolve("fig2-invpend", overrides={"learners": "vae_rpl"})
-    assert frames_only.probe_variants_run == ("common", "raw")
+    # a run without sequential learners has no window variant to compute
+    frames_only = resolve("fig2-invpend", overrides={"learners": "vae_rpl", "probe_variants": "common,window"})
+    assert frames_only.probe_variants_run == ("common",)
     from bulbjax.cli import main
     assert main(["run", "--probe-variants", "commons", "--out", str(tmp_path / "r")]) == 2

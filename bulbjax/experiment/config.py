@@ -358,11 +358,11 @@ def _fig2(env: str, learner_batches: int, ppo: PPOConfig | None = None) -> Exper
     batches per epoch (10 pendulums, 50 locomotion). `epochs` is an upper bound: the paper ran
     far longer than one GPU session allows, so runs are usually cut with --max-minutes.
     Two PPO updates per epoch (128 steps of 64 worlds), as in the README's H100 runs; `ppo`: the
-    domain's stability settings (`PENDULUM_PPO`, `INVPEND_PPO`, `HALFCHEETAH_PPO`). Every
-    probe-protocol variant computed beside the present probe (`PROBE_VARIANTS`; docs/probes.md)."""
+    domain's stability settings (`PENDULUM_PPO`, `INVPEND_PPO`, `HALFCHEETAH_PPO`). No probe
+    variants (`--probe-variants` adds them: +43% per probed epoch on the CPU, docs/probes.md)."""
     return ExperimentConfig(env=env, multicolour=True, learners=_FIG2_LEARNERS, seeds=6, epochs=1000,
                             ppo=ppo or PPOConfig(), ppo_updates_per_epoch=2, learner=LearnerConfig(lr=1e-4),
-                            learner_batches=learner_batches, probe_variants=PROBE_VARIANTS)
+                            learner_batches=learner_batches)
 
 
 # The paper's RearrangeGeom scene (Sec. V: objects simplified "to be simple single-color geometric
