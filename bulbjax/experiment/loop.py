@@ -247,19 +247,20 @@ class Experiment:
             hist["train"] = env.train_hist
         ppo_state, train_env, buffers, windows = env.ppo, env.train_env, env.buffers, env.windows
         k_eval, k_probe = env.k_eval, env.k_probe
-        common = pv.common_set(rs.probe_set, env.fresh) if self.common_probes else None
         learners, learn_m = self.learning.learn_phase(rs.learners, buffers, env.k_learn, windows)
         metrics = {**env.metrics, "learners": learn_m}
         curr_env, rand_env = rs.curr_env, rs.rand_env
 
         def evaluate(ops: tuple) -> tuple:
-            curr_env, rand_env, curr_hist, ppo_state, learners, buffers, windows, common = ops
+            curr_env, rand_env, curr_hist, ppo_state, learners, buffers, windows, probe_set, fresh = ops
+            common = pv.common_set(probe_set, fresh) if self.common_probes else None
             curr_env, rand_env, held_out, curr_hist = self.eval_stage(ppo_state, curr_env, rand_env,
                                                                       rl_learners(learners), curr_hist, k_eval)
             return curr_env, rand_env, curr_hist, self.probing.probe_phase(learners, buffers, held_out, k_probe,
                                                                            windows, common)
 
-        ops = (curr_env, rand_env, hist.get("curr"), ppo_state, learners, buffers, windows, common)
+        ops = (curr_env, rand_env, hist.get("curr"), ppo_state, learners, buffers, windows, rs.probe_set,
+               env.fresh)
         if isinstance(probe, (bool, np.bool_)):
             if probe:
                 curr_env, rand_env, curr_hist, metrics["probes"] = evaluate(ops)

@@ -74,7 +74,9 @@ class Stages:
         variant), or its shapes (`abstract`)."""
         if not self.exp.common_probes:
             return None
-        return (jax.eval_shape if abstract else lambda f, *a: f(*a))(common_set, probe_set, fresh)
+        if abstract:
+            return jax.eval_shape(common_set, probe_set, fresh)
+        return common_set(probe_set, fresh)
 
     @staticmethod
     def learn_name(unit: Sequence[str]) -> str:
