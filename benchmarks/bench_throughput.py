@@ -44,7 +44,7 @@ from typing import Any, Callable
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 REPO = os.path.dirname(HERE)
-# Use this working tree's bulbjax (and its mjcf_assets), not an installed copy.
+# Use this working tree's bulbjax (and its MJCF files), not an installed copy.
 sys.path.insert(0, REPO)
 
 import jax  # noqa: E402
@@ -85,6 +85,7 @@ class BenchSettings:
     torch_compile: bool = True
     torch_channels_last: bool = False
     torch_timeout_s: float = 900.0
+    torch_forms: str = ""  # torch_vae_reference.py --forms: the strongest forms (whole update in a CUDA graph)
     seed: int = 0
     out_dir: str = os.path.join(HERE, "results")
     verbose: bool = False
@@ -404,11 +405,16 @@ def run_torch_reference(s: BenchSettings) -> dict[str, Any]:
         cmd += [] if s.torch_compile else ["--no-compile"]
         cmd += ["--channels-last"] if s.torch_channels_last else []
         cmd += ["--kernels-top", str(s.kernels_top)] if s.kernels_top else []
+        cmd += ["--forms", s.torch_forms] if s.torch_forms else []
         log("torch reference: " + shlex.join(cmd))
         try:
             proc = subprocess.run(cmd, timeout=s.torch_timeout_s)
-        except subprocess.TimeoutExpired:
-            return {"available": False, "reason": f"torch reference timed out after {s.torch_timeout_s} s"}
+        except subprocess.TimeoutExpired:  # what it measured before the timeout (written after each form)
+            why = f"torch reference timed out after {s.torch_timeout_s} s"
+            if os.path.exists(out):
+                with open(out) as f:
+                    return {**json.load(f), "reason": why}
+            return {"available": False, "reason": why}
         if proc.returncode != 0 or not os.path.exists(out):
             return {"available": False, "reason": f"torch reference exited with status {proc.returncode}"}
         with open(out) as f:
@@ -467,6 +473,8 @@ def parse_args(argv: list[str] | None = None) -> BenchSettings:
     p.add_argument("--no-torch-compile", action="store_true", help="reference: eager only")
     p.add_argument("--torch-channels-last", action="store_true", help="reference: channels_last layout")
     p.add_argument("--torch-timeout", type=float, default=d.torch_timeout_s, help="seconds")
+    p.add_argument("--torch-forms", default=d.torch_forms,
+                   help="reference: PyTorch's strongest forms too (torch_vae_reference.py --forms), e.g. all")
     p.add_argument("--seed", type=int, default=d.seed)
     p.add_argument("--out-dir", default=d.out_dir)
     p.add_argument("--verbose", action="store_true", help="keep Warp's per-module load messages")
@@ -482,6 +490,7 @@ def parse_args(argv: list[str] | None = None) -> BenchSettings:
         learners=split(a.learners), deconv_impls=split(a.deconv_impls), precisions=split(a.precisions),
         rnn_unroll=a.rnn_unroll, variants=tuple(parse_variant(v) for v in split(a.variants)),
         torch_compile=not a.no_torch_compile, torch_channels_last=a.torch_channels_last,
+        torch_forms=a.torch_forms,
         torch_timeout_s=a.torch_timeout, seed=a.seed, out_dir=a.out_dir,
         verbose=a.verbose, kernels_top=a.kernels_top)
 

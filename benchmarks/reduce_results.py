@@ -4,7 +4,7 @@ Why: the GPU runs under `docs/results/` kept every epoch's full record (probe er
 state entry with float64 digits, learner and PPO scalars) and matplotlib's truecolour PNGs; the
 tracked tree had grown to 36 MB, most of it these files. What a reader needs from them is what
 `bulbjax report` (fig2.png, table.md, findings.md, objects.png, `--merge-seeds`,
-`--compare-rl`) and `benchmarks/before_after.py compare` read, plus the scalar history of each
+`--compare-rl`) and `benchmarks/diagnostics/before_after.py compare` read, plus the scalar history of each
 epoch. Git history keeps the full files.
 
 Metrics (`metrics.jsonl`, `metrics.jsonl.gz`, `*_metrics.jsonl.gz`, offline `curves.jsonl`),
@@ -25,7 +25,8 @@ bytes):
   the tables' return and the epoch count in the titles read). Every (epoch, seed) record
   stays: the reports count epochs and drop epochs missing a seed. `--probed-every N` (runs that
   probed every epoch, ~200 KB a record on the Rearrange scenes) keeps whole only the probed
-  records of every Nth epoch and those the tables and findings read (`kept_probed_epochs`).
+  records of every Nth epoch and those the tables and findings read (`kept_probed_epochs`),
+  merged reports beside the run included (`merged_read_epochs`).
 
 PNGs: quantised to a 256-colour palette (no dithering; Pillow's median cut or fast octree,
 whichever file is smaller), kept only when it stays faithful (mean error per channel at most
@@ -121,16 +122,59 @@ def kept_probed_epochs(epochs: Iterable[int], every: int) -> set[int]:
     return {e for e in epochs if e % every == 0} | set(epochs[-3:]) | set(early_epochs(epochs))
 
 
+def merged_read_epochs(run_dir: str, every: int) -> set[int]:
+    """The probed epochs of `run_dir` that merged folders beside it (`bulbjax report
+    --merge-seeds`, committed as `seed0/ seed1/ merged/`; `report.merge_sources` finds their
+    halves) read: `kept_probed_epochs` of the epochs at which every seed of every half was
+    probed, and the epochs among those that any half keeps by its own rule (so that every half
+    keeps the same ones there: the merged reports leave out epochs probed at some seeds only).
+    A merge reads the last epochs *all* halves have, which for a half that ran longer are not
+    its own last ones (fig2_invpend_h100_6seeds: seed0's metrics end at 943, so the merge reads
+    920-940, which seed1's own rule, keeping 980-999, dropped)."""
+    from bulbjax.experiment.records import metrics_path
+    from bulbjax.experiment.report import merge_sources
+
+    here, parent = os.path.abspath(run_dir), os.path.dirname(os.path.abspath(run_dir))
+    out: set[int] = set()
+    for name in sorted(os.listdir(parent)):
+        cfg = os.path.join(parent, name, "config.json")
+        if not os.path.isfile(cfg):
+            continue
+        with open(cfg) as f:
+            if "merged_from" not in json.load(f):
+                continue
+        halves = merge_sources(os.path.join(parent, name))
+        if here not in {os.path.abspath(h) for h in halves}:
+            continue
+        common: set[int] | None = None
+        own: set[int] = set()  # what each half keeps by its own rule
+        for half in halves:
+            recs = read_records(metrics_path(half))
+            seeds = {r["seed"] for r in recs}
+            probed_seeds: dict[int, set[int]] = {}
+            for r in recs:
+                if "epoch" in r and is_probed(r):
+                    probed_seeds.setdefault(r["epoch"], set()).add(r["seed"])
+            full = {e for e, s in probed_seeds.items() if s == seeds}
+            common = full if common is None else common & full
+            own |= kept_probed_epochs(full, every)
+        out |= kept_probed_epochs(common or (), every) | (own & (common or set()))
+    return out
+
+
 def reduce_metrics(path: str, digits: int = 5, unprobed: str = "scalars", report_digits: int | None = 7,
                    dry_run: bool = False, probed_every: int = 0) -> tuple[int, int]:
     """Rewrite one metrics file reduced (same name and format); returns (bytes before, after).
-    `probed_every` > 0: probed records outside `kept_probed_epochs` are reduced as unprobed
+    `probed_every` > 0: probed records outside `kept_probed_epochs` (and outside the epochs
+    merged folders beside the run read of it, `merged_read_epochs`) are reduced as unprobed
     ones (long runs; runs that probed every epoch, whose per-entry errors are ~200 KB a record
     on the Rearrange scenes)."""
     before = os.path.getsize(path)
     records = read_records(path)
     if probed_every > 0:
         keep = kept_probed_epochs([r["epoch"] for r in records if "epoch" in r and is_probed(r)], probed_every)
+        if os.path.basename(path).startswith("metrics.jsonl"):  # a run folder's: merges may read it
+            keep |= merged_read_epochs(os.path.dirname(path), probed_every)
         # outside `keep`: no probes and no objects, so reduce_record keeps only the unprobed keys
         records = [r if "epoch" not in r or r["epoch"] in keep else {**r, "probes": {}, "objects": {}}
                    for r in records]

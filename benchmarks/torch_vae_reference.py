@@ -10,12 +10,20 @@ The update takes uint8 frames and scales them to [0, 1] itself, like bulbjax's.
 Run as a script it times eager and `torch.compile` updates, fp32 and bf16 autocast, on
 CUDA when available (else CPU), and writes one JSON object (see `main`); it is what
 `bench_throughput.py` calls in a subprocess, so that torch and JAX never share a process.
+
+`--forms` adds PyTorch's strongest forms of the same update (`FORMS`), each timed in bf16
+autocast (and fp32 where asked): the whole update (forward, backward and
+`Adam(capturable=True, fused=True)`) captured in one `torch.cuda.CUDAGraph` and replayed, with
+eager kernels (`graph`) or with `torch.compile(mode="max-autotune-no-cudagraphs")` kernels
+(`autotune-graph`), each also in the channels_last layout (`-cl`). The best of all forms is what
+bulbjax's ratio is taken against.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 import time
 import traceback
@@ -96,9 +104,17 @@ class TorchBenchSettings:
     dtypes: tuple[str, ...] = ("float32", "bfloat16")
     seed: int = 0
     kernels_top: int = 0  # > 0: profile PROFILED_UPDATES more updates, keep this many kernels
+    forms: tuple[str, ...] = ()  # of FORMS: the strongest forms (CUDA only)
+    form_dtypes: tuple[str, ...] = ("bfloat16",)
 
 
 PROFILED_UPDATES = 5
+# the strongest forms: (compile mode or None for eager kernels, channels_last)
+FORMS: dict[str, tuple[str | None, bool]] = {
+    "graph": (None, False), "graph-cl": (None, True),
+    "autotune-graph": ("max-autotune-no-cudagraphs", False),
+    "autotune-graph-cl": ("max-autotune-no-cudagraphs", True),
+}
 
 
 def kernel_breakdown(step: Any, device: torch.device, top: int) -> dict[str, Any]:
@@ -171,11 +187,73 @@ def time_updates(settings: TorchBenchSettings, device: torch.device, dtype: str,
             **({"kernels": kernels} if kernels else {})}
 
 
-def run_reference(settings: TorchBenchSettings, device: torch.device) -> dict[str, Any]:
-    """All (mode, dtype) measurements; a failing one is recorded with its error and skipped."""
+def time_graph_updates(settings: TorchBenchSettings, device: torch.device, dtype: str, form: str) -> dict[str, Any]:
+    """Time the whole update captured in one CUDA graph (`FORMS[form]`): warm-up on a side stream
+    (which also compiles the loss with `torch.compile` where the form says), capture of forward,
+    backward and the capturable fused Adam step, then `settings.steps` replays."""
+    if device.type != "cuda":
+        raise RuntimeError("CUDA graphs need a CUDA device")
+    mode, channels_last = FORMS[form]
+    torch.manual_seed(settings.seed)
+    fmt = torch.channels_last if channels_last else torch.contiguous_format
+    model = TorchVAE(settings.latent_dim, settings.resolution).to(device).to(memory_format=fmt)
+    opt = torch.optim.Adam(model.parameters(), lr=settings.lr, capturable=True, fused=True)
+    frames = torch.randint(0, 256, (settings.batch, 3, settings.resolution, settings.resolution),
+                           dtype=torch.uint8, device=device).contiguous(memory_format=fmt)
+    loss_fn = torch.compile(vae_loss, mode=mode) if mode else vae_loss
+    amp = dtype == "bfloat16"
+
+    def body() -> torch.Tensor:
+        with torch.autocast(device.type, dtype=torch.bfloat16, enabled=amp):
+            loss = loss_fn(model, frames)
+        loss.backward()
+        opt.step()
+        return loss
+
+    t0 = time.perf_counter()
+    side = torch.cuda.Stream()
+    side.wait_stream(torch.cuda.current_stream())
+    with torch.cuda.stream(side):
+        for _ in range(max(settings.warmup, 3)):
+            opt.zero_grad(set_to_none=True)
+            body()
+    torch.cuda.current_stream().wait_stream(side)
+    graph = torch.cuda.CUDAGraph()
+    opt.zero_grad(set_to_none=True)
+    with torch.cuda.graph(graph):
+        static_loss = body()
+    graph.replay()
+    _sync(device)
+    warmup_s = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    for _ in range(settings.steps):
+        graph.replay()
+    _sync(device)
+    elapsed = time.perf_counter() - t0
+    final = float(static_loss)
+    kernels = kernel_breakdown(graph.replay, device, settings.kernels_top) if settings.kernels_top else None
+    return {"mode": form, "dtype": dtype, "batch": settings.batch, "steps": settings.steps,
+            "warmup_steps": settings.warmup, "warmup_s": warmup_s, "elapsed_s": elapsed,
+            "updates_per_s": settings.steps / elapsed, "final_loss": final,
+            "finite": bool(torch.isfinite(torch.tensor(final))), **({"kernels": kernels} if kernels else {})}
+
+
+def run_reference(settings: TorchBenchSettings, device: torch.device,
+                  partial: Any = None) -> dict[str, Any]:
+    """All (mode, dtype) measurements; a failing one is recorded with its error and skipped.
+    `partial(info)` is called with the results so far after each one (the script writes them,
+    so a run cut short by its caller's timeout keeps what it measured)."""
     if device.type == "cuda":
         torch.backends.cudnn.benchmark = True
-    results: list[dict[str, Any]] = []
+
+    class _Results(list):
+        def append(self, r: dict[str, Any]) -> None:
+            super().append(r)
+            if partial is not None:
+                partial({"available": True, "partial": True, "torch_version": torch.__version__,
+                         "device": device.type, "settings": asdict(settings), "results": list(self)})
+
+    results = _Results()
     modes = [False, True] if settings.compile else [False]
     for compiled in modes:
         for dtype in settings.dtypes:
@@ -192,8 +270,27 @@ def run_reference(settings: TorchBenchSettings, device: torch.device) -> dict[st
             results.append(r)
             if device.type == "cuda":
                 torch.cuda.empty_cache()
+    for form in settings.forms:
+        for dtype in settings.form_dtypes:
+            label = f"{form} {dtype}"
+            print(f"[torch] {label} ...", file=sys.stderr, flush=True)
+            try:
+                r = time_graph_updates(settings, device, dtype, form)
+                print(f"[torch] {label}: {r['updates_per_s']:.2f} updates/s "
+                      f"(warm-up and capture {r['warmup_s']:.1f} s)", file=sys.stderr, flush=True)
+            except Exception as e:  # noqa: BLE001 - a failed form must not end the benchmark
+                traceback.print_exc(file=sys.stderr)
+                r = {"mode": form, "dtype": dtype, "error": f"{type(e).__name__}: {e}"[:2000]}
+            results.append(r)
+            if device.type == "cuda":
+                torch.cuda.empty_cache()
+    ok = [r for r in results if "updates_per_s" in r]
+    best: dict[str, Any] = {}
+    for dtype in {r["dtype"] for r in ok}:
+        top = max((r for r in ok if r["dtype"] == dtype), key=lambda r: r["updates_per_s"])
+        best[dtype] = {"form": top["mode"], "updates_per_s": top["updates_per_s"]}
     info: dict[str, Any] = {"available": True, "torch_version": torch.__version__, "device": device.type,
-                            "settings": asdict(settings), "results": results,
+                            "settings": asdict(settings), "results": results, "best": best,
                             "cudnn_allow_tf32": torch.backends.cudnn.allow_tf32,
                             "matmul_allow_tf32": torch.backends.cuda.matmul.allow_tf32}
     if device.type == "cuda":
@@ -217,13 +314,26 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--json-out", default="-", help="file for the JSON result, '-' for stdout")
     p.add_argument("--kernels-top", type=int, default=0,
                    help="profile 5 more updates per case; keep this many kernels by device time")
+    p.add_argument("--forms", default="", help=f"strongest forms to add (CUDA): comma-separated of {', '.join(FORMS)}, or all")
+    p.add_argument("--form-dtypes", default="bfloat16", help="dtypes of the --forms")
     a = p.parse_args(argv)
+    forms = tuple(FORMS) if a.forms == "all" else tuple(f for f in a.forms.split(",") if f)
+    if bad := [f for f in forms if f not in FORMS]:
+        p.error(f"unknown --forms {bad}; choose from {', '.join(FORMS)} or all")
     settings = TorchBenchSettings(batch=a.batch, resolution=a.resolution, latent_dim=a.latent_dim,
                                   steps=a.steps, warmup=a.warmup, compile=not a.no_compile,
                                   channels_last=a.channels_last, dtypes=tuple(a.dtypes.split(",")),
-                                  kernels_top=a.kernels_top)
+                                  kernels_top=a.kernels_top, forms=forms,
+                                  form_dtypes=tuple(a.form_dtypes.split(",")))
     name = ("cuda" if torch.cuda.is_available() else "cpu") if a.device == "auto" else a.device
-    info = run_reference(settings, torch.device(name))
+    def write(obj: dict[str, Any]) -> None:
+        if a.json_out != "-":
+            tmp = f"{a.json_out}.tmp"
+            with open(tmp, "w") as f:
+                json.dump(obj, f, indent=2)
+            os.replace(tmp, a.json_out)
+
+    info = run_reference(settings, torch.device(name), partial=write)
     text = json.dumps(info, indent=2)
     if a.json_out == "-":
         print(text)

@@ -1,4 +1,4 @@
-"""Command line: `bulbjax run | report | fit | recon | envs | render` (parsing only: the flags map
+"""Command line: `bulbjax run | report | fit | recon | envs | render | reproduce` (parsing only: the flags map
 to `bulbjax.experiment.resolve`, which resolves the settings; the run loop is
 `bulbjax.experiment.run`, the offline fit `bulbjax.experiment.offline`)."""
 
@@ -7,39 +7,11 @@ from __future__ import annotations
 import argparse
 import os
 import sys
+import time
 from typing import Sequence
 
-
-def _settings(args: argparse.Namespace) -> dict:
-    """The flags of `run` and `fit` as `bulbjax.experiment.resolve`'s arguments (the flags given;
-    text values are parsed and checked there)."""
-    flags = (("env", "env"), ("seeds", "seeds"), ("epochs", "epochs"), ("sequence_length", "sequence_length"),
-             ("learners", "learners"), ("version", "version"), ("rl_input", "rl_input"), ("rl_frames", "rl_frames"),
-             ("seed_loop", "learner_seed_loop"), ("programs", "programs"), ("ppo_updates", "ppo_updates_per_epoch"),
-             ("resolution", "resolution"), ("graph_mode", "graph_mode"),
-             ("probe_variants", "probe_variants"))
-    overrides = {field: getattr(args, flag) for flag, field in flags if getattr(args, flag, None) is not None}
-    if getattr(args, "multicolour", False):
-        overrides["multicolour"] = True
-    learner = {}
-    if getattr(args, "lr", None) is not None:
-        learner["lr"] = args.lr
-    if getattr(args, "bf16", False):
-        learner["compute_dtype"] = "bfloat16"
-    if getattr(args, "rnn_unroll", None) is not None:
-        learner["rnn_unroll"] = args.rnn_unroll
-    return dict(overrides=overrides, learner=learner, learner_options=getattr(args, "learner_option", None) or (),
-                small=bool(getattr(args, "small", False)), ppo_options=getattr(args, "ppo_option", None) or ())
-
-
-def _parse_ids(text: str | None) -> tuple[int, ...] | None:
-    """`--local-devices 0,1` -> (0, 1)."""
-    if text is None:
-        return None
-    try:
-        return tuple(int(x) for x in text.split(",") if x.strip())
-    except ValueError as err:
-        raise ValueError(f"--local-devices {text!r} must be device numbers separated by commas, e.g. 0,1") from err
+from bulbjax.run_command import _settings, leave_failed_run
+from bulbjax.run_command import cmd_run as _cmd_run
 
 
 def build_config(args: argparse.Namespace):
@@ -49,92 +21,9 @@ def build_config(args: argparse.Namespace):
     return resolve(args.preset, **_settings(args))
 
 
-def _stretch_options(args: argparse.Namespace) -> dict:
-    return dict(checkpoint_every=args.checkpoint_every, keep=args.keep, max_minutes=args.max_minutes,
-                stop_after=args.stop_after, tensorboard=args.tensorboard, recon_every=args.recon_every)
-
-
-def _per_gpu(args: argparse.Namespace) -> int | None:
-    """On a host with several GPUs (`--layout auto` or `processes`): run one process per GPU
-    (`bulbjax.local_processes`: in one process the GPUs would take turns in MJX-Warp's Python
-    callbacks) and return its exit code; None where one process is the layout."""
-    from bulbjax import local_processes
-
-    gpus = local_processes.visible_gpus()[: args.devices or None]
-    if len(gpus) < 2:
-        if args.layout == "processes":
-            raise ValueError(f"--layout processes runs one process per GPU and this host has {len(gpus)} "
-                             "(CUDA_VISIBLE_DEVICES / nvidia-smi): leave --layout at auto")
-        return None
-    from bulbjax.experiment.resolve import resolve, resolve_resume
-
-    settings = _settings(args)
-    if args.resume:  # the seed count of the run being resumed
-        seeds = resolve_resume(args.resume, args.preset, seed=args.seed, probe_every=args.probe_every,
-                               **settings, **_stretch_options(args))[0].seeds
-    else:
-        seeds = resolve(args.preset, **settings).seeds
-    n = local_processes.process_count(seeds, len(gpus))
-    if n < len(gpus):
-        print(f"{seeds} seeds on {len(gpus)} GPUs: {n} process(es), one GPU each, {len(gpus) - n} GPU(s) idle "
-              f"(every process runs as many seeds: give --seeds a multiple of {len(gpus)} to use all)", flush=True)
-    if n < 2:
-        return None
-    return local_processes.run_per_gpu(args.argv, gpus[:n], args.resume or args.out or "runs/latest")
-
-
 def cmd_run(args: argparse.Namespace) -> int:
-    """Map the flags to (config, options, folder) (`bulbjax.experiment.resolve`; a resumed run
-    starts from its own config.json, and `run.check_resume` refuses any flag that changes what it
-    computes: only --epochs may grow it) and hand over to `bulbjax.experiment.run.run`."""
-    from bulbjax import distributed
-
-    dist = distributed.DistributedConfig.from_env(
-        coordinator=args.coordinator, num_processes=args.num_processes, process_id=args.process_id,
-        local_device_ids=_parse_ids(args.local_devices), auto=args.distributed)
-    if not dist.wanted and args.layout in ("auto", "processes"):
-        spread = _per_gpu(args)
-        if spread is not None:
-            return spread
-    # before anything else touches JAX's devices: a multi-process run joins its peers first
-    distributed.initialize(dist)
-    import jax
-
-    from bulbjax.experiment.config import RunOptions
-    from bulbjax.experiment.console import log_to_file
-    from bulbjax.experiment.resolve import parse_compiler_options, resolve, resolve_resume
-    from bulbjax.experiment.run import run
-    from bulbjax.experiment.rundir import check_out_dir, log_name
-
-    if args.resume and args.overwrite:
-        raise ValueError("--resume continues the run in its folder and --overwrite deletes it: give one of them")
-    settings = _settings(args)
-    if args.resume:
-        if args.out is not None and os.path.abspath(args.out) != os.path.abspath(args.resume):
-            raise ValueError(f"--resume {args.resume} continues that run in its own folder; leave out --out {args.out}")
-        cfg, opts = resolve_resume(args.resume, args.preset, seed=args.seed, probe_every=args.probe_every,
-                                   **settings, **_stretch_options(args))
-        out = args.resume
-    else:
-        cfg = resolve(args.preset, **settings)
-        opts = RunOptions(seed=0 if args.seed is None else args.seed,
-                          probe_every=1 if args.probe_every is None else args.probe_every, **_stretch_options(args))
-        out = args.out or "runs/latest"
-    local = jax.local_devices()
-    if args.devices is not None and not 1 <= args.devices <= len(local):
-        raise ValueError(f"--devices {args.devices}: this machine has {len(local)} local devices")
-    # every process's first D local devices (D: --devices, default all of them)
-    devices = [d for p in range(jax.process_count())
-               for d in [x for x in jax.devices() if x.process_index == p][: args.devices or None]]
-    compiler_options = parse_compiler_options(args.xla_option or [])
-    # before anything is built: a run in the way or an unwritable folder is a one-line error
-    check_out_dir(out, resume=bool(args.resume), overwrite=args.overwrite)
-    argv = ["bulbjax", *getattr(args, "argv", [])]
-    with log_to_file(os.path.join(out, log_name(jax.process_index())), fresh=args.overwrite, header=" ".join(argv)):
-        run(cfg, opts, out, resume=bool(args.resume), overwrite=args.overwrite, devices=devices, argv=argv,
-            compiler_options=compiler_options, layout="groups" if args.layout == "processes" else args.layout)
-    distributed.shutdown()
-    return 0
+    """`bulbjax run` (`bulbjax.run_command.cmd_run`)."""
+    return _cmd_run(args)
 
 
 def cmd_recon(args: argparse.Namespace) -> int:
@@ -177,8 +66,20 @@ def cmd_report(args: argparse.Namespace) -> int:
                          "add --compare-rl, to pool the seeds of runs of one configuration "
                          "--merge-seeds --out DIR")
     run_dir = args.run_dirs[0]
-    tab = report.redraw(run_dir)
-    print(f"{tab}\nplot: {os.path.join(run_dir, 'fig2.png')}\ntable: {os.path.join(run_dir, 'table.md')}")
+    if os.path.exists(os.path.join(run_dir, "claims.json")):  # a results folder: its page's claims tables
+        from bulbjax.reproduce import claims
+
+        print(f"claims tables rewritten: {claims.write_page(run_dir)}")
+        return 0
+    if os.path.exists(os.path.join(run_dir, "plan.json")):  # a `bulbjax reproduce` folder: its page
+        from bulbjax.reproduce import results
+
+        print(f"results: {results.write(run_dir, results.read_summary(run_dir))}")
+        return 0
+    out = args.out or run_dir
+    tab = report.redraw(run_dir, out)
+    plot = "curves.png" if report.is_offline(run_dir) else "fig2.png"  # `bulbjax fit` folders
+    print(f"{tab}\nplot: {os.path.join(out, plot)}\ntable: {os.path.join(out, 'table.md')}")
     return 0
 
 
@@ -206,8 +107,9 @@ def cmd_fit(args: argparse.Namespace) -> int:
                      header=" ".join(["bulbjax", *getattr(args, "argv", [])])):
         offline.run(cfg, args.out, cache_dir=args.cache_dir, max_minutes=args.max_minutes, seed=args.seed,
                     resume=args.resume, overwrite=args.overwrite)
-    print(f"curves: {args.out}/curves.png, {args.out}/curves.jsonl; table: {args.out}/table.md; "
-          f"reconstructions: {args.out}/recon.png")
+    recon = os.path.join(args.out, "recon.png")
+    print(f"curves: {args.out}/curves.png, {args.out}/curves.jsonl; table: {args.out}/table.md"
+          + (f"; reconstructions: {recon}" if os.path.exists(recon) else ""))
     return 0
 
 
@@ -236,8 +138,9 @@ def cmd_envs(args: argparse.Namespace) -> int:
             variant = f"(+{MULTICOLOUR_SUFFIX})"
         else:
             variant = f"(versions 0-{versions - 1}, random)" if versions else "(one scene)"
+        solved = "-" if cls.solved_return is None else f"{cls.solved_return:g}"
         print(f"{name:<24} {variant} action {act}, episode {cls.episode_length}, "
-              f"solved {cls.solved_return:g}; state: {_spec_summary(cls.state_spec)}")
+              f"solved {solved}; state: {_spec_summary(cls.state_spec)}")
     return 0
 
 
@@ -278,18 +181,45 @@ def _save_png(path: str, image) -> None:
     plt.imsave(path, image)
 
 
+class HelpFormatter(argparse.HelpFormatter):
+    """Every option's default in `bulbjax CMD --help`, taken from the parser (so it cannot drift
+    from the code), unless its help already says it or there is none (None, False)."""
+
+    def _get_help_string(self, action: argparse.Action) -> str:
+        text = action.help or ""
+        d = action.default
+        if not action.option_strings or d is None or d is False or d == argparse.SUPPRESS:
+            return text
+        if "default" in text:
+            return text
+        return f"{text} (default: %(default)s)"
+
+
+def learners_help(names: Sequence[str], defaults: str) -> str:
+    """`--learners`' help: the registered names (`learners.learner_names()`), and the plugin forms
+    (`bulbjax.learners.plugins`)."""
+    return (f"comma-separated learner names: {','.join(names)} ({defaults}); or a learner of "
+            "your own as MODULE:NAME or path/to/file.py:NAME (imported; NAME its learner class, "
+            "factory or registered name: docs/extending.md), or a name of an installed "
+            "package's `bulbjax.learners` entry point")
+
+
 def main(argv: Sequence[str] | None = None) -> int:
-    p = argparse.ArgumentParser(prog="bulbjax", description=__doc__)
+    from bulbjax.experiment.config import PRESETS
+    from bulbjax.learners import learner_names
+
+    t_main = time.time()  # the end of Python's start-up and imports (`bulbjax run` says how long they took)
+
+    presets = ", ".join(PRESETS)
+    p = argparse.ArgumentParser(prog="bulbjax", description=__doc__, formatter_class=HelpFormatter)
     sub = p.add_subparsers(dest="cmd", required=True)
-    r = sub.add_parser("run", help="train PPO + unsupervised learners and probe their latents")
+    r = sub.add_parser("run", help="train PPO + unsupervised learners and probe their latents",
+                       formatter_class=HelpFormatter)
     r.add_argument("--preset", default=None,
-                   help="named settings (fig2-cartpole, fig2-invpend, fig2-halfcheetah, fig2-ant, "
-                        "fig3-rearrange-geom); "
-                        "the flags below override it")
-    r.add_argument("--env", default=None, help="environment (default CartPole)")
+                   help=f"named settings ({presets}); the flags below override it")
+    r.add_argument("--env", default=None, help="environment (`bulbjax envs`; default CartPole)")
     r.add_argument("--learners", default=None,
-                   help="comma-separated: vae,vae_rpl,beta_vae,svae,pred,dsa,spair,spair6,stdim,curl or any "
-                        "registered learner (default the first three)")
+                   help=learners_help(learner_names(), "default vae,vae_rpl,beta_vae"))
     r.add_argument("--seeds", type=int, default=None, help="seeds run side by side (default 3)")
     r.add_argument("--epochs", type=int, default=None, help="epochs (default 50)")
     r.add_argument("--sequence-length", type=int, default=None,
@@ -382,11 +312,16 @@ def main(argv: Sequence[str] | None = None) -> int:
                         "runs, not what it computes), e.g. xla_gpu_enable_command_buffer=FUSION,CUBLAS,WHILE")
     r.add_argument("--tensorboard", action="store_true",
                    help="also write the metrics as TensorBoard events under RUN_DIR/tb (needs tensorboardX)")
+    r.add_argument("--compile-only", action="store_true",
+                   help="a warm-up: build, trace and compile init and the epoch of these settings into the "
+                        "compile cache, run nothing and write no run folder (the next run of the same "
+                        "settings, and its resumes, load them)")
     r.add_argument("--recon-every", type=int, default=0, metavar="N",
                    help="write recon_<epoch>.png (held-out frames above every learner's reconstruction, "
                         "seed 0) and, with spair, boxes_<epoch>.png every N epochs and at the end (0: none)")
     r.set_defaults(fn=cmd_run)
-    rc = sub.add_parser("recon", help="redraw a run's reconstruction (and SPAIR box) figures from a checkpoint")
+    rc = sub.add_parser("recon", formatter_class=HelpFormatter,
+                        help="redraw a run's reconstruction (and SPAIR box) figures from a checkpoint")
     rc.add_argument("run_dir", metavar="RUN_DIR")
     rc.add_argument("--epoch", type=int, default=None, help="the checkpoint of E epochs done (default the newest)")
     rc.add_argument("--learners", default=None, help="comma-separated subset of the run's learners (default all)")
@@ -394,7 +329,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     rc.add_argument("--frames", type=int, default=8, help="frames per row (default 8)")
     rc.add_argument("--out", default=None, help="folder of the PNGs (default RUN_DIR)")
     rc.set_defaults(fn=cmd_recon)
-    rp = sub.add_parser("report", help="redraw fig2.png and table.md of a run folder from its metrics.jsonl")
+    rp = sub.add_parser("report", formatter_class=HelpFormatter,
+                        help="redraw fig2.png and table.md of a run folder from its metrics.jsonl")
     rp.add_argument("run_dirs", metavar="RUN_DIR", nargs="+")
     rp.add_argument("--compare-rl", action="store_true",
                     help="PPO return of several runs (state / pixels / latent:<learner>) in one plot, "
@@ -410,14 +346,17 @@ def main(argv: Sequence[str] | None = None) -> int:
                     help="with --probe-protocol: a domain's second run in fp32, its verdicts "
                          "as the last column (repeatable, one per domain)")
     rp.add_argument("--out", default=None,
-                    help="folder of the --compare-rl outputs (default: the first run's parent "
-                         "folder), of --merge-seeds or of --probe-protocol")
+                    help="folder of the outputs: fig2.png, table.md, findings.md of one run "
+                         "(default: RUN_DIR itself), of --merge-seeds or --probe-protocol "
+                         "(required), or of --compare-rl (default: the first run's parent folder)")
     rp.set_defaults(fn=cmd_report)
     o = sub.add_parser("fit", help="offline: train learners on one cached random-policy dataset, "
-                                   "probe every M updates")
+                                   "probe every M updates", formatter_class=HelpFormatter)
     o.add_argument("--env", default=None, help="an environment (`bulbjax envs`) or SyntheticMovers")
-    o.add_argument("--preset", default=None, help="run settings of a preset (e.g. fig2-invpend)")
-    o.add_argument("--learners", default=None, help="comma-separated learners (default: the preset's or vae,vae_rpl,beta_vae)")
+    o.add_argument("--preset", default=None, help=f"run settings of a preset ({presets})")
+    o.add_argument("--learners", default=None,
+                   help=learners_help(learner_names(),
+                                      "default the preset's, else vae,vae_rpl,beta_vae"))
     o.add_argument("--updates", type=int, default=5000, help="learner updates")
     o.add_argument("--probe-every", type=int, default=250, help="probe every M updates")
     o.add_argument("--seeds", type=int, default=None, help="learner seeds, vmapped (default 3)")
@@ -435,30 +374,35 @@ def main(argv: Sequence[str] | None = None) -> int:
     o.add_argument("--seed", type=int, default=0, help="base PRNG seed of the learners")
     o.add_argument("--max-minutes", type=float, default=0.0,
                    help="stop cleanly before this wall time, probe and write the plots (0: no limit)")
-    o.add_argument("--out", default="runs/fit")
+    o.add_argument("--out", default="runs/fit",
+                   help="folder of the fit's curves, table, checkpoints and dataset cache")
     o.add_argument("--resume", action="store_true",
                    help="continue the fit in --out from its checkpoint (same flags; a larger --updates extends it)")
     o.add_argument("--overwrite", action="store_true",
                    help="start afresh in an --out folder that holds a fit, replacing its curves and checkpoints "
                         "(without it such a folder is an error that names the fit)")
     o.set_defaults(fn=cmd_fit)
-    e = sub.add_parser("envs", help="list the environments")
+    e = sub.add_parser("envs", help="list the environments", formatter_class=HelpFormatter)
     e.set_defaults(fn=cmd_envs)
-    d = sub.add_parser("render", help="save a strip of frames")
-    d.add_argument("--env", default="CartPole")
-    d.add_argument("--out", default="frames.png")
-    d.add_argument("--frames", type=int, default=8)
-    d.add_argument("--steps", type=int, default=10)
-    d.add_argument("--resolution", type=int, default=64)
-    d.add_argument("--seed", type=int, default=0)
+    d = sub.add_parser("render", help="save a strip of frames", formatter_class=HelpFormatter)
+    d.add_argument("--env", default="CartPole", help="environment (`bulbjax envs`)")
+    d.add_argument("--out", default="frames.png", help="the PNG written: the frames side by side")
+    d.add_argument("--frames", type=int, default=8, help="frames in the strip, one world each")
+    d.add_argument("--steps", type=int, default=10,
+                   help="random-action steps before the frames are taken")
+    d.add_argument("--resolution", type=int, default=64, help="frame size in pixels (square)")
+    d.add_argument("--seed", type=int, default=0, help="PRNG seed of the reset and the actions")
     d.add_argument("--version", default="0",
                    help="object version of the multi-object domains (Incline 0-5, Rearrange 0-11), or random (one per frame)")
     d.add_argument("--show-targets", action="store_true",
                    help="Rearrange: draw the targets as discs on the tray floor (bulb's frames have none)")
     d.set_defaults(fn=cmd_render)
+    from bulbjax.reproduce.cli import add_parser as add_reproduce
+
+    add_reproduce(sub)
     argv = list(sys.argv[1:] if argv is None else argv)
     args = p.parse_args(argv)
-    args.argv = argv
+    args.argv, args.t_main = argv, t_main
     from bulbjax import compile_cache
 
     compile_cache.enable()  # reruns of a configuration load its executables ($BULBJAX_COMPILE_CACHE=off: no cache)
@@ -466,7 +410,17 @@ def main(argv: Sequence[str] | None = None) -> int:
         return args.fn(args)
     except (ValueError, FloatingPointError) as err:
         print(f"bulbjax: error: {err}", file=sys.stderr)
+        leave_failed_run(2)
         return 2
+    except (Exception, KeyboardInterrupt):
+        from bulbjax import distributed
+
+        if distributed.active():  # its traceback now, then out without JAX's shutdown barrier
+            import traceback
+
+            traceback.print_exc()
+            leave_failed_run(1)
+        raise
 
 
 if __name__ == "__main__":

@@ -37,3 +37,44 @@ def enable(path: str | None = None, min_compile_secs: float = 1.0) -> str | None
     jax.config.update("jax_persistent_cache_min_compile_time_secs", min_compile_secs)
     jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)
     return path
+
+
+def write_from_every_process() -> bool:
+    """Let every process of a multi-process run write its own compile-cache entries (JAX writes
+    from process 0 only, to spare shared file systems concurrent writes of one entry). bulbjax's
+    processes compile different programs (each process's seed groups are other constants), so
+    without this the programs of processes 1.. were compiled again on every rerun and resume
+    while process 0 waited for them at the first collective (issue 56: the silent minute before
+    a resumed two-GPU epoch). Entries of programs shared by all processes (the small cross-process
+    collectives) compile faster than the cache's threshold and are not written. Replaces
+    `jax._src.compiler._cache_write` by a function that does its checks and write for any process;
+    returns False, changing nothing, where this JAX's function is not the one expected."""
+    import inspect
+    import warnings
+
+    from jax._src import compilation_cache, compiler, config
+    from jax._src import distributed as jax_distributed
+
+    real = getattr(compiler, "_cache_write", None)
+    if real is None or getattr(real, "_bulbjax_every_process", False):
+        return real is not None
+    expected = ["cache_key", "compile_time_secs", "module_name", "backend", "executable", "host_callbacks"]
+    if list(inspect.signature(real).parameters) != expected:
+        return False
+
+    def cache_write(cache_key, compile_time_secs, module_name, backend, executable, host_callbacks):
+        if jax_distributed.global_state.process_id == 0:
+            return real(cache_key, compile_time_secs, module_name, backend, executable, host_callbacks)
+        if host_callbacks or compile_time_secs < config.persistent_cache_min_compile_time_secs.value:
+            return None
+        try:
+            compilation_cache.put_executable_and_time(cache_key, module_name, executable, backend,
+                                                      int(compile_time_secs))
+        except Exception as ex:  # noqa: BLE001  (as JAX's own: a cache that cannot be written is no error)
+            warnings.warn(f"Error writing persistent compilation cache entry for '{module_name}': "
+                          f"{type(ex).__name__}: {ex}")
+        return None
+
+    cache_write._bulbjax_every_process = True  # type: ignore[attr-defined]
+    compiler._cache_write = cache_write
+    return True

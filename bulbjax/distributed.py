@@ -10,15 +10,39 @@ start one `bulbjax run` per host (or per GPU), each with the same arguments.
 
 On the CPU (tests, the CI) the cross-process collectives need Gloo, which `initialize` switches
 on before JAX's backends start.
+
+Leaving in order (issue 56). JAX's coordination service runs in process 0, and every process's
+backend (the PjRt-IFRT client) watches the other tasks through it with a background `WatchTasks`
+RPC for as long as the backend lives, which is until the process exits. When the service goes
+away first (process 0's `jax.distributed.shutdown`, or process 0 leaving Python), that watcher
+logs `WatchTasksAsync failed for task N: UNAVAILABLE ... Connection refused` and `CANCELLED` about
+once a second until its process is gone (on a GPU, seconds of CUDA teardown: a wall of error
+lines after a run that ended well). So the service must outlive every backend. The one-process-
+per-GPU launcher (`bulbjax.local_processes`) therefore runs the service itself, in the parent
+process, and stops it after every worker has exited; a worker told so by `SERVICE_ENV` joins as a
+plain client, process 0 included (`initialize`). Processes started by hand or by SLURM keep JAX's
+own arrangement (process 0 serves).
+
+The persistent compile cache: JAX writes its entries from process 0 only. A multi-process run's
+processes compile programs of their own (each process's seed groups are other constants), so the
+programs of processes 1.. were never cached: every rerun and resume compiled them again while
+process 0, its own programs loaded from the cache in seconds, waited at the first collective for
+them (the silent minute before a resumed epoch on two GPUs; on the CPU, 33 s of a 46-s compile).
+`initialize` lets every process write its own entries (`compile_cache.write_from_every_process`).
 """
 
 from __future__ import annotations
 
+import contextlib
 import os
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Iterator
 
 import jax
+
+# set by `bulbjax.local_processes` for its workers: the coordination service runs in the launcher
+SERVICE_ENV = "BULBJAX_COORDINATION_SERVICE"
+SERVICE_EXTERNAL = "launcher"
 
 
 @dataclass(frozen=True)
@@ -81,7 +105,9 @@ class DistributedConfig:
 
 def initialize(cfg: DistributedConfig) -> bool:
     """Join the multi-process run `cfg` asks for (before anything else touches JAX's devices).
-    Returns whether this is a multi-process run. A no-op for a single process."""
+    Returns whether this is a multi-process run. A no-op for a single process. With
+    `SERVICE_ENV` set (the launcher's workers), process 0 starts no coordination service: the
+    launcher runs it (module doc)."""
     if not cfg.wanted:
         return False
     cfg.check()
@@ -92,8 +118,66 @@ def initialize(cfg: DistributedConfig) -> bool:
                                       process_id=cfg.process_id)
     if cfg.local_device_ids is not None:
         kwargs["local_device_ids"] = list(cfg.local_device_ids)
-    jax.distributed.initialize(**kwargs)
+    served_elsewhere = os.environ.get(SERVICE_ENV) == SERVICE_EXTERNAL
+    with _service_elsewhere() if served_elsewhere else contextlib.nullcontext():
+        jax.distributed.initialize(**kwargs)
+    from bulbjax import compile_cache
+
+    compile_cache.write_from_every_process()
     return True
+
+
+class _ServedElsewhere:
+    """Stands for the coordination service in process 0 when the launcher runs it: JAX's
+    `jax.distributed.shutdown` calls its `shutdown`, which leaves the real one to the launcher."""
+
+    def shutdown(self) -> None:
+        pass
+
+
+@contextlib.contextmanager
+def _service_elsewhere() -> Iterator[None]:
+    """`jax.distributed.initialize` without starting the coordination service in process 0.
+    JAX has no option for it: its `State.initialize` calls `_jax.get_distributed_runtime_service`
+    for process 0, so that one call is answered with a stand-in, through the module reference
+    JAX's distributed module holds (checked here, so that a JAX that moved it fails clearly)."""
+    from jax._src import distributed as jax_distributed
+
+    real = getattr(jax_distributed, "_jax", None)
+    if real is None or not hasattr(real, "get_distributed_runtime_service"):
+        raise RuntimeError(f"{SERVICE_ENV}={SERVICE_EXTERNAL}: this JAX ({jax.__version__}) has no "
+                           "jax._src.distributed._jax.get_distributed_runtime_service to stand in "
+                           "for; start the processes by hand (--coordinator ...) instead")
+
+    class _Module:
+        def __getattr__(self, name: str) -> Any:
+            return getattr(real, name)
+
+        @staticmethod
+        def get_distributed_runtime_service(*args: Any, **kwargs: Any) -> _ServedElsewhere:
+            return _ServedElsewhere()
+
+    jax_distributed._jax = _Module()
+    try:
+        yield
+    finally:
+        jax_distributed._jax = real
+
+
+def start_service(port: int, num_processes: int) -> Any:
+    """JAX's coordination service for `num_processes` processes on `port` (all interfaces, as
+    JAX binds it), in this process, without a JAX backend: the launcher's (module doc). Returns
+    the service; its `shutdown()` stops it."""
+    from jax._src.lib import _jax
+
+    return _jax.get_distributed_runtime_service(f"[::]:{port}", num_processes)
+
+
+def active() -> bool:
+    """Whether this process has joined a multi-process run (`jax.distributed` is up)."""
+    from jax._src import distributed as jax_distributed
+
+    return jax_distributed.global_state.client is not None
 
 
 def process_count() -> int:
@@ -159,8 +243,8 @@ def barrier(name: str) -> None:
 
 
 def shutdown() -> None:
-    """Leave the multi-process run in order (every process reaches JAX's shutdown barrier before
-    the coordinator goes away; without it the last processes log gRPC "connection refused" lines
-    after a run that finished well). A no-op for one process."""
-    if jax.process_count() > 1:
+    """Leave the multi-process run in order: JAX's shutdown barrier (every process gets there
+    before any client disconnects), then, in a process 0 that serves, the service. A no-op for
+    one process. Where the launcher runs the service (module doc), no backend ever sees it go."""
+    if active():
         jax.distributed.shutdown()

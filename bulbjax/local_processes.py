@@ -12,18 +12,23 @@ three settings `bulbjax.distributed` reads (`--coordinator localhost:PORT --num-
 --process-id I`) and `CUDA_VISIBLE_DEVICES` naming one GPU, exactly what a user would type in N
 shells, then waits. Process 0 keeps the console; the others' output is in their log files
 (`RUN_DIR/log_process<i>.txt`). Ctrl-C (SIGINT) and SIGTERM are passed on, so every process
-checkpoints and stops together; when one process fails the others are stopped.
+checkpoints and stops together; when one process fails the others are stopped and one line says
+which failed and why. JAX's coordination service runs here, in the launcher, and outlives every
+worker (`bulbjax.distributed`'s module doc: a service that goes first leaves each backend's task
+watcher logging a wall of "connection refused" errors).
 """
 
 from __future__ import annotations
 
+import collections
 import os
 import signal
 import socket
 import subprocess
 import sys
+import threading
 import time
-from typing import Sequence
+from typing import IO, Sequence
 
 
 def visible_gpus() -> list[str]:
@@ -72,48 +77,128 @@ def _worker_argv(argv: Sequence[str], port: int, count: int, index: int) -> list
             "--num-processes", str(count), "--process-id", str(index)]
 
 
-def run_per_gpu(argv: Sequence[str], gpus: Sequence[str], out_dir: str, poll_s: float = 0.5) -> int:
+def _tail_reader(stream: IO[str], keep: collections.deque) -> threading.Thread:
+    """Drain a worker's stderr in a thread (so the worker never blocks on a full pipe), keeping
+    its last lines: what the launcher says when that worker fails."""
+    def read() -> None:
+        for line in stream:
+            keep.append(line.rstrip("\n"))
+        stream.close()
+
+    t = threading.Thread(target=read, daemon=True, name="bulbjax-worker-stderr")
+    t.start()
+    return t
+
+
+def failure_reason(lines: Sequence[str], returncode: int | None) -> str:
+    """Why a worker failed, in one phrase: its `bulbjax: error: ...` line, else the last line of
+    its traceback (`SomeError: ...`), else the signal that ended it or its exit code."""
+    for line in reversed(lines):
+        if line.startswith("bulbjax: error: "):
+            return line[len("bulbjax: error: "):]
+    for line in reversed(lines):
+        head = line.split(":", 1)[0].strip()
+        if ":" in line and head and " " not in head and (head.endswith(("Error", "Exception", "Interrupt"))
+                                                          or head.startswith("jax")):
+            return line.strip()
+    if returncode is not None and returncode < 0:
+        try:
+            return f"killed by {signal.Signals(-returncode).name}"
+        except ValueError:
+            return f"killed by signal {-returncode}"
+    return f"exit code {returncode}"
+
+
+def run_per_gpu(argv: Sequence[str], gpus: Sequence[str], out_dir: str, poll_s: float = 0.2) -> int:
     """Run `bulbjax <argv>` as one process per GPU of `gpus` and wait for all; returns the first
-    non-zero exit code (0 when every process succeeded)."""
+    non-zero exit code (0 when every process succeeded).
+
+    This process runs JAX's coordination service (`bulbjax.distributed`: the workers join it as
+    clients, process 0 too) and stops it once every worker has exited, so that no worker's
+    backend outlives it; its own C++ log lines go to `RUN_DIR/log_coordinator.txt`. When a worker
+    fails the others are stopped at once (each waits in a collective for the failed one, so none
+    could finish its epoch or checkpoint) and one line says which failed and why (from its stderr,
+    kept here; its whole output is in its log file)."""
+    from bulbjax import distributed
+
     port = free_port()
     n = len(gpus)
-    print(f"{n} GPUs: one process per GPU (jax.distributed on localhost:{port}); process 0 reports here, "
-          f"the others log to {os.path.join(out_dir, 'log_process<i>.txt')}", flush=True)
+    os.makedirs(out_dir, exist_ok=True)
+    sys.stdout.flush()
+    sys.stderr.flush()
+    console_fd = os.dup(2)
+    console = os.fdopen(os.dup(console_fd), "w", buffering=1)
+    log = open(os.path.join(out_dir, "log_coordinator.txt"), "a")
+    os.dup2(log.fileno(), 2)  # the service's C++ log lines: in the file, not between the workers' lines
     procs: list[subprocess.Popen] = []
-    for i, gpu in enumerate(gpus):
-        env = dict(os.environ, CUDA_VISIBLE_DEVICES=gpu)
-        quiet = {} if i == 0 else {"stdout": subprocess.DEVNULL, "stderr": subprocess.DEVNULL}
-        procs.append(subprocess.Popen(_worker_argv(argv, port, n, i), env=env, **quiet))
+    tails: list[collections.deque] = [collections.deque(maxlen=200) for _ in gpus]
+    readers: list[threading.Thread] = []
+    killed: list[int] = []
 
+    # the workers have process groups of their own, so a Ctrl-C on the terminal reaches them once,
+    # from here (a second SIGINT interrupts a worker at once, without its checkpoint)
     def forward(signum, _frame):
         for p in procs:
             if p.poll() is None:
-                p.send_signal(signum)
+                p.send_signal(signal.SIGTERM if signum == signal.SIGHUP else signum)
 
-    old = {s: signal.signal(s, forward) for s in (signal.SIGINT, signal.SIGTERM)}
+    old = {s: signal.signal(s, forward) for s in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)}
+    service = None
     try:
+        service = distributed.start_service(port, n)
+        print(f"{n} GPUs: one process per GPU (jax.distributed on localhost:{port}); process 0 reports "
+              f"here, the others log to {os.path.join(out_dir, 'log_process<i>.txt')}", file=console, flush=True)
+        for i, gpu in enumerate(gpus):
+            env = dict(os.environ, CUDA_VISIBLE_DEVICES=gpu, **{distributed.SERVICE_ENV: distributed.SERVICE_EXTERNAL})
+            if i == 0:  # the console itself
+                procs.append(subprocess.Popen(_worker_argv(argv, port, n, i), env=env, stderr=console_fd,
+                                              process_group=0))
+                continue
+            p = subprocess.Popen(_worker_argv(argv, port, n, i), env=env, stdout=subprocess.DEVNULL,
+                                 stderr=subprocess.PIPE, text=True, errors="replace", process_group=0)
+            procs.append(p)
+            readers.append(_tail_reader(p.stderr, tails[i]))
         failed = None
-        while True:
-            running = any(p.poll() is None for p in procs)
-            bad = [(i, p.returncode) for i, p in enumerate(procs) if p.returncode not in (None, 0)]
-            if bad and failed is None:
+        while any([p.poll() is None for p in procs]):  # a list: every process polled
+            bad = [i for i, p in enumerate(procs) if p.returncode not in (None, 0)]
+            if bad:
                 failed = bad[0]
-                i, rc = failed
-                log = os.path.join(out_dir, "log.txt" if i == 0 else f"log_process{i}.txt")
-                print(f"process {i} (GPU {gpus[i]}) exited with code {rc} (its log: {log})"
-                      + ("; stopping the others" if running else ""),
-                      file=sys.stderr, flush=True)
-                forward(signal.SIGTERM, None)
-                deadline = time.monotonic() + 120  # time to checkpoint, then kill
-            if not running:
-                break
-            if failed is not None and time.monotonic() > deadline:
-                for p in procs:
+                for i, p in enumerate(procs):  # each waits for the failed one in a collective
                     if p.poll() is None:
                         p.kill()
+                        killed.append(i)
+                break
             time.sleep(poll_s)
+        for p in procs:
+            p.wait()
+        for t in readers:
+            t.join(timeout=5)
         codes = [p.returncode for p in procs]
+        if failed is None:
+            failed = next((i for i, c in enumerate(codes) if c != 0), None)
+        if failed is None:
+            return 0
+        rc = codes[failed]
+        logfile = os.path.join(out_dir, "log.txt" if failed == 0 else f"log_process{failed}.txt")
+        stopped = (f"; stopped process{'es' if len(killed) > 1 else ''} {', '.join(map(str, killed))}"
+                   if killed else "")
+        if failed != 0:
+            print(f"bulbjax: error: process {failed} of {n} (GPU {gpus[failed]}) failed: "
+                  f"{failure_reason(list(tails[failed]), rc)}{stopped} (its log: {logfile})", file=console, flush=True)
+        elif rc != 2 or killed:  # 2 alone: its own one-line error is on the console already
+            print(f"bulbjax: error: process 0 of {n} (GPU {gpus[0]}) failed ({failure_reason([], rc)}; its "
+                  f"output is above){stopped} (its log: {logfile})", file=console, flush=True)
+        return rc
     finally:
+        for p in procs:
+            if p.poll() is None:
+                p.kill()
+                p.wait()
         for s, h in old.items():
             signal.signal(s, h)
-    return next((c for c in codes if c != 0), 0)
+        if service is not None:
+            service.shutdown()
+        os.dup2(console_fd, 2)
+        os.close(console_fd)
+        console.close()
+        log.close()

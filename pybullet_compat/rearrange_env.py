@@ -16,7 +16,7 @@ The scene:
   scale 1: the <=200-face convex hull collides, the decimated textured mesh is drawn, the body
   frame at the mesh's centre of mass). Prepare them in the parent with `rearrange_objects` and
   pass `objects=` to workers; otherwise the env prepares them (importing bulbjax.assets).
-- Reacher: bulbjax's `mjcf_assets/reacher_rearrange.xml` through `loadMJCF` (as
+- Reacher: bulbjax's `bulbjax/envs/mjcf/reacher_rearrange.xml` through `loadMJCF` (as
   `pybullet_compat.rearrange.ReacherBullet`), its base made static (`loadMJCF` leaves the root
   body free: a 0.06 kg base that the arm's reaction torques throw around), the elbow drawn orange.
   Franka: `pybullet_data`'s `franka_panda/panda.urdf`, fixed base at (-0.7, 0, 0), link
@@ -69,6 +69,7 @@ are their centres of mass on both sides.
 
 from __future__ import annotations
 
+import importlib.util
 import math
 import os
 from dataclasses import dataclass
@@ -217,12 +218,18 @@ def rearrange_domain(name: str) -> RearrangeSpec:
 
 
 def reacher_mjcf_path() -> str:
-    """bulbjax's reacher MJCF (`$BULBJAX_MJCF_DIR`, else the repo's `mjcf_assets/`, as
-    `bulbjax.envs.base.asset_dir`, without importing it)."""
-    default = os.path.normpath(os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "mjcf_assets"))
-    path = os.path.join(os.environ.get("BULBJAX_MJCF_DIR", default), "reacher_rearrange.xml")
+    """bulbjax's reacher MJCF (`$BULBJAX_MJCF_DIR`, else the package data `bulbjax/envs/mjcf/`,
+    as `bulbjax.envs.base.asset_dir`, found without importing bulbjax: `find_spec` of a top-level
+    package locates it without running it)."""
+    folder = os.environ.get("BULBJAX_MJCF_DIR")
+    if not folder:
+        spec = importlib.util.find_spec("bulbjax")
+        locations = list(spec.submodule_search_locations or []) if spec else []
+        folder = os.path.join(locations[0], "envs", "mjcf") if locations else "bulbjax/envs/mjcf"
+    path = os.path.join(folder, "reacher_rearrange.xml")
     if not os.path.isfile(path):
-        raise FileNotFoundError(f"reacher MJCF {path!r} not found (set BULBJAX_MJCF_DIR to bulbjax's mjcf_assets)")
+        raise FileNotFoundError(f"reacher MJCF {path!r} not found (set BULBJAX_MJCF_DIR to the folder of "
+                                "bulbjax's MJCF files, bulbjax/envs/mjcf)")
     return path
 
 

@@ -58,6 +58,7 @@ if _cache.strip().lower() not in ("", "0", "off", "false", "no"):  # compile_cac
 COMPILE_BOUND = (
     "test_experiment.py", "test_object_probe.py", "test_recon.py", "test_rl_sequential.py",
     "test_extending.py", "test_run.py", "test_sharding.py", "test_distributed.py", "test_kill_resume.py",
+    "test_reproduce.py", "test_plugins.py",
 )
 
 
@@ -97,6 +98,8 @@ def pytest_unconfigure(config) -> None:
 #   test_experiment.py::test_split_programs_give_the_fused_epoch (the optional split form), ~290-440 s
 #   test_lean_step.py::test_kinematics_after_resets_gives_the_forward_passes_episodes[chunks] (the kinematics
 #     pass after chunked resets, which run only with the pool off or fixed draws; the pool case stays), ~110 s
+#   test_plugins.py::test_cli_run_resume_report_fit (a learner of one's own through `bulbjax run`, a
+#     `--resume`, `report` and `fit` in fresh processes, each compiling), ~430 s on a shared 2-core machine
 # (durations of the 2-worker suite, 2026-11-26; without them `make test` took 64 min, `bash .ci/run`
 # on a fresh clone 65.6 min with its venv, against 88 min for the whole suite before; 2026-11-27, with
 # test_lean_step, 73 min while other jobs shared the 2 cores). Each feature

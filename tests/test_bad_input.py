@@ -75,10 +75,67 @@ def test_gymnasium_vector_env_refuses_actions_outside_its_space():
     with pytest.raises(ValueError, match=r"float actions of shape \(2, 1\)"):
         venv.step(np.zeros((3, 1), np.float32))
     assert venv.state is state  # nothing was stepped
-    discrete = make_vec("CartPole", 2, obs="state", render=False)
+    discrete = make_vec("CartPole", 3, obs="state", render=False)
     discrete.reset(seed=0)
-    with pytest.raises(gymnasium.error.InvalidAction, match=r"in \[0, 2\)"):
-        discrete.step(np.array([0, 2]))
+    state = discrete.state
+    # the first bad value, its world, how many worlds, the space and the fix (issue 58: the
+    # batch's min..max was named)
+    with pytest.raises(gymnasium.error.InvalidAction,
+                       match=r"invalid action `5` \(world 2; 1 world\(s\) not an integer in \[0, 2\)\)"
+                             r"\. The supported action_space is `Discrete\(2\)`: CartPole's actions "
+                             r"are integers"):
+        discrete.step(np.array([0, 1, 5]))
+    with pytest.raises(gymnasium.error.InvalidAction,
+                       match=r"invalid action `-1` \(world 0; 2 world\(s\)"):
+        discrete.step(np.array([-1, 1, 2]))
+    with pytest.raises(gymnasium.error.InvalidAction, match=r"invalid action `0.5` \(world 1;"):
+        discrete.step(np.array([0.0, 0.5, 1.0]))
+    with pytest.raises(ValueError, match=r"integer actions of shape \(3,\)"):
+        discrete.step(np.zeros((3, 2), np.int64))
+    assert discrete.state is state
+    discrete.step(np.array([0.0, 1.0, 1.0]))  # integral floats are actions
+
+
+def test_gymnasium_single_discrete_env_names_the_bad_action():
+    """`step(2)` and `step(0.7)` of a `Discrete(2)` env name the value and the space (issue 58:
+    `2..2`, and "integer actions of shape (1,)" for 0.7)."""
+    import gymnasium
+
+    import bulbjax.gym  # noqa: F401
+
+    env = gymnasium.make("bulbjax/CartPole-v0", obs="state", render=False)
+    env.reset(seed=0)
+    state = env.unwrapped._state
+    for bad in (2, 0.7, -1, np.nan):
+        with pytest.raises(gymnasium.error.InvalidAction,
+                           match=rf"invalid action `{bad}`\. The supported action_space is "
+                                 r"`Discrete\(2\)`: CartPole's actions are integers in \[0, 2\)$"):
+            env.step(bad)
+    with pytest.raises(ValueError, match="takes one integer action"):
+        env.step(np.array([0, 1]))
+    assert env.unwrapped._state is state
+
+
+def test_reset_and_make_name_what_they_take():
+    """`env.reset(0)` and `make(..., render="rgbd")` say what they take (issue 58: JAX's raw
+    PRNG-key TypeError; an answer about `observation`)."""
+    env = bulbjax.make("CartPole", num_envs=2, render=False)
+    for bad, given in ((0, "int 0"), (np.zeros(3, np.uint32), r"uint32 \(3,\)"),
+                       (jax.random.split(jax.random.PRNGKey(0)), r"uint32 \(2, 2\)")):
+        with pytest.raises(ValueError,
+                           match=rf"reset takes one PRNG key, e\.g\. jax\.random\.PRNGKey\(0\).*{given}"):
+            env.reset(bad)
+    with pytest.raises(ValueError, match=r"reset takes one PRNG key.*int32 \(\)"):
+        jax.eval_shape(env.reset, 0)  # an int traced under jit
+    typed = jax.eval_shape(env.reset, jax.random.key(0))  # a typed key is taken as its data
+    raw = jax.eval_shape(env.reset, jax.random.PRNGKey(0))
+    def shapes(tree):
+        return jax.tree.map(lambda x: (x.shape, x.dtype), tree)
+
+    assert shapes(typed) == shapes(raw)
+    with pytest.raises(ValueError, match=r"render must be True, False or an observation "
+                                         r"\(rgb, depth, pointcloud\), got 'rgbd'"):
+        bulbjax.make("CartPole", num_envs=2, render="rgbd")
 
 
 def test_brax_wrapper_refuses_wrong_shape():
@@ -110,6 +167,7 @@ def test_brax_wrapper_refuses_wrong_shape():
     (["fit", "--env", "SyntheticMovers", "--seed", "-3"], "--seed must be a non-negative integer"),
     (["fit", "--env", "SyntheticMovers", "--data-worlds", "0"], "data_worlds must be >= 1"),
     (["fit", "--env", "SyntheticMovers", "--data-seed", "-1"], "--data-seed must be a non-negative integer"),
+    (["fit", "--env", "Nope"], "unknown environment 'Nope'; available: CartPole.*, SyntheticMovers"),
     (["render", "--frames", "0"], "--frames must be >= 1, got 0"),
     (["render", "--steps", "-1"], "--steps must be >= 0"),
 ])

@@ -14,10 +14,12 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import shutil
 import socket
 import subprocess
 import sys
+import time
 
 import numpy as np
 import pytest
@@ -147,3 +149,67 @@ def test_two_processes_equal_one(tmp_path):
     r = subprocess.run([sys.executable, "-m", "bulbjax.cli", "run", "--resume", str(two_dir), "--epochs", "3"],
                        env=env, capture_output=True, text=True, timeout=600)
     assert r.returncode == 2 and "made by 2 process(es)" in r.stderr, r.stderr[-2000:]
+
+
+# ---------------------------------------------------------------------------- the one-process-per-GPU launcher
+# absl's error and fatal lines (E1128 12:00:00.000 ...), tracebacks, and the gRPC wall a coordination
+# service that went first leaves behind (issue 56)
+_ERROR_LINE = re.compile(r"^[EF]\d{4} |Traceback|WatchTasks|UNAVAILABLE|CANCELLED|[Cc]onnection refused|"
+                         r"^bulbjax: error|Error: ")
+
+
+def _launch(args: list[str], env: dict[str, str]) -> subprocess.CompletedProcess:
+    """`bulbjax run ...` as a user starts it on a host with two GPUs: CUDA_VISIBLE_DEVICES names two
+    (the launcher starts one process per GPU), and JAX runs each worker on one CPU device."""
+    return subprocess.run([sys.executable, "-m", "bulbjax", *args], env={**env, "CUDA_VISIBLE_DEVICES": "0,1"},
+                          capture_output=True, text=True, timeout=1500)
+
+
+def _lines(text: str) -> list[str]:
+    """Console lines without the progress bar's redraws."""
+    return [x for x in text.replace("\r", "\n").splitlines() if x.strip() and " seeds: " not in x]
+
+
+def _launch_env(tmp_path) -> dict[str, str]:
+    env = {**os.environ, "JAX_PLATFORMS": "cpu", "PYTHONUNBUFFERED": "1", "BULBJAX_COMPILE_CACHE": str(tmp_path / "xla")}
+    env.pop("JAX_COMPILATION_CACHE_DIR", None)  # the test's own cache: it counts the entries below
+    return env
+
+
+@pytest.mark.slow  # the slow tier: two processes compile a run (~3-4 min on a busy 2-core CPU)
+def test_launcher_run_ends_without_error_lines_and_a_refused_folder_is_one_line(tmp_path):
+    """A run through the launcher that ends well leaves no error line on the console (stderr) or in
+    any process's log (the coordination service runs in the launcher and outlives the workers);
+    every process wrote its own programs to the compile cache; the same command again is refused
+    for its folder in one line, before any worker starts."""
+    env, out = _launch_env(tmp_path), str(tmp_path / "run")
+    r = _launch([*BASE, "--epochs", "1", "--out", out], env)
+    assert r.returncode == 0, r.stderr[-3000:]
+    assert "2 GPUs: one process per GPU" in r.stderr and "over 2 processes" in r.stdout, r.stdout[-2000:]
+    bad = [x for x in _lines(r.stderr) if _ERROR_LINE.search(x)]
+    assert not bad, bad
+    for name in ("log.txt", "log_process1.txt", "log_coordinator.txt"):
+        text = open(os.path.join(out, name)).read()
+        assert not [x for x in _lines(text) if _ERROR_LINE.search(x)], (name, text[-3000:])
+    cached = os.listdir(tmp_path / "xla")
+    assert sum(n.startswith("jit__epoch-") for n in cached) == 2, cached  # process 0's and process 1's
+    assert sum(n.startswith("jit__init-") for n in cached) == 2, cached
+    again = _launch([*BASE, "--epochs", "1", "--out", out], env)
+    assert again.returncode == 2
+    assert _lines(again.stderr) == [next(x for x in _lines(again.stderr) if x.startswith("bulbjax: error: "))]
+    assert "holds a run" in again.stderr and "one process per GPU" not in again.stderr + again.stdout
+
+
+def test_launcher_names_the_failed_process_and_stops_the_others(tmp_path):
+    """One worker fails (process 1 cannot open its log: a folder is in the way): the launcher stops
+    process 0 at once and says in one line which process failed and why."""
+    env, out = _launch_env(tmp_path), tmp_path / "run"
+    os.makedirs(out / "log_process1.txt")
+    t = time.time()
+    r = _launch([*BASE, "--epochs", "1", "--out", str(out)], env)
+    assert r.returncode == 1
+    lines = [x for x in _lines(r.stderr) if not x.startswith(("[", "2 GPUs: "))]
+    assert len(lines) == 1, r.stderr[-3000:]
+    assert lines[0].startswith("bulbjax: error: process 1 of 2 (GPU 1) failed: IsADirectoryError: ")
+    assert "stopped process 0" in lines[0]
+    assert time.time() - t < 300  # not JAX's shutdown barrier (5 minutes) nor its heartbeat timeout

@@ -23,6 +23,11 @@ ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 PAGES = ["README.md", *sorted(os.path.relpath(p, ROOT) for p in glob.glob(os.path.join(ROOT, "docs", "*.md")))]
 # pages that also document other scripts' flags: only `bulbjax ...` commands and presets are checked
 COMMAND_PAGES = ["benchmarks/README.md"]
+# the READMEs of docs/ subfolders (result folders) and of benchmarks/diagnostics: their links and
+# the scripts they name must exist
+README_PAGES = sorted({os.path.relpath(p, ROOT)
+                       for p in glob.glob(os.path.join(ROOT, "docs", "*", "**", "README.md"), recursive=True)}
+                      | {"benchmarks/diagnostics/README.md"})
 
 # `bulbjax run`, `.venv/bin/bulbjax run`, `python -m bulbjax.cli run` (not `bulbjax/cli.py`)
 _COMMAND = re.compile(r"(?<![\w/.-])(?:[\w./-]*/)?bulbjax(?:\.cli)?\s+([a-z]+)\b")
@@ -229,7 +234,7 @@ def _anchors(path: str) -> set[str]:
     return set(heads)
 
 
-@pytest.mark.parametrize("page", PAGES + COMMAND_PAGES)
+@pytest.mark.parametrize("page", PAGES + COMMAND_PAGES + README_PAGES)
 def test_relative_links_resolve(page):
     """Every relative link of a page names a file of the repository (and a heading, with #)."""
     with open(os.path.join(ROOT, page), encoding="utf-8") as f:
@@ -251,3 +256,140 @@ def test_slugs_follow_github():
     assert _slug("Several GPUs and hosts") == "several-gpus-and-hosts"
     assert _slug("metrics.jsonl") == "metricsjsonl"
     assert _slug("Interop (`bulbjax/interop/`, host-side adapters)") == "interop-bulbjaxinterop-host-side-adapters"
+
+
+# a path of the repository naming a script: `benchmarks/diagnostics/before_after.py`, `tests/test_run.py`
+_SCRIPT = re.compile(r"(?<![\w./-])((?:benchmarks|bulbjax|tests|examples|pybullet_compat|docs)/"
+                     r"[\w./-]*\.(?:py|sh))\b")
+
+
+def missing_scripts(text: str) -> list[str]:
+    """The repository paths of scripts (`.py`, `.sh`) named anywhere in `text` that do not exist."""
+    return sorted({p for p in _SCRIPT.findall(text) if not os.path.exists(os.path.join(ROOT, p))})
+
+
+@pytest.mark.parametrize("page", PAGES + COMMAND_PAGES + README_PAGES)
+def test_named_scripts_exist(page):
+    """A script a page names by its path exists there (issue 57: the before/after READMEs named
+    `benchmarks/before_after.py` after it moved to `benchmarks/diagnostics/`)."""
+    with open(os.path.join(ROOT, page), encoding="utf-8") as f:
+        gone = missing_scripts(f.read())
+    assert not gone, f"{page} names scripts that do not exist: {', '.join(gone)}"
+
+
+def test_the_script_check_catches_a_moved_script():
+    assert len(README_PAGES) > 20 and "docs/results/before_after_dgrad/README.md" in README_PAGES
+    moved = "made by `benchmarks/before_after.py`:\n    python benchmarks/before_after.py run"
+    assert missing_scripts(moved) == ["benchmarks/before_after.py"]
+    assert not missing_scripts("`benchmarks/diagnostics/before_after.py`, `tests/test_docs.py`, "
+                               "../shared/device/stage-wheels.sh, warp/_src/jax/ffi.py")
+
+
+# ---------------------------------------------------------------------------- lists and signatures
+def _read(page: str) -> str:
+    with open(os.path.join(ROOT, page), encoding="utf-8") as f:
+        return f.read()
+
+
+def _table_rows(text: str, header_start: str) -> list[list[str]]:
+    """The body rows (cells, stripped) of the first markdown table whose header row starts with
+    `header_start`."""
+    lines = text.splitlines()
+    start = next(i for i, line in enumerate(lines) if line.startswith(header_start))
+    rows = []
+    for line in lines[start + 2:]:
+        if not line.startswith("|"):
+            break
+        rows.append([c.strip() for c in line.strip().strip("|").split("|")])
+    return rows
+
+
+@pytest.mark.parametrize("page", ["README.md", "docs/experiments.md"])
+def test_preset_lists_name_every_preset(page, presets):
+    """The pages that list the presets list all of them (README named 5 of 7 once)."""
+    spans = {m.group(1) for m in _SPAN.finditer(_read(page))}
+    missing = sorted(presets - spans)
+    assert not missing, f"{page} does not list the presets {missing}"
+
+
+def test_preset_table_matches_the_presets(presets):
+    from bulbjax.experiment.config import PRESETS
+
+    rows = _table_rows(_read("docs/experiments.md"), "| preset |")
+    names = [r[0].strip("`") for r in rows]
+    assert sorted(names) == sorted(presets)
+    for row, name in zip(rows, names):
+        env = _SPAN.search(row[1]).group(1)
+        assert env == PRESETS[name].env, f"docs/experiments.md: {name} is {PRESETS[name].env}, not {env}"
+
+
+def test_make_signature_in_the_docs_is_the_code_s():
+    """docs/environments.md's `bulbjax.make(...)` names every parameter of `bulbjax.make` with its
+    default, in order."""
+    import ast
+    import inspect
+
+    import bulbjax
+
+    text = _read("docs/environments.md")
+    start = text.index("env = bulbjax.make(name,")
+    end = text.index(")\n", start)
+    call = ast.parse(text[start + len("env = "):end + 1]).body[0].value
+    doc = [(a.id, inspect.Parameter.empty) for a in call.args] + \
+          [(k.arg, ast.literal_eval(k.value)) for k in call.keywords]
+    code = [(p.name, p.default) for p in inspect.signature(bulbjax.make).parameters.values()]
+    assert doc == code, f"docs/environments.md's make signature {doc} is not bulbjax.make's {code}"
+
+
+def _bulbjax_args(line: str) -> list[str]:
+    return line.split("#")[0].split("bulbjax ", 1)[1].split()
+
+
+def test_demo_command_is_the_makefile_s():
+    """README and docs/experiments.md give `make demo`'s command as the Makefile runs it."""
+    make = next(line for line in _read("Makefile").splitlines() if "bin)/bulbjax run" in line.lower())
+    want = _bulbjax_args(make.replace("$(BIN)/", ""))
+    readme = next(line for _, line in _code_lines(_read("README.md")) if "runs/demo" in line)
+    assert _bulbjax_args(readme) == want, f"README's demo command {readme!r} is not the Makefile's"
+    exp = " ".join(_read("docs/experiments.md").split())
+    span = re.search(r"`make demo` is `(bulbjax run [^`]+)`", exp).group(1)
+    assert _bulbjax_args(span) == want, f"docs/experiments.md's demo {span!r} is not the Makefile's"
+
+
+def test_readme_speedups_are_performance_md_s():
+    """The README's "N x - M x more frames per second than PyBullet" ranges are those of the
+    tables in performance.md's "Against PyBullet" (each table's, and both together)."""
+    perf = _read("docs/performance.md")
+    section = perf[perf.index("## Against PyBullet"):]
+    section = section[:section.index("\n## ", 3)]
+    ranges = []
+    for header in ("| env | PyBullet, 16 processes |", "| env | PyBullet, 16 processes (frames/s)"):
+        rows = _table_rows(section, header)
+        ratios = [int(c[:-1]) for r in rows for c in r if re.fullmatch(r"\d+x", c)]
+        assert len(ratios) == len(rows), f"performance.md: one ratio per row expected in {header}"
+        ranges.append((min(ratios), max(ratios)))
+    ranges.append((min(r[0] for r in ranges), max(r[1] for r in ranges)))
+    readme = " ".join(_read("README.md").split())
+    for lo, hi in ranges:
+        assert f"{lo}x-{hi}x" in readme, f"README.md should give performance.md's {lo}x-{hi}x"
+
+
+def test_domain_table_matches_the_classes():
+    """docs/environments.md's "All domains" table: every registered domain in a row, with its
+    action space, episode length and solved return ("-" where it has none)."""
+    from bulbjax.envs.registry import ENV_NAMES, env_class
+
+    rows = _table_rows(_read("docs/environments.md"), "| name | state entries")
+    seen = set()
+    for row in rows:
+        spans = [m.group(1) for m in _SPAN.finditer(row[0])]
+        names = [s for s in spans if s in ENV_NAMES]
+        names += [n + s for n in names for s in spans if s in ("Md", "Sm") and n + s in ENV_NAMES]
+        assert names, f"docs/environments.md: no domain in the row {row}"
+        for name in names:
+            cls = env_class(name)
+            act = f"discrete({cls.num_actions})" if cls.discrete else f"box({cls.action_size})"
+            solved = "-" if cls.solved_return is None else f"{cls.solved_return:,.0f}"
+            assert (row[2], row[3], row[4]) == (act, f"{cls.episode_length:,}", solved), (name, row)
+            seen.add(name)
+    assert seen == set(ENV_NAMES), f"docs/environments.md lacks {sorted(set(ENV_NAMES) - seen)}"

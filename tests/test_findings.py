@@ -170,3 +170,20 @@ def test_fig3_claims_one_seed_or_random_versions_decide_nothing() -> None:
     got = {x.claim.split(" (")[0]: x.verdict for x in v}
     assert got["VAE_rpl encodes the largest object's position"].startswith("not tested (random versions")
     assert got["VAE_rpl encodes the main joint"] == "holds"
+
+
+def test_an_added_learner_gets_rows_against_vae_rpl_and_the_constant() -> None:
+    """A learner beyond the paper's (a researcher's own) is compared with VAE_rpl and the
+    constant on every group: better than VAE_rpl on position, worse on velocity, below the
+    constant (1.5 / 1.2) on both; the paper's learners get no such rows."""
+    v, _ = findings.check(records({"vae_rpl": (0.6, 0.8), "mine": (0.3, 1.1)}), SPEC, "InvertedPendulum")
+    got = {x.claim: x.verdict for x in v if "(added learner)" in x.claim}
+    assert got == {
+        "mine below VAE_rpl on position (added learner)": "holds",
+        "mine below the constant predictor on position (added learner)": "holds",
+        "mine below VAE_rpl on velocity (added learner)": "does not hold",
+        "mine below the constant predictor on velocity (added learner)": "holds",
+    }
+    v, _ = findings.check(records({"mine": (0.3, 1.1)}), SPEC, "InvertedPendulum")
+    assert {x.verdict for x in v if "below VAE_rpl" in x.claim and "(added learner)" in x.claim} == {
+        "not tested (the run has no vae_rpl)"}

@@ -191,6 +191,8 @@ def test_gymnasium_make_after_import():
 
     env = gymnasium.make("bulbjax/CartPole-v0", obs="pixels", resolution=32)
     assert env.spec is not None and env.spec.id == "bulbjax/CartPole-v0"
+    assert env.spec.max_episode_steps == 200  # the domain's episode length (issue 58: None)
+    assert gymnasium.spec("bulbjax/InvertedPendulumMulticolour-v0").max_episode_steps == 1000
     assert env.unwrapped.observation_space.shape == (32, 32, 3)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
@@ -206,6 +208,10 @@ def test_single_env_check_env():
     check_env(env, skip_close_check=True)
     obs, info = env.reset(seed=1)
     assert info["state"].shape == (4,) and env.render().shape == (32, 32, 3)
+    env.render_mode = None  # as made without render_mode: None, and a warning saying how (issue 58)
+    with pytest.warns(UserWarning, match=r'render_mode="rgb_array"'):
+        assert env.render() is None
+    env.render_mode = "rgb_array"
     with pytest.raises(ValueError, match="action of shape"):
         env.step(np.zeros(3, np.float32))
     total, terminated, truncated = 0.0, False, False
@@ -286,3 +292,28 @@ def test_register_envs():
     assert "bulbjax/CartPole-v0" in ids and len(ids) == len(bulbjax.env_names())
     spec = gymnasium.spec("bulbjax/InvertedPendulumMulticolour-v0")
     assert spec.vector_entry_point is not None and spec.nondeterministic is False
+    # gymnasium.make_vec hands the spec's max_episode_steps to the vector entry point
+    venv = gymnasium.make_vec("bulbjax/CartPole-v0", num_envs=2,
+                              vectorization_mode="vector_entry_point", obs="state", render=False)
+    assert isinstance(venv, BulbjaxVectorEnv) and venv.num_envs == 2
+    with pytest.raises(ValueError, match="truncate episodes at the domain's 200 steps"):
+        gymnasium.make_vec("bulbjax/CartPole-v0", num_envs=2, vectorization_mode="vector_entry_point",
+                           obs="state", render=False, max_episode_steps=50)
+
+
+def test_importing_interop_gym_registers(tmp_path):
+    """`import bulbjax.interop.gym` registers as `import bulbjax.gym` does (issue 58: only the
+    latter did, though the docs call them the same module)."""
+    import os
+    import subprocess
+    import sys
+
+    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    code = ("import gymnasium\nimport bulbjax.interop.gym\nimport sys\n"
+            "assert 'bulbjax.gym' not in sys.modules\n"
+            "print(sorted(i for i in gymnasium.registry if i.startswith('bulbjax/'))[:1])\n")
+    env = {**os.environ, "PYTHONPATH": root}
+    r = subprocess.run([sys.executable, "-c", code], cwd=str(tmp_path), env=env, capture_output=True,
+                       text=True, timeout=300)
+    assert r.returncode == 0, r.stderr[-3000:]
+    assert "bulbjax/Ant-v0" in r.stdout

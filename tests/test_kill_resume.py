@@ -47,11 +47,13 @@ def test_kills_at_the_worst_moments_resume_exactly(tmp_path):
     s = res["summary"]
     assert s["failures"] == [], s["failures"]
     commit, append = res["kills"]
-    # killed with checkpoint 2 written but not renamed: checkpoint 1 is the newest complete one
-    assert commit["kind"] == "commit" and commit["last_events"][-1] == "ckpt-commit 2"
+    # killed with checkpoint 2 written but not renamed: checkpoint 1 is the newest complete one (the
+    # checkpoint is written in the background, so the loop may have started the next epoch and even
+    # appended its records meanwhile: metrics run ahead, never behind)
+    assert commit["kind"] == "commit" and "ckpt-commit 2" in commit["last_events"]
     assert commit["state_after_kill"]["complete_checkpoints"] == [1]
     assert commit["state_after_kill"]["partial_checkpoints"] == 1
-    assert commit["state_after_kill"]["metrics_epochs"] == 2  # metrics run ahead, never behind
+    assert commit["state_after_kill"]["metrics_epochs"] in (2, 3)
     assert (commit["resumed_from"], commit["resume_ok"]) == (1, True)
     # killed mid-append: half a record on disk, cut by the resume
     assert append["kind"] == "append" and append["state_after_kill"]["half_line"]
@@ -62,7 +64,7 @@ def test_kills_at_the_worst_moments_resume_exactly(tmp_path):
     # the start-up stages, in order, on the console of the fresh stretch and of a resumed one
     fresh = _stages(str(work / "run0_s0.console"))
     assert _in_order(fresh, ["building the environment and learners ...", "tracing and lowering init and the epoch ...",
-                             "compiling and running init ...", "compiling the epoch ...", "first epoch (0) ...",
+                             "compiling init ...", "running init ...", "compiling the epoch ...", "first epoch (0) ...",
                              "first epoch (0): "]), fresh
     resumed = _stages(str(work / "run0_s2.console"))
     assert _in_order(resumed, ["building the environment and learners ...", "tracing and lowering the epoch ...",

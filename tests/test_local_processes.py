@@ -37,12 +37,22 @@ def test_worker_argv_replaces_this_launchs_flags() -> None:
                      "--coordinator", "localhost:1234", "--num-processes", "2", "--process-id", "1"]
 
 
-def test_a_failing_worker_fails_the_launch(tmp_path, capsys: pytest.CaptureFixture) -> None:
+def test_a_failing_worker_fails_the_launch(tmp_path, capfd: pytest.CaptureFixture) -> None:
     """Real worker processes that exit at once (an unknown environment): the launch returns their
-    non-zero code and names the failing process's log."""
+    non-zero code, and the console has that one-line error once (process 0's own, or the
+    launcher's naming the process), not a line per process."""
     rc = lp.run_per_gpu(["run", "--env", "NoSuchEnv", "--out", str(tmp_path / "r")], ["0", "1"], str(tmp_path / "r"))
-    assert rc != 0
-    assert "exited with code" in capsys.readouterr().err
+    assert rc == 2
+    err = [x for x in capfd.readouterr().err.splitlines() if x.startswith("bulbjax: error: ")]
+    assert len(err) == 1 and "unknown environment 'NoSuchEnv'" in err[0], err
+
+
+def test_failure_reason_reads_the_workers_last_words() -> None:
+    assert lp.failure_reason(["x", "bulbjax: error: bad flag", "later"], 2) == "bad flag"
+    tb = ["Traceback (most recent call last):", '  File "x.py", line 1', "OSError: [Errno 28] No space left"]
+    assert lp.failure_reason(tb, 1) == "OSError: [Errno 28] No space left"
+    assert lp.failure_reason([], -9) == "killed by SIGKILL"
+    assert lp.failure_reason(["nothing useful"], 3) == "exit code 3"
 
 
 def test_layout_processes_without_gpus_is_one_clear_line(monkeypatch: pytest.MonkeyPatch, tmp_path,

@@ -16,10 +16,12 @@ import subprocess
 import sys
 
 import numpy as np
+import pytest
 
 WORKER = r"""
 import json, sys
 import numpy as np
+import pytest
 from bulbjax import distributed
 i, port = int(sys.argv[1]), int(sys.argv[2])
 distributed.initialize(distributed.DistributedConfig(coordinator=f"127.0.0.1:{port}", num_processes=2, process_id=i))
@@ -120,3 +122,25 @@ def test_process_files_keep_k_partial_and_dtypes(tmp_path):
         assert got[k].tobytes() == np.asarray(v).tobytes()
     ProcessFiles(d, keep=2, cleanup_tmp=True)
     assert sorted(os.listdir(d)) == ["2", "3"]
+
+
+def test_process_files_background_write_and_its_error(tmp_path):
+    """`ProcessFiles(background=True)`: `save` returns before the files exist, `wait` finishes
+    them (the same bytes back); a write that fails is raised by the next `wait` as
+    `CheckpointWriteError` naming its epoch, once, and leaves only a partial folder behind."""
+    from bulbjax.experiment.checkpoint import CheckpointWriteError, ProcessFiles
+
+    d = str(tmp_path / "p0")
+    files = ProcessFiles(d, keep=2, background=True)
+    flat = {"00000": np.arange(2_000_000, dtype=np.float32), "00001": np.array([3, 4], np.uint32)}
+    files.save(1, flat, {"epoch": 1})
+    files.wait()
+    got, meta = files.restore(1)
+    assert files.steps() == [1] and meta["epoch"] == 1
+    assert all(got[k].tobytes() == v.tobytes() for k, v in flat.items())
+    files.save(2, {"00000": object()}, {"epoch": 2})  # not an array: np.savez fails in the thread
+    with pytest.raises(CheckpointWriteError, match="epoch 2") as err:
+        files.wait()
+    assert err.value.epoch == 2
+    files.wait()  # raised once
+    assert files.steps() == [1] and os.path.isdir(os.path.join(d, "2.partial"))

@@ -30,27 +30,27 @@ def _module():
     return mod
 
 
-def _fake_run(path: str) -> str:
+def _fake_run(path: str, epochs: int = EPOCHS, probed=PROBED, base_seed: int = 0) -> str:
     """A run folder as `bulbjax run --probe-every 4` leaves it (config.json, metrics.jsonl.gz as
     committed), records made by `records.epoch_records` from float32 metrics as on a GPU."""
-    cfg = preset("fig2-invpend").replace(seeds=SEEDS, epochs=EPOCHS)
+    cfg = preset("fig2-invpend").replace(seeds=SEEDS, epochs=epochs)
     spec = env_class(cfg.env).state_spec
     d = len(spec)
     os.makedirs(path)
     with open(os.path.join(path, "config.json"), "w") as f:
-        json.dump({"experiment": dataclasses.asdict(cfg), "run": {"seed": 0, "probe_every": 4}}, f)
-    rng = np.random.default_rng(0)
+        json.dump({"experiment": dataclasses.asdict(cfg), "run": {"seed": base_seed, "probe_every": 4}}, f)
+    rng = np.random.default_rng(base_seed)
     f32 = lambda *shape: rng.uniform(0.05, 2.0, shape).astype(np.float32)  # noqa: E731
     ref = f32(SEEDS, d)
     recs = []
-    for e in range(EPOCHS):
+    for e in range(epochs):
         m = {"rl_return": f32(SEEDS) * 500, "rl_episodes": np.full(SEEDS, 64.0, np.float32),
              "ppo": {k: f32(SEEDS) for k in ("approx_kl", "entropy", "total_loss")},
              "learners": {n: {"loss": f32(SEEDS) * 8000, "kl": f32(SEEDS), "recon": f32(SEEDS) * 8000}
                           for n in cfg.learners},
              "replay_dropped": {"retain_0": np.zeros(SEEDS, np.int32)}, "ref_spread": ref}
         m["rl_return"][1] = np.nan if e % 5 == 2 else m["rl_return"][1]  # no episode ended
-        if e in PROBED:
+        if e in probed:
             m["probes"] = {n: {s: {"mae": f32(SEEDS, d) * ref, "baseline": f32(SEEDS, d) * ref,
                                    "spread": f32(SEEDS, d)} for s in ("curr", "rand")}
                            for n in cfg.learners}
@@ -163,3 +163,28 @@ def test_probed_every_keeps_what_the_reports_read(tmp_path) -> None:
             assert r["objects"] == {"o": r["epoch"]} and r["probes"]["vae"]["curr"]["overall"]["mae_norm"] == 0.5 + r["epoch"]
         else:
             assert set(r) == {"epoch", "seed", "rl_return", "rl_episodes", "probes"} and r["rl_return"] == 1.5 * r["epoch"]
+
+
+def test_probed_every_keeps_what_a_merge_beside_reads(tmp_path) -> None:
+    """A merged folder beside two halves of different lengths reads the last epochs both have,
+    which are not the longer half's own last ones (fig2_invpend_h100_6seeds: seed0's metrics end
+    at 943, the merge reads 920-940, seed1's own rule kept 980-999 and dropped them, and the
+    merged reports fell back to seed0's three seeds at those epochs). `--probed-every` keeps
+    them: the merged reports come out the same from the reduced halves."""
+    rr = _module()
+    a = _fake_run(str(tmp_path / "seed0"), epochs=12, probed=range(12), base_seed=0)
+    b = _fake_run(str(tmp_path / "seed1"), epochs=20, probed=range(20), base_seed=1)
+    merged = str(tmp_path / "merged")
+    report.merge_seeds([a, b], merged, figures=False)
+    before = {n: open(os.path.join(merged, n)).read() for n in ("table.md", "findings.md")}
+    assert "epoch 9, 10, 11;" in before["table.md"]
+    assert not {10, 11} <= rr.kept_probed_epochs(range(20), 8)  # seed1's own rule lacks them
+    assert rr.merged_read_epochs(b, 8) >= {9, 10, 11} and rr.merged_read_epochs(a, 8) >= {9, 10, 11}
+    for d in (a, b):
+        rr.reduce_metrics(os.path.join(d, "metrics.jsonl.gz"), unprobed="minimal", probed_every=8)
+    kept = {r["epoch"] for r in records.read_jsonl(os.path.join(b, "metrics.jsonl.gz")) if r["probes"]}
+    assert {9, 10, 11} <= kept and 12 not in kept and 15 not in kept
+    again = str(tmp_path / "again")
+    report.merge_seeds(report.merge_sources(merged), again, figures=False)
+    for name, text in before.items():
+        assert open(os.path.join(again, name)).read() == text, name

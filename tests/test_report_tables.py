@@ -73,3 +73,41 @@ def test_progress_bar_text_has_no_nan(seeds):
         for st in r["probes"]["vae"].values():
             st["overall"]["mae_norm"] = float("nan")
     assert _postfix([r for r in recs if r["epoch"] == 10], recs)["vae/rand"] == "excluded"
+
+
+def test_report_redraws_an_offline_fit_folder(tmp_path, capsys):
+    """`bulbjax report FIT_DIR` on a `bulbjax fit` folder (config.json with `offline`, `base`,
+    `source`, `seed`; `curves.jsonl`): curves.png and table.md again, through the same table code
+    as the fit (issue 57: it failed with "ExperimentConfig has no fields ['base', 'offline', ...]").
+    A SyntheticMovers fit: the state spec comes from its movers settings."""
+    import dataclasses
+    import json
+
+    from bulbjax.cli import main
+    from bulbjax.data import synthetic
+    from bulbjax.experiment.config import OfflineConfig, preset
+    from bulbjax.experiment.probing import probe_targets
+    from bulbjax.experiment.records import write_jsonl
+
+    base = preset("fig2-invpend").replace(env=synthetic.NAME, learners=("vae", "svae"), seeds=2,
+                                          resolution=32)
+    oc = OfflineConfig(base=base, movers=synthetic.MoversConfig(num_objects=1))
+    with open(tmp_path / "config.json", "w") as f:
+        json.dump({"offline": {k: v for k, v in dataclasses.asdict(oc).items() if k != "base"},
+                   "base": dataclasses.asdict(base), "source": synthetic.NAME, "seed": 0}, f)
+    spec = probe_targets(oc.movers_config().state_spec).spec
+    assert len(spec) == 4  # one mover: x, y, vx, vy
+    rng = np.random.default_rng(0)
+    ref = np.full(len(spec), 2.0)
+    def probe() -> dict:
+        return {"rand": summarise(ref * rng.uniform(0.2, 0.9, len(spec)), ref, ref, spec, spread_D=ref)}
+
+    recs = [{"update": u, "seed": s, "ref_spread": ref.tolist(), "probes": {n: probe() for n in ("vae", "svae")}}
+            for u in (0, 5, 10) for s in range(2)]
+    write_jsonl(str(tmp_path / "curves.jsonl"), recs)
+    want = report.table(recs, spec, last=1, x_key="update", streams=report.OFFLINE_STREAMS)
+    assert main(["report", str(tmp_path)]) == 0
+    assert "curves.png" in capsys.readouterr().out and (tmp_path / "curves.png").stat().st_size > 10_000
+    table = (tmp_path / "table.md").read_text()
+    assert table.startswith(f"# {synthetic.NAME} offline: 2 seeds, 10 updates\n\n{want}\n")
+    assert "update 10; mean ± 90% CI over 2 seeds." in table and "| svae | held-out π_rand |" in table

@@ -168,8 +168,12 @@ def test_max_minutes_stops_after_the_epoch_that_ran_late(exp, tmp_path, monkeypa
 
     real_check = run_module.rundir.check_out_dir
     monkeypatch.setattr(run_module.rundir, "check_out_dir", late_before)
-    res = run(exp.config, opts, str(tmp_path / "c"), experiment=exp, progress=False, log=lambda s: None)
+    said: list[str] = []
+    res = run(exp.config, opts, str(tmp_path / "c"), experiment=exp, progress=False, log=said.append)
     assert (res.epochs_done, res.stopped, res.checkpoint) == (0, "max-minutes", 0)
+    # the budget went on start-up: said so, not "stopped after epoch 0"
+    assert any("start-up took 3600 s of the 1800 s allowed (--max-minutes 30); no epoch ran" in s for s in said), said
+    assert not any("stopped after epoch" in s for s in said)
 
 
 def test_config_mismatch_on_resume_is_an_error(exp, straight):
@@ -405,8 +409,9 @@ def test_overwrite_refused_then_starts_afresh(exp, straight, tmp_path):
                           "background (or loading them from the compile cache)"] or \
         stages[1].startswith("tracing and lowering init and the epoch: ")
     order = [next(i for i, s in enumerate(stages) if s.startswith(x)) for x in
-             ("tracing and lowering init and the epoch ...", "compiling and running init ...",
-              "compiling and running init: ", "compiling the epoch ...", "first epoch (0) ...", "first epoch (0): ")]
+             ("tracing and lowering init and the epoch ...", "compiling init ...", "compiling init: ",
+              "running init ...", "running init: ", "compiling the epoch ...", "first epoch (0) ...",
+              "first epoch (0): ")]
     assert order == sorted(order)
 
 
@@ -478,7 +483,9 @@ def test_failed_checkpoint_write_keeps_the_last_one(exp, straight, tmp_path, mon
         run(exp.config, RunOptions(checkpoint_every=1), d, experiment=exp, progress=False, log=lambda s: None)
     monkeypatch.undo()
     assert rundir.checkpoint_steps(d) == [1] and rundir.partial_checkpoints(d)
-    assert len(_lines(d)) == 4  # epochs 0 and 1 were written before the checkpoint failed
+    # checkpoint 2 is written in the background while epoch 2 runs: its failure stops the run at
+    # the next checkpoint, with epochs 0-2 in metrics.jsonl (ahead of the newest checkpoint, never behind)
+    assert len(_lines(d)) == 6
     said = []
     run(exp.config, RunOptions(), d, resume=True, experiment=exp, progress=False, log=said.append)
     assert any("resuming" in s and "at epoch 1" in s for s in said)

@@ -218,3 +218,16 @@ def test_warp_renders_mesh_texture(built):
     assert coloured[:, 0].mean() > 2 * coloured[:, 1].mean()
     assert np.std(coloured[:, 0] - coloured[:, 1]) > 0.02
     del ctx
+
+
+def test_cli_run_without_the_models_is_one_line(monkeypatch, tmp_path, capfd):
+    """`bulbjax run` of a YCB domain with $BULBJAX_YCB_DIR pointing nowhere: the CLI's one-line
+    error (what to set), no traceback."""
+    from bulbjax import cli
+
+    monkeypatch.setenv(YCB_DIR_ENV, str(tmp_path / "nowhere"))
+    rc = cli.main(["run", "--env", "ReacherRearrangeYcb", "--small", "--seeds", "1", "--epochs", "1",
+                   "--out", str(tmp_path / "run")])
+    err = [x for x in capfd.readouterr().err.splitlines() if x.strip()]
+    assert rc == 2 and len(err) == 1, err
+    assert err[0].startswith("bulbjax: error: YCB models not found: ") and YCB_DIR_ENV in err[0]

@@ -116,9 +116,14 @@ class YcbAsset:
         return float(-self.bounds[0, 2])
 
 
+class YcbModelsNotFound(FileNotFoundError, ValueError):
+    """The YCB models are not where the settings say. A FileNotFoundError for library code, and a
+    ValueError, which the CLI turns into its one-line error (its message says what to set)."""
+
+
 def _missing(reason: str) -> FileNotFoundError:
     names = ", ".join(YCB_INFO)
-    return FileNotFoundError(
+    return YcbModelsNotFound(
         f"YCB models not found: {reason}. Set {YCB_DIR_ENV} (or pass ycb_dir=) to a folder laid out "
         f"as in the YCB google_16k download: <dir>/<name>/{OBJ_FILE} (with texture_map.png beside "
         f"it where available), for the objects: {names}.")

@@ -9,6 +9,7 @@ file, camera, reset distribution, state, reward and termination.
 from __future__ import annotations
 
 import os
+from importlib import resources
 from typing import Any, Sequence
 
 import jax
@@ -19,7 +20,7 @@ from flax import struct
 from mujoco import mjx
 
 from bulbjax.envs import warp_graphs
-from bulbjax.envs.batch import add_counts, nonfinite, where_tree
+from bulbjax.envs.batch import add_counts, nonfinite, prng_key, where_tree
 from bulbjax.envs.camera import PAN_CAMERAS, CameraConfig, add_bulb_camera, pan_cameras, static_view, view_poses
 from bulbjax.envs.colours import NUM_SCHEMES, scheme_table
 from bulbjax.envs.env_config import EnvConfig, check_config
@@ -31,11 +32,23 @@ from bulbjax.eval.spec import StateEntry
 ASSET_DIR_ENV = "BULBJAX_MJCF_DIR"
 
 
+MJCF_FOLDER = "mjcf"  # package data of `bulbjax.envs` (pyproject.toml's package-data)
+
+
 def asset_dir() -> str:
-    """Folder of the MJCF files: `$BULBJAX_MJCF_DIR`, else the repo's `mjcf_assets/`."""
-    here = os.path.dirname(os.path.abspath(__file__))
-    default = os.path.normpath(os.path.join(here, "..", "..", "mjcf_assets"))
-    return os.environ.get(ASSET_DIR_ENV, default)
+    """Folder of the MJCF files: `$BULBJAX_MJCF_DIR`, else `bulbjax/envs/mjcf/`, package data
+    found through `importlib.resources`, so that an installed wheel finds its models as a
+    checkout does. MuJoCo reads files by path: a package imported from a zip archive needs
+    `$BULBJAX_MJCF_DIR`."""
+    given = os.environ.get(ASSET_DIR_ENV)
+    if given:
+        return given
+    folder = resources.files("bulbjax.envs").joinpath(MJCF_FOLDER)
+    if not isinstance(folder, os.PathLike):
+        raise ValueError(f"bulbjax's MJCF files are inside an archive ({folder}), which MuJoCo "
+                         f"cannot read: install bulbjax unzipped, or set {ASSET_DIR_ENV} to a folder "
+                         "holding them")
+    return os.fspath(folder)
 
 
 @struct.dataclass
@@ -94,7 +107,7 @@ class MjxPixelEnv:
     camera: CameraConfig
     state_spec: tuple[StateEntry, ...] = ()
     episode_length: int = 1000
-    solved_return: float = 0.0
+    solved_return: float | None = None  # the return counted as solved; None: the domain has none
     discrete: bool = False
     num_actions: int | None = None
     action_size: int = 1
@@ -253,8 +266,9 @@ class MjxPixelEnv:
         return (self.resolution, self.resolution, 3)
 
     def reset(self, key: jax.Array) -> EnvState:
-        """Start `num_envs` episodes; `key` is one PRNG key."""
-        return self.reset_keys(jax.random.split(key, self.num_envs))
+        """Start `num_envs` episodes; `key` is one PRNG key (`jax.random.PRNGKey(seed)`, or a
+        typed `jax.random.key(seed)`); anything else is a ValueError that says so."""
+        return self.reset_keys(jax.random.split(prng_key(key), self.num_envs))
 
     def reset_keys(self, keys: jax.Array) -> EnvState:
         """Start `num_envs` episodes from per-world keys `[num_envs, 2]` (`reset(key)` splits

@@ -1,5 +1,6 @@
 """Per-world operations on batched pytrees (the world axis first): selects and scatters between
-two batches of worlds, and per-world checks of finiteness. MJX-Warp's Data holds leaves without
+two batches of worlds, per-world checks of finiteness, and the check of the one key `reset`
+takes. MJX-Warp's Data holds leaves without
 the world axis (contact buffers shared by all worlds, empty arrays): every operation here keeps
 those from the batch it writes into."""
 
@@ -46,3 +47,19 @@ def nonfinite(x: jax.Array) -> jax.Array:
 def add_counts(counts: dict[str, jax.Array], **step: jax.Array) -> dict[str, jax.Array]:
     """`EnvState.counts` after a step (a state without counts, e.g. built by hand, starts at 0)."""
     return {k: counts.get(k, jnp.zeros_like(v)) + v for k, v in step.items()}
+
+
+def prng_key(key: Any) -> jax.Array:
+    """One PRNG key as a uint32 `[2]` array: `jax.random.PRNGKey(seed)` as it is, a typed
+    `jax.random.key(seed)` as its data; anything else (an int seed, a batch of keys) is a
+    ValueError naming what was given, instead of JAX's error from inside `split`."""
+    dtype, shape = getattr(key, "dtype", None), getattr(key, "shape", None)
+    if dtype is not None and jax.dtypes.issubdtype(dtype, jax.dtypes.prng_key) and shape == ():
+        key = jax.random.key_data(key)
+        dtype, shape = key.dtype, key.shape
+    if dtype != jnp.uint32 or shape != (2,):
+        given = (f"{type(key).__name__} {key!r}" if dtype is None
+                 else f"an array of {dtype} {tuple(shape)}")
+        raise ValueError("reset takes one PRNG key, e.g. jax.random.PRNGKey(0) (uint32 [2]), "
+                         f"not {given}")
+    return key

@@ -100,7 +100,7 @@ class Incline(MjxPixelEnv):
     state_spec = incline_state_spec(False)
     camera = CAMERA
     episode_length = EPISODE_STEPS
-    solved_return = 0.0
+    solved_return = None  # bulb defines none for the Incline domains
     discrete = False
     action_size = 1
     frame_skip = STEPS_PER_ACTION * BULLET_SUBSTEPS

@@ -86,7 +86,7 @@ class Rearrange(MjxPixelEnv):
     floor_rgba: tuple[float, float, float, float] = (0, 0, 0, 1)
     floor_conaffinity: int = 1
     episode_length = EPISODE_STEPS
-    solved_return = 1.0
+    solved_return = None  # bulb defines none for Rearrange
     discrete = False
     frame_skip = BULLET_SUBSTEPS
     kinematics_after_step = True

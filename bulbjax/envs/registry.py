@@ -6,7 +6,7 @@ import dataclasses
 from typing import Any
 
 from bulbjax.envs.base import MjxPixelEnv
-from bulbjax.envs.env_config import EnvConfig
+from bulbjax.envs.env_config import OBSERVATIONS, EnvConfig
 from bulbjax.envs.incline import (GeomOnIncline, GeomOnInclineMd, GeomOnInclineSm, YcbOnIncline,
                                   YcbOnInclineMd, YcbOnInclineSm)
 from bulbjax.envs.locomotion import Ant, HalfCheetah
@@ -58,6 +58,9 @@ def make(name: str, num_envs: int = 64, resolution: int = 64, render: bool | str
     if base not in _REGISTRY or (multicolour and not _REGISTRY[base].supports_multicolour):
         raise ValueError(f"unknown environment {name!r}; available: {', '.join(env_names())}")
     if isinstance(render, str):
+        if render not in OBSERVATIONS:
+            raise ValueError("render must be True, False or an observation "
+                             f"({', '.join(OBSERVATIONS)}), got {render!r}")
         observation, render = render, True
     else:
         observation = "rgb"

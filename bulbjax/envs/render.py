@@ -8,6 +8,8 @@ turns a batch of MJX Data (positions already computed) into uint8 RGB frames. It
 from __future__ import annotations
 
 import os
+import sys
+from typing import Any
 
 import jax
 import jax.numpy as jnp
@@ -16,8 +18,14 @@ import numpy as np
 from mujoco import mjx
 
 
+# What Warp's native start-up prints to stderr, on every run, on a machine without the NVIDIA
+# driver (warp/native/cuda_util.cpp, `init_cuda_driver`), although the CPU is a documented path.
+NO_DRIVER_LINE = "Warp CUDA warning: Could not find or load the NVIDIA CUDA driver."
+
+
 def _quiet_warp() -> None:
-    """Warp prints one line per kernel module it loads; keep warnings only, unless
+    """Warp prints one line per kernel module it loads; keep warnings only, and start it without
+    its no-driver line where there is no CUDA driver (`init_warp_without_driver_line`), unless
     BULBJAX_WARP_VERBOSE=1."""
     if os.environ.get("BULBJAX_WARP_VERBOSE") == "1":
         return
@@ -25,6 +33,56 @@ def _quiet_warp() -> None:
 
     warp.config.log_level = warp.LOG_WARNING
     warp.config.quiet = True
+    if not _cuda_driver_loads():
+        init_warp_without_driver_line()
+
+
+def _cuda_driver_loads() -> bool:
+    """Whether the NVIDIA driver library loads, as Warp's native init tries it (Linux:
+    libcuda.so, then libcuda.so.1). Elsewhere (Windows, macOS) True: Warp is left alone."""
+    import ctypes
+
+    if not sys.platform.startswith("linux"):
+        return True
+    for name in ("libcuda.so", "libcuda.so.1"):
+        try:
+            ctypes.CDLL(name)
+            return True
+        except OSError:
+            pass
+    return False
+
+
+def init_warp_without_driver_line() -> None:
+    """Start Warp's runtime now without `NO_DRIVER_LINE` (`without_stderr_line`): only called
+    where the driver does not load, so that line says nothing a CPU run needs; any other message
+    (a real error, another warning) still reaches stderr. Warp keeps one runtime per process
+    (`warp.init` of a started one does nothing)."""
+    import warp
+
+    without_stderr_line(warp.init, NO_DRIVER_LINE)
+
+
+def without_stderr_line(fn: Any, prefix: str) -> Any:
+    """`fn()` with stderr (file descriptor 2, where native code writes) captured, then written
+    back without the lines that start with `prefix`; returns what `fn` returns."""
+    import tempfile
+
+    sys.stderr.flush()
+    saved = os.dup(2)
+    with tempfile.TemporaryFile() as tmp:
+        os.dup2(tmp.fileno(), 2)
+        try:
+            return fn()
+        finally:
+            os.dup2(saved, 2)
+            os.close(saved)
+            tmp.seek(0)
+            lines = tmp.read().decode(errors="replace").splitlines(keepends=True)
+            kept = "".join(x for x in lines if not x.startswith(prefix))
+            if kept:
+                sys.stderr.write(kept)
+                sys.stderr.flush()
 
 
 _quiet_warp()

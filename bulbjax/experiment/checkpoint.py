@@ -11,6 +11,14 @@ env, seeds or device count) is refused with a clear error instead of being misre
 
 A checkpoint is only taken between jitted calls (after an epoch, or after a chunk of epochs once
 several run in one call), so every saved state is a state the run loop itself held.
+
+`background=True` (the run loop's): checkpoints are written while the loop goes on, by orbax's
+asynchronous save (one process) or a thread of `ProcessFiles` (each process of a multi-process
+run); the loop waits only for the host copy of the state (the next epoch reuses the device
+buffers: they are donated, and on the CPU a fetched array may share them) and, at its next
+checkpoint or at the end, for the previous write. A write that failed raises
+`CheckpointWriteError` there, naming its epoch. Checkpoints saved from host copies restore into
+device arrays as before (orbax reads them by the restore target's shapes and shardings).
 """
 
 from __future__ import annotations
@@ -18,6 +26,7 @@ from __future__ import annotations
 import json
 import os
 import shutil
+import threading
 from typing import Any
 
 import jax
@@ -27,6 +36,23 @@ import orbax.checkpoint as ocp
 
 CHECKPOINT_DIR = "checkpoints"
 _FORMAT = 1
+
+
+class CheckpointWriteError(Exception):
+    """A checkpoint written in the background failed (`epoch`: its epoch; `__cause__`: why)."""
+
+    def __init__(self, epoch: int, cause: BaseException):
+        super().__init__(f"the checkpoint of epoch {epoch}: {type(cause).__name__}: {cause}")
+        self.epoch = epoch
+
+
+def _host_copy(x: Any) -> np.ndarray:
+    """`x` on the host, in memory of its own: a CPU device's array fetched to numpy may share the
+    device buffer, which the next epoch (its state donated) overwrites while a background write
+    still reads it; a GPU's comes back in fresh host memory."""
+    host = np.asarray(jax.device_get(x))
+    on_cpu = isinstance(x, jax.Array) and any(d.platform == "cpu" for d in x.devices())
+    return host.copy() if on_cpu or not isinstance(x, jax.Array) else host
 
 
 def _paths(tree: Any) -> list[str]:
@@ -39,7 +65,8 @@ class Checkpointer:
     unfinished checkpoint folders a killed process left (only for the one process that writes
     the run: a reader must not remove a running run's checkpoint in progress)."""
 
-    def __init__(self, run_dir: str, keep: int = 2, process: int | None = None, cleanup_tmp: bool = False):
+    def __init__(self, run_dir: str, keep: int = 2, process: int | None = None, cleanup_tmp: bool = False,
+                 background: bool = False):
         if keep < 1:
             raise ValueError(f"--keep must be >= 1 (checkpoints kept), got {keep}")
         self.directory = os.path.abspath(os.path.join(run_dir, CHECKPOINT_DIR))
@@ -49,13 +76,18 @@ class Checkpointer:
         # one process of a multi-process run saves the states of its own devices' seed groups in
         # a folder of its own, as host copies in plain files (`ProcessFiles`: orbax writes numpy
         # arrays on process 0 only and refuses one process's device arrays there)
-        self.host_arrays = process is not None
+        # a background write reads host copies (the device buffers are donated to the next epoch)
+        self.host_arrays = process is not None or background
+        self.background = background
+        self._pending: int | None = None  # the epoch orbax is still writing (background)
+        self._reported = False  # a background write's failure was raised by `wait`
         if process is not None:
             self.directory = os.path.join(self.directory, f"process_{process}")
-            self._files = ProcessFiles(self.directory, keep, cleanup_tmp)
+            self._files = ProcessFiles(self.directory, keep, cleanup_tmp, background=background)
             return
+        # background: orbax's asynchronous save (its write and rename in orbax's thread)
         opts = ocp.CheckpointManagerOptions(max_to_keep=keep, create=True, cleanup_tmp_directories=cleanup_tmp,
-                                            enable_async_checkpointing=False)
+                                            enable_async_checkpointing=background)
         self._mngr = ocp.CheckpointManager(self.directory, options=opts)
 
     def steps(self) -> list[int]:
@@ -72,8 +104,8 @@ class Checkpointer:
         pytree of arrays; `host` is JSON-able metadata stored beside it."""
         leaves = jax.tree.leaves(state)
         flat = {f"{i:05d}": x for i, x in enumerate(leaves) if np.size(x)}
-        if self.host_arrays:
-            flat = jax.device_get(flat)
+        if self.host_arrays:  # host copies (on the CPU a fetched array may share the donated buffer)
+            flat = {k: _host_copy(x) for k, x in flat.items()}
         meta = {"format": _FORMAT, "epoch": int(epoch), "paths": _paths(state),
                 "shapes": [list(np.shape(x)) for x in leaves],
                 "dtypes": [str(x.dtype) for x in leaves],
@@ -81,9 +113,13 @@ class Checkpointer:
         if self._files:
             self._files.save(int(epoch), flat, meta)
             return
+        self.wait()  # the previous write ended (its error raised, naming its epoch)
         self._mngr.save(int(epoch), args=ocp.args.Composite(state=ocp.args.StandardSave(flat),
                                                             meta=ocp.args.JsonSave(meta)), force=True)
-        self._mngr.wait_until_finished()
+        if self.background:
+            self._pending = int(epoch)
+        else:
+            self._mngr.wait_until_finished()
 
     def restore(self, like: Any, epoch: int | None = None) -> tuple[Any, dict[str, Any], int]:
         """The checkpoint of `epoch` (default the newest) as a pytree shaped like `like` (arrays
@@ -106,7 +142,7 @@ class Checkpointer:
                              f"({diff}); it was written with another configuration, code version or "
                              "device count. Resume with the run's own config.json on the same number "
                              "of devices, or start a new run")
-        if self.host_arrays:  # numpy on the host, then onto the devices the state lives on
+        if self._files:  # numpy on the host, then onto the devices the state lives on
             got = {k: jax.device_put(v, getattr(leaves[int(k)], "sharding", None)) for k, v in got.items()}
         else:
             abstract = {f"{i:05d}": jax.ShapeDtypeStruct(x.shape, x.dtype, sharding=getattr(x, "sharding", None))
@@ -122,25 +158,55 @@ class Checkpointer:
 
         return jax.tree.unflatten(treedef, [leaf(i, x) for i, x in enumerate(leaves)]), meta["host"], epoch
 
+    def wait(self) -> None:
+        """Wait for a checkpoint still being written (`background`); raises `CheckpointWriteError`
+        if it failed."""
+        if self._files:
+            self._files.wait()
+        elif self._pending is not None:
+            epoch, self._pending = self._pending, None
+            try:
+                self._mngr.wait_until_finished()
+            except Exception as err:  # noqa: BLE001  (OSError, tensorstore's errors: a full disk)
+                self._reported = True
+                raise CheckpointWriteError(epoch, err) from err
+
     def close(self) -> None:
+        """Wait for a write in progress (its error, if any, is raised by `wait`, not here) and
+        close the manager."""
+        try:
+            self.wait()
+        except CheckpointWriteError:
+            pass
         if self._mngr is not None:
-            self._mngr.close()
+            try:
+                self._mngr.close()
+            except Exception:  # noqa: BLE001  (orbax raises a failed write's error again)
+                if not self._reported:
+                    raise
 
 
 class ProcessFiles:
     """One process's checkpoints in a multi-process run, as plain files: `<dir>/<epoch>/arrays.npz`
     (each array's bytes) and `meta.json` (the checkpoint's metadata, with every leaf's dtype and
     shape), written under `<epoch>.partial` and renamed once complete and synced, so a kill
-    mid-write leaves the previous checkpoints and a partial folder that is never read.
+    mid-write leaves the previous checkpoints and a partial folder that is never read. With
+    `background`, `save` hands the (host) arrays to a thread that writes them, and returns.
 
-    Why not orbax here: its numpy handler writes on process 0 only (process 1's checkpoints held
-    commit markers and no data), and it refuses arrays of one process's devices in a
-    multi-process run. Each process writes only its own folder, so no coordination is needed."""
+    Why not orbax here (orbax-checkpoint 0.12.8, checked on two CPU processes, issue 56): it
+    refuses arrays of one process's devices in a multi-process run ("Cannot serialize host local
+    jax.Array"), and it writes host (numpy) arrays and JSON metadata on process 0 only, even with
+    `MultiprocessingOptions(primary_host=None, active_processes={i})` (every process primary, a
+    manager per process): process 1's checkpoint held commit markers and no data, and its restore
+    failed ("Individual parameter subdirectory not found"). Each process writes only its own
+    folder here, so no coordination is needed; the background write is a thread of our own."""
 
     PARTIAL = ".partial"
 
-    def __init__(self, directory: str, keep: int, cleanup_tmp: bool = False):
-        self.directory, self.keep = directory, keep
+    def __init__(self, directory: str, keep: int, cleanup_tmp: bool = False, background: bool = False):
+        self.directory, self.keep, self.background = directory, keep, background
+        self._thread: threading.Thread | None = None
+        self._failed: CheckpointWriteError | None = None
         os.makedirs(directory, exist_ok=True)
         if cleanup_tmp:
             for name in os.listdir(directory):
@@ -152,6 +218,33 @@ class ProcessFiles:
                       if n.isdigit() and os.path.exists(os.path.join(self.directory, n, "meta.json")))
 
     def save(self, step: int, flat: dict[str, Any], meta: dict[str, Any]) -> None:
+        """Write the checkpoint `step` of the host arrays `flat` (not to be changed afterwards: a
+        background write reads them later); in the background, after the previous write ended."""
+        self.wait()
+        if not self.background:
+            self._write(step, flat, meta)
+            return
+
+        def write() -> None:
+            try:
+                self._write(step, flat, meta)
+            except BaseException as err:  # noqa: BLE001  (raised in the loop's thread by `wait`)
+                self._failed = CheckpointWriteError(step, err)
+                self._failed.__cause__ = err
+
+        self._thread = threading.Thread(target=write, name=f"bulbjax-checkpoint-{step}", daemon=False)
+        self._thread.start()
+
+    def wait(self) -> None:
+        """Wait for the write in progress; raise `CheckpointWriteError` (once) if it failed."""
+        if self._thread is not None:
+            self._thread.join()
+            self._thread = None
+        if self._failed is not None:
+            failed, self._failed = self._failed, None
+            raise failed
+
+    def _write(self, step: int, flat: dict[str, Any], meta: dict[str, Any]) -> None:
         final = os.path.join(self.directory, str(step))
         tmp = final + self.PARTIAL
         shutil.rmtree(tmp, ignore_errors=True)

@@ -14,6 +14,7 @@ from bulbjax.data import synthetic
 from bulbjax.envs.env_config import GRAPH_MODES
 from bulbjax.eval.probe import ProbeConfig
 from bulbjax.learners import LearnerConfig, has_frame_latent_name, is_sequential_name, learner_names
+from bulbjax.learners.plugins import LearnerLoadError, entry_point_spec, load_learner_spec, spec_of
 from bulbjax.rl.ppo_config import PPOConfig
 
 # How learner work may run over the seed axis (`ExperimentConfig.learner_seed_loop`).
@@ -52,6 +53,13 @@ class ExperimentConfig:
     # drawn per world and episode (their multicolour-style variation). Other domains take only 0.
     version: int | str = 0
     learners: tuple[str, ...] = ("vae", "vae_rpl", "beta_vae")
+    # Learners of one's own (`bulbjax.learners.plugins`): the specs (`module:Name`,
+    # `/abs/path/file.py:Name`, `name=module:attr`) that register names among `learners`,
+    # loaded before the names are checked, so that a run's config.json brings them back for
+    # `report`, `recon` and `--resume`. Filled in from the learners (each one's spec, where a
+    # spec registered it in this process), so a caller names the learner, not the spec; empty
+    # for the built-in learners.
+    learner_modules: tuple[str, ...] = ()
     seeds: int = 3
     epochs: int = 50
     num_envs: int = 64  # the paper's parallel simulators, per seed
@@ -149,9 +157,12 @@ class ExperimentConfig:
         return self.seq_len + (self.learner.pred_horizon if "pred" in self.learners else 0)
 
     def __post_init__(self) -> None:
+        self._load_learner_modules()
         unknown = [n for n in self.learners if n not in learner_names()]
         if unknown or not self.learners:
-            raise ValueError(f"unknown learners {unknown}; accepted: {', '.join(learner_names())}")
+            raise ValueError(f"unknown learners {unknown}; accepted: {', '.join(learner_names())}, "
+                             "or a learner of your own as MODULE:NAME or path/to/file.py:NAME "
+                             "(docs/extending.md)")
         if self.rl_input not in ("state", "pixels"):
             name = self.rl_learner
             if name is None:
@@ -210,6 +221,20 @@ class ExperimentConfig:
                                  f"{lw} steps than an epoch brings")
         if self.ppo.num_envs != self.num_envs:
             object.__setattr__(self, "ppo", dataclasses.replace(self.ppo, num_envs=self.num_envs))
+
+    def _load_learner_modules(self) -> None:
+        """Import and register `learner_modules` and the learners an installed package offers by
+        name (entry points); then record the spec of every learner of `learners` that a spec
+        registered (canonical: a file's path absolute), and only those."""
+        for spec in self.learner_modules:
+            load_learner_spec(spec)
+        for name in self.learners:
+            spec = None if name in learner_names() else entry_point_spec(name)
+            if spec is not None:
+                load_learner_spec(spec)
+        specs = tuple(dict.fromkeys(s for s in map(spec_of, self.learners) if s is not None))
+        if specs != self.learner_modules:
+            object.__setattr__(self, "learner_modules", specs)
 
     def replace(self, **kw) -> "ExperimentConfig":
         return dataclasses.replace(self, **kw)
@@ -463,4 +488,7 @@ def read_run_config(run_dir: str) -> tuple[ExperimentConfig, dict]:
         raise ValueError(f"{path} does not exist: RUN_DIR must be the --out folder of a `bulbjax run`")
     with open(path) as f:
         raw = json.load(f)
-    return config_from_dict(raw.get("experiment", raw)), raw
+    try:
+        return config_from_dict(raw.get("experiment", raw)), raw
+    except LearnerLoadError as err:  # a learner of one's own that no longer imports
+        raise LearnerLoadError(f"{path} names a {err}") from err

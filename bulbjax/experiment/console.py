@@ -4,7 +4,8 @@ compile?") kept in the run's `log.txt` instead of the user's console.
 
 Before its first epoch a run may compile for minutes (the six-learner preset: ~3 minutes on a
 fresh H100). `StageLog` prints `[  12.3 s] compiling the epoch ...` when a stage starts, its
-duration when it ends, and `still compiling the epoch (95 s)` every 30 s while it runs.
+duration when it ends, and `still compiling the epoch (95 s)` after 10 and 20 s and every 30 s
+while it runs.
 
 `log_to_file(path)` points file descriptor 2 (where XLA, absl and other C++ code write their
 log lines) at the log file and puts a tee in `sys.stdout` and `sys.stderr`: Python's output
@@ -22,26 +23,37 @@ import os
 import sys
 import threading
 import time
-from typing import Any, Callable, Iterator, TextIO
+from typing import Any, Callable, Iterator, Sequence, TextIO
 
 
 class StageLog:
     """`with stages("compiling the epoch"): ...` prints `[elapsed] compiling the epoch ...`, then
-    `[elapsed] compiling the epoch: 27.8 s`, and while the stage runs longer than `tick`
-    seconds, `[elapsed] still compiling the epoch (60 s)` every `tick` seconds (from a
-    background thread: the main thread is blocked in a compile). Elapsed times count from `t0`
-    (default: now). `log` may be swapped (e.g. for a progress bar's `write`)."""
+    `[elapsed] compiling the epoch: 27.8 s`, and while the stage runs, `[elapsed] still compiling
+    the epoch (20 s)` after `first_ticks` seconds (10 and 20) and then every `tick` seconds (from
+    a background thread: the main thread is blocked in a compile), so that the console is never
+    silent for long. Elapsed times count from `t0` (default: now; the CLI's: the process start).
+    `log` may be swapped (e.g. for a progress bar's `write`)."""
 
-    def __init__(self, log: Callable[[str], None] = print, t0: float | None = None, tick: float = 30.0):
+    def __init__(self, log: Callable[[str], None] = print, t0: float | None = None, tick: float = 30.0,
+                 first_ticks: Sequence[float] = (10.0, 20.0)):
         self.log = log
         self.t0 = time.time() if t0 is None else t0
         self.tick = tick
+        self.first_ticks = tuple(first_ticks)
 
     def elapsed(self) -> float:
         return time.time() - self.t0
 
     def line(self, text: str) -> None:
         self.log(f"[{self.elapsed():7.1f} s] {text}")
+
+    def _ticks(self) -> Iterator[float]:
+        """Seconds into a stage at which it is said to be still running."""
+        yield from (t for t in self.first_ticks if t < self.tick)
+        k = 1
+        while True:
+            yield k * self.tick
+            k += 1
 
     @contextlib.contextmanager
     def __call__(self, what: str) -> Iterator[None]:
@@ -50,7 +62,9 @@ class StageLog:
         done = threading.Event()
 
         def ticker() -> None:
-            while not done.wait(self.tick):
+            for at in self._ticks():
+                if done.wait(max(0.0, start + at - time.time())):
+                    return
                 self.line(f"still {what} ({time.time() - start:.0f} s)")
 
         t = threading.Thread(target=ticker, daemon=True, name="bulbjax-stage-ticker")
@@ -63,6 +77,19 @@ class StageLog:
             if t.is_alive():
                 t.join()
         self.line(f"{what}: {time.time() - start:.1f} s")
+
+
+def process_start_time() -> float:
+    """When this process started (Linux: from /proc; elsewhere, now): the CLI counts its stage
+    times from there, so Python's start-up and imports are on the console too."""
+    try:
+        with open("/proc/self/stat") as f:
+            ticks = int(f.read().rsplit(")", 1)[1].split()[19])  # field 22, starttime
+        with open("/proc/stat") as f:
+            boot = next(float(line.split()[1]) for line in f if line.startswith("btime "))
+        return boot + ticks / os.sysconf("SC_CLK_TCK")
+    except (OSError, ValueError, IndexError, StopIteration):
+        return time.time()
 
 
 class _Tee:
@@ -100,9 +127,11 @@ class _Tee:
 
 
 @contextlib.contextmanager
-def log_to_file(path: str, fresh: bool = False, header: str = "") -> Iterator[str]:
+def log_to_file(path: str, fresh: bool = False, header: str = "", preamble: Sequence[str] = ()) -> Iterator[str]:
     """Within the block: C++ log output (file descriptor 2) goes to `path` (appended, or
-    truncated when `fresh`), Python's stdout and stderr go to the console and into `path`. On
+    truncated when `fresh`, after the `header` line and the `preamble` lines: what was said on
+    the console before the file could be opened), Python's stdout and stderr go to the console
+    and into `path`. On
     leaving, everything is put back; if the block raised an unexpected error (not a ValueError,
     whose message says what to do), the console is told where the log is.
     Yields `path`."""
@@ -111,6 +140,8 @@ def log_to_file(path: str, fresh: bool = False, header: str = "") -> Iterator[st
     log = open(path, "w" if fresh else "a", buffering=1, encoding="utf-8", errors="replace")
     now = datetime.datetime.now().isoformat(timespec="seconds")
     log.write(f"==== {now} {header}\n")
+    for line in preamble:
+        log.write(f"{line}\n")
     saved_fd2 = os.dup(2)
     console_err = os.fdopen(os.dup(saved_fd2), "w", buffering=1, encoding=getattr(sys.stderr, "encoding", None)
                             or "utf-8", errors="backslashreplace")

@@ -15,8 +15,8 @@ from typing import Any, Sequence
 import numpy as np
 
 from bulbjax.eval.spec import StateEntry
-from bulbjax.experiment.records import (STREAMS, VARIANT_SOURCES, ci90, groups_of, per_seed_error,
-                                        probed)
+from bulbjax.experiment.records import (STREAMS, VARIANT_SOURCES, ci90, excluded_groups, groups_of,
+                                        per_seed_error, probed)
 
 PENDULUMS = ("CartPole", "InvertedPendulum")
 LOCOMOTION = ("HalfCheetah", "Ant")
@@ -89,7 +89,8 @@ def check(records: Sequence[dict[str, Any]], spec: Sequence[StateEntry], env: st
           last: int = 3, variant: str = "present") -> tuple[list[Verdict], list[int]]:
     """The Fig. 2 claims on the last `last` probed epochs; returns the verdicts and those epochs.
     `variant`: whose errors decide them (`records.VARIANT_SOURCES`: the present probe's, or a
-    probe-protocol variant's; the probes-agree rows only for the present probe)."""
+    probe-protocol variant's; the added-learner and probes-agree rows only for the present
+    probe)."""
     source = VARIANT_SOURCES[variant]
     epochs = sorted({r["epoch"] for r in probed(records)})[-last:]
     have = set().union(*(r.get(source[0], {}) for r in probed(records) if r["epoch"] in epochs))
@@ -164,8 +165,37 @@ def check(records: Sequence[dict[str, Any]], spec: Sequence[StateEntry], env: st
                 continue
             out.append(one(claim, (name, "vae_rpl"), both(name, group)))
     if variant == "present":
+        out += added_learner_rows(records, spec, epochs)
         out += _probe_agreement(records, epochs)
     return out, epochs
+
+
+# every learner the paper's figures (and this suite's contrastive additions) have claims about
+PAPER_LEARNERS = ("vae", "vae_rpl", "beta_vae", *SEQUENTIAL, "spair", "spair6", *CONTRASTIVE)
+
+
+def added_learner_rows(records: Sequence[dict[str, Any]], spec: Sequence[StateEntry],
+                       epochs: Sequence[int]) -> list[Verdict]:
+    """Rows for each learner beyond the paper's (`PAPER_LEARNERS`: a researcher's own, added with
+    `--learners pkg.module:Name` or `bulbjax reproduce --add-learner`): per state group, its error
+    below VAE_rpl's and below the constant predictor's, on both streams (paired over seeds), so a
+    new method reads against the paper's baseline on every figure."""
+    recs = probed(records)
+    have = list(recs[0]["probes"]) if recs else []
+    gone = excluded_groups(recs)
+    out = []
+    for name in [n for n in have if n not in PAPER_LEARNERS]:
+        for group in [g for g in groups_of(spec) if g not in gone]:
+            for other, label in (("vae_rpl", "VAE_rpl"), ("constant", "the constant predictor")):
+                claim = f"{name} below {label} on {group} (added learner)"
+                if other != "constant" and other not in have:
+                    out.append(Verdict(claim, f"not tested (the run has no {other})", ""))
+                    continue
+                parts = [_lower(records, name, other, s, group, epochs) for s in ("rand", "curr")]
+                out.append(Verdict(claim, _combine([v for v, *_ in parts]),
+                                   "; ".join(d for _, d, _ in parts), (name, other),
+                                   tuple(p for *_, p in parts)))
+    return out
 
 
 def _probe_agreement(records: Sequence[dict[str, Any]], epochs: Sequence[int]) -> list[Verdict]:

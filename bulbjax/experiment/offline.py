@@ -231,6 +231,7 @@ def _check_resumable(out_dir: str, now: dict[str, Any]) -> None:
         raise ValueError(f"--resume: {path} does not exist; is {out_dir} the --out of a `bulbjax fit`?")
     with open(path) as f:
         saved = json.load(f)
+    saved.get("base", {}).setdefault("learner_modules", [])  # fits written before the field
     diff = [k for k in sorted(set(saved["offline"]) | set(now["offline"]))
             if k != "updates" and saved["offline"].get(k) != now["offline"].get(k)]
     diff += [k for k in ("base", "source", "seed") if saved.get(k) != now.get(k)]
@@ -375,22 +376,24 @@ def write_outputs(fit: OfflineFit, records: list[dict], states: dict, held: Wind
     predictor dotted), `table.md` (last probe) and `recon.png` (held-out frames and every
     learner's reconstruction, seed 0)."""
     c = fit.config
-    n_upd = max(r["update"] for r in records)
-    title = f"{fit.source.name} offline: {fit.S} seeds, {n_upd} updates"
-    report.plot(records, fit.spec, os.path.join(out_dir, "curves.png"), title, x_key="update",
-                streams=(("rand", "held-out π_rand"),))
-    tab = report.table(records, fit.spec, last=1, x_key="update", streams=(("rand", "held-out π_rand"),))
+    title = report.offline_title(fit.source.name, fit.S, records)
     timing = (f"wall time {wall:.1f} s (data {t_data:.1f} s) on {jax.devices()[0].device_kind}; "
               f"batch {c.base.learner.batch_size} frames, sequential {c.base.seq_len}-step windows")
-    with open(os.path.join(out_dir, "table.md"), "w") as f:
-        f.write(f"# {title}\n\n{tab}\n\n{timing}\n")
+    report.write_offline_reports(out_dir, records, fit.spec, title, footer=timing)
     save_recon_grid(fit, states, held, os.path.join(out_dir, "recon.png"))
 
 
 def save_recon_grid(fit: OfflineFit, states: dict, held: Windows, path: str, n: int = 8) -> None:
-    """Row 0: `n` consecutive held-out frames (one window); then one row per learner (seed 0).
-    Drawn by `bulbjax.experiment.figures` (the paper's Fig. 4 layout)."""
+    """Row 0: `n` consecutive held-out frames (one window); then one row per learner that has
+    `reconstruct` (seed 0; the contrastive ones and others without it have none, and with none
+    at all no figure is written). Drawn by `bulbjax.experiment.figures` (the paper's Fig. 4
+    layout)."""
     from bulbjax.experiment import figures
 
-    figures.recon_figure(path, fit.learners, figures.seed_params(states, 0), held,
+    learners = {n: x for n, x in fit.learners.items() if hasattr(x, "reconstruct")}
+    if not learners:
+        if os.path.exists(path):  # an earlier fit's, in an overwritten folder
+            os.remove(path)
+        return
+    figures.recon_figure(path, learners, figures.seed_params(states, 0), held,
                          figures.FigureConfig(frames=n), title=f"{fit.source.name}: held-out frames, seed 0")

@@ -1,7 +1,7 @@
-"""Host-side reports of a run: the Fig. 2-style plot, the object-probe plot, the final table, and
-the report files of a run folder (`fig2.png`, `table.md`, `findings.md`, `objects.png`), written
+"""Host-side reports of a run: the final table and the report files of a run folder (`fig2.png`,
+`table.md`, `findings.md`, `objects.png`; an offline fit's `curves.png` and `table.md`), written
 during a run, redrawn (`bulbjax report`), over the merged seeds of several runs, or comparing the
-PPO returns of runs. The records they read: `records`."""
+PPO returns of runs. The plots: `report_plots`; the records they read: `records`."""
 
 from __future__ import annotations
 
@@ -15,138 +15,12 @@ from bulbjax.eval import objects
 from bulbjax.eval.spec import StateEntry
 from bulbjax.experiment import findings
 from bulbjax.experiment.config import read_run_config, run_options_of
-from bulbjax.experiment.records import (NORM_NOTE, STREAMS, band, ci90, curves, epochs_to_reach, excluded_groups,
-                                        groups_of, has_linear, has_objects, last_returns, metrics_path, nanmean,
-                                        object_curves, per_seed_error, probed, read_jsonl, rl_curve, write_jsonl)
-from bulbjax.experiment.records import VARIANT_SOURCES, variants_of
-
-def plot(records: Sequence[dict[str, Any]], spec: Sequence[StateEntry], path: str, title: str,
-         solved_return: float | None = None, x_key: str = "epoch",
-         streams: Sequence[tuple[str, str]] = STREAMS) -> None:
-    """Fig. 2 of the paper for one domain: normalised MAE against epoch for each learner (mean and
-    90% band over seeds), rows pi_curr / pi_rand, one column per state group, RL return below
-    (when the records have one). The dotted black line is the constant (median) predictor: an
-    error is read against it. Solid lines and bands: the MLP probe; dashed lines (mean over
-    seeds): the linear (ridge) probe of the same pairs, when the records have one. Offline fits
-    plot against `x_key="update"`, one stream."""
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    groups = groups_of(spec)
-    learners = list(probed(records)[0]["probes"])
-    linear = has_linear(records)
-    has_rl = "rl_return" in records[0]
-    rows = len(streams) + has_rl
-    fig, axes = plt.subplots(rows, len(groups), figsize=(4.2 * len(groups), 2.9 * rows + 0.6),
-                             squeeze=False, sharex=True)
-    colours = plt.rcParams["axes.prop_cycle"].by_key()["color"]
-    gone = excluded_groups(records)
-    for row, (stream, label) in enumerate(streams):
-        for col, group in enumerate(groups):
-            ax = axes[row, col]
-            if group in gone:
-                ax.set_title(f"{label}: {group}")
-                ax.text(0.5, 0.5, "excluded\n(constant over the run:\nnothing to predict)", ha="center",
-                        va="center", transform=ax.transAxes, color="0.4")
-                continue
-            for i, name in enumerate(learners):
-                ep, v = curves(records, name, stream, group, x_key=x_key)
-                mean, half = ci90(v)
-                ax.plot(ep, mean, color=colours[i % len(colours)], label=name, marker="." if len(ep) < 30 else None)
-                ax.fill_between(ep, mean - half, mean + half, color=colours[i % len(colours)], alpha=0.2)
-                if linear:
-                    ep, v = curves(records, name, stream, group, x_key=x_key, probes="linear_probes")
-                    ax.plot(ep, nanmean(v, 0), color=colours[i % len(colours)], ls="--", lw=1.0,
-                            label=f"{name} (linear)")
-            ep, b = curves(records, learners[0], stream, group, key="baseline_norm", x_key=x_key)
-            ax.plot(ep, nanmean(b, 0), "k:", label="constant predictor")
-            ax.set_title(f"{label}: {group}")
-            ax.set_ylabel("MAE / π_rand reference spread")
-            ax.set_ylim(bottom=0)
-            if not has_rl and row == rows - 1:
-                ax.set_xlabel(x_key)
-    if has_rl:
-        _plot_rl(axes[-1], records, solved_return)
-    axes[0, 0].legend(fontsize=8)
-    import textwrap
-    probes_note = "solid: MLP probe (90% band); dashed: linear (ridge) probe. " if linear else ""
-    note = "\n".join(textwrap.wrap(probes_note + NORM_NOTE, 55 * len(groups)))
-    fig.suptitle(f"{title}\n{note}", fontsize=8)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-
-
-def plot_objects(records: Sequence[dict[str, Any]], path: str, title: str,
-                 streams: Sequence[tuple[str, str]] = STREAMS) -> None:
-    """The object-level probes against epoch (issue 11), mean and 90% band over seeds: for the
-    learners with boxes (SPAIR) the mean distance from each true object to the nearest present box
-    centre (px) and the share of objects found within the radius; for every learner the MLP
-    probe's normalised error on the `object_position` group, with the constant predictor dotted.
-    Rows pi_curr / pi_rand."""
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    boxed = list(dict.fromkeys(n for r in records for n in r.get("objects", {})))
-    learners = list(probed(records)[0]["probes"])
-    colours = plt.rcParams["axes.prop_cycle"].by_key()["color"]
-    colour = {n: colours[i % len(colours)] for i, n in enumerate(learners)}
-    radius = next(o["radius"] for r in records for d in r.get("objects", {}).values() for o in d.values())
-    fig, axes = plt.subplots(len(streams), 3, figsize=(13, 3.0 * len(streams) + 0.5), squeeze=False, sharex=True)
-    for row, (stream, label) in enumerate(streams):
-        for col, (key, ylabel) in enumerate((("error_mean", "px"), ("found_share", f"share within {radius:.1f} px"))):
-            ax = axes[row, col]
-            for name in boxed:
-                ep, v = object_curves(records, name, stream, key)
-                mean, half = ci90(v)
-                ax.plot(ep, mean, color=colour.get(name), label=name)
-                ax.fill_between(ep, mean - half, mean + half, color=colour.get(name), alpha=0.2)
-            ax.set_title(f"{label}: boxes, {'distance to nearest box' if col == 0 else 'objects found'}")
-            ax.set_ylabel(ylabel)
-            ax.set_ylim(bottom=0, top=None if col == 0 else 1.02)
-        ax = axes[row, 2]
-        for name in learners:
-            ep, v = curves(records, name, stream, "object_position")
-            mean, half = ci90(v)
-            ax.plot(ep, mean, color=colour[name], label=name)
-            ax.fill_between(ep, mean - half, mean + half, color=colour[name], alpha=0.2)
-        ep, b = curves(records, learners[0], stream, "object_position", key="baseline_norm")
-        ax.plot(ep, nanmean(b, 0), "k:", label="constant predictor")
-        ax.set_title(f"{label}: MLP probe, object_position")
-        ax.set_ylabel("MAE / π_rand reference spread")
-        ax.set_ylim(bottom=0)
-    for ax in axes[-1]:
-        ax.set_xlabel("epoch")
-    axes[0, 0].legend(fontsize=8)
-    axes[0, 2].legend(fontsize=8)
-    fig.suptitle(f"{title}: object-level probes", fontsize=9)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-
-
-def _rl_band(ep: np.ndarray, r: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Of `rl_curve`'s epochs and `[seeds, epochs]` returns: the epochs with a return, the mean
-    return and its 90% CI half-width over seeds."""
-    mean, half = ci90(r)
-    # epochs in which no episode ended (long locomotion episodes) have no return: join the others
-    ok = np.isfinite(mean)
-    return np.asarray(ep)[ok], mean[ok], np.nan_to_num(half[ok])
-
-
-def _plot_rl(axes: Any, records: Sequence[dict[str, Any]], solved_return: float | None) -> None:
-    """The PPO return row of the Fig. 2 plot."""
-    ep, mean, half = _rl_band(*rl_curve(records))
-    for ax in axes:
-        ax.plot(ep, mean, color="tab:green", marker=".", label="PPO return")
-        ax.fill_between(ep, mean - half, mean + half, color="tab:green", alpha=0.2)
-        if solved_return is not None:
-            ax.axhline(solved_return, color="k", ls="--", lw=0.8, label="solved")
-        ax.set_xlabel("epoch")
-        ax.set_ylabel("episode return")
-    axes[0].legend(fontsize=8)
+from bulbjax.experiment.records import (STREAMS, VARIANT_SOURCES, band, ci90, epochs_to_reach,
+                                        excluded_groups, groups_of, has_linear, has_objects,
+                                        last_returns, metrics_path, per_seed_error, probed,
+                                        read_jsonl, rl_curve, variants_of, write_jsonl)
+from bulbjax.experiment.report_plots import (OLD_NORM_NOTE, has_reference_spread, norm_note, plot,
+                                             plot_objects, rl_band)
 
 
 def table(records: Sequence[dict[str, Any]], spec: Sequence[StateEntry], last: int = 1,
@@ -162,6 +36,10 @@ def table(records: Sequence[dict[str, Any]], spec: Sequence[StateEntry], last: i
     learners = list(recs[0]["probes"])
     head = "| learner | stream | " + " | ".join(f"{g} (norm. MAE)" for g in groups) + " | overall |"
     lines = [head, "|" + "---|" * (3 + len(groups))]
+    if not has_reference_spread(records):  # a run from before issue 12: say what its errors are
+        lines = [f"> Error definition used here (before issue 12): {OLD_NORM_NOTE}. Later runs divide "
+                 "by a fixed random-policy reference spread (README, \"How errors are reported\").",
+                 ""] + lines
     seeds = sorted({r["seed"] for r in recs})
     gone = excluded_groups(recs)
 
@@ -214,7 +92,7 @@ def table(records: Sequence[dict[str, Any]], spec: Sequence[StateEntry], last: i
                      "pairs for every learner of a seed); `<learner> (window)`: sequential learners' "
                      "whole-window probe, every learner scored on the held-out windows' last steps "
                      "(docs/probes.md, \"Variants of the protocol\").")
-    lines.append(f"Errors: {NORM_NOTE}; raw MAE in each entry's unit in metrics.jsonl.")
+    lines.append(f"Errors: {norm_note(records)}; raw MAE in each entry's unit in metrics.jsonl.")
     if "raw" in variants_of(recs):
         raw = raw_table(recs, groups, epochs, x_key, streams)
         lines += ["", "## Raw MAE (probe variant `raw`)", "", raw]
@@ -265,25 +143,37 @@ def title_of(cfg: Any, epochs_done: int) -> str:
 
 def write_reports(run_dir: str, records: Sequence[dict[str, Any]], cfg: Any,
                   spec: Sequence[StateEntry], solved_return: float | None = None,
-                  footer: str = "") -> str:
-    """`fig2.png`, `table.md`, `findings.md` (the paper's Fig. 2 claims checked, `findings`) (and `objects.png` when learners with boxes were probed in a
-    domain with objects) of a run from its records (all epochs written so far); returns the table. Epochs whose seeds are not all written yet (a run in progress) are left out."""
+                  footer: str = "", figures: bool = True, source_dir: str | None = None) -> str:
+    """`fig2.png`, `table.md`, `findings.md` (the paper's Fig. 2 claims checked, `findings`) (and
+    `objects.png` when learners with boxes were probed in a domain with objects) of a run from its
+    records (all epochs written so far); returns the table. Epochs whose seeds are not all
+    written yet (a run in progress) are left out, and so are the probes of epochs that only some
+    seeds were probed at (merged runs whose metrics were reduced differently): the table says
+    which. `figures=False` writes the Markdown files only (tests of the committed results).
+    `source_dir`: the run folder whose `regions_<epoch>.json` the object findings read, where
+    the reports go elsewhere (default `run_dir`)."""
     seeds = sorted({r["seed"] for r in records})
     per_epoch: dict[int, int] = {}
     for r in records:
         per_epoch[r["epoch"]] = per_epoch.get(r["epoch"], 0) + 1
     records = [r for r in records if per_epoch[r["epoch"]] == len(seeds)]
+    records, partial = drop_partial_probes(records, len(seeds))
     if not probed(records):
-        raise ValueError(f"{run_dir} has no probed epoch yet: nothing to plot (wait for the first epoch)")
+        raise ValueError(f"{source_dir or run_dir} has no probed epoch yet: nothing to plot "
+                         "(wait for the first epoch)")
     done = len({r["epoch"] for r in records})
     title = title_of(cfg, done)
-    plot(records, spec, os.path.join(run_dir, "fig2.png"), title, solved_return=solved_return)
+    if figures:
+        plot(records, spec, os.path.join(run_dir, "fig2.png"), title, solved_return=solved_return)
     last = min(3, len(probed(records)) // len(seeds))
     tab = table(records, spec, last=last)
+    if partial:
+        tab += ("\n\nProbed at only some seeds, left out of this table, the findings and the "
+                f"plots: epoch(s) {', '.join(map(str, partial))}.")
     obj = objects.comparison_table(records, spec, last=last)
     if obj:
         tab += f"\n\n## Objects\n\n{obj}"
-    if obj and has_objects(records):
+    if obj and has_objects(records) and figures:
         plot_objects(records, os.path.join(run_dir, "objects.png"), title)
     with open(os.path.join(run_dir, "table.md"), "w") as f:
         f.write(f"# {title}\n\n{tab}\n" + (f"\n{footer}\n" if footer else ""))
@@ -292,8 +182,10 @@ def write_reports(run_dir: str, records: Sequence[dict[str, Any]], cfg: Any,
 
         from bulbjax.eval import regions
 
+        newest = regions.newest(source_dir or run_dir)
         verdicts, epochs = findings_objects.check_objects(records, cfg.env, cfg.version, last=last,
-                                                          regions=regions.newest(run_dir))
+                                                          regions=newest)
+        verdicts += findings.added_learner_rows(records, spec, epochs)
         body = findings_objects.markdown(verdicts, epochs, len(seeds))
         which = "Figs. 3 and 5"
     else:
@@ -308,6 +200,25 @@ def write_reports(run_dir: str, records: Sequence[dict[str, Any]], cfg: Any,
     return tab
 
 
+def drop_partial_probes(records: Sequence[dict[str, Any]], seeds: int
+                        ) -> tuple[list[dict[str, Any]], list[int]]:
+    """`records` with the probe results of epochs probed at fewer than `seeds` seeds removed (the
+    records stay, as unprobed ones), and those epochs. A run probes all its seeds at the same
+    epochs; pooled runs whose metrics kept different probed epochs would otherwise be averaged
+    over a subset of seeds while the reports name all of them."""
+    probed_at: dict[int, int] = {}
+    for r in probed(records):
+        probed_at[r["epoch"]] = probed_at.get(r["epoch"], 0) + 1
+    partial = sorted(e for e, n in probed_at.items() if n < seeds)
+    if not partial:
+        return list(records), []
+    gone = ("linear_probes", "objects", "probe_inputs_clamped",
+            *(key for key, _ in VARIANT_SOURCES.values()))  # "probes" and the variants' keys
+    out = [r if r["epoch"] not in partial
+           else {**{k: v for k, v in r.items() if k not in gone}, "probes": {}} for r in records]
+    return out, partial
+
+
 def report_spec(state_spec: Sequence[StateEntry], records: Sequence[dict]) -> tuple[StateEntry, ...]:
     """The entries a run's probes regressed: the state and its derived targets
     (`probing.probe_targets`), or the state alone for records written before the derived
@@ -319,19 +230,96 @@ def report_spec(state_spec: Sequence[StateEntry], records: Sequence[dict]) -> tu
     return tuple(state_spec) if widths == {len(state_spec)} else spec
 
 
-def redraw(run_dir: str) -> str:
-    """`bulbjax report RUN_DIR`: fig2.png and table.md again from config.json and metrics.jsonl
-    (also while the run is still writing them: incomplete epochs are left out)."""
+def redraw(run_dir: str, out_dir: str | None = None, figures: bool = True) -> str:
+    """`bulbjax report RUN_DIR [--out OUT]`: the reports again from config.json and metrics.jsonl
+    (also while the run is still writing them: incomplete epochs are left out), into `out_dir`
+    (created; default the run folder itself); an offline fit's folder (`bulbjax fit`: config.json
+    with `offline`, `curves.jsonl`) gets its `curves.png` and `table.md` again
+    (`redraw_offline`). `figures=False`: the Markdown files only."""
     from bulbjax.envs.registry import env_class
 
+    if is_offline(run_dir):
+        if out_dir is not None and os.path.abspath(out_dir) != os.path.abspath(run_dir):
+            raise ValueError(f"{run_dir} is an offline fit's folder: `bulbjax report` redraws it in place "
+                             "(leave out --out)")
+        with open(os.path.join(run_dir, "config.json")) as f:
+            return redraw_offline(run_dir, json.load(f), figures)
     cfg, _ = read_run_config(run_dir)
     records = read_jsonl(metrics_path(run_dir), tolerate_partial=True)
     cls = env_class(cfg.env)
-    return write_reports(run_dir, records, cfg, report_spec(cls.state_spec, records), cls.solved_return,
+    out_dir = run_dir if out_dir is None else out_dir
+    os.makedirs(out_dir, exist_ok=True)
+    return write_reports(out_dir, records, cfg, report_spec(cls.state_spec, records),
+                         cls.solved_return, source_dir=run_dir, figures=figures,
                          footer=f"redrawn by `bulbjax report` from {len(records)} records")
 
 
-def merge_seeds(run_dirs: Sequence[str], out_dir: str) -> str:
+def is_offline(run_dir: str) -> bool:
+    """Whether `run_dir` is an offline fit's folder (`bulbjax fit`: its config.json has
+    `offline`)."""
+    path = os.path.join(run_dir, "config.json")
+    if not os.path.exists(path):
+        return False
+    with open(path) as f:
+        return "offline" in json.load(f)
+
+
+OFFLINE_STREAMS = (("rand", "held-out π_rand"),)
+
+
+def write_offline_reports(out_dir: str, records: Sequence[dict[str, Any]],
+                          spec: Sequence[StateEntry], title: str, footer: str = "",
+                          figures: bool = True) -> str:
+    """An offline fit's `curves.png` (normalised error against updates per group and learner,
+    the constant predictor dotted) and `table.md` (the last probe), footer last; returns the
+    table."""
+    if figures:
+        plot(records, spec, os.path.join(out_dir, "curves.png"), title, x_key="update",
+             streams=OFFLINE_STREAMS)
+    tab = table(records, spec, last=1, x_key="update", streams=OFFLINE_STREAMS)
+    with open(os.path.join(out_dir, "table.md"), "w") as f:
+        f.write(f"# {title}\n\n{tab}\n" + (f"\n{footer}\n" if footer else ""))
+    return tab
+
+
+def offline_title(source: str, seeds: int, records: Sequence[dict[str, Any]]) -> str:
+    return f"{source} offline: {seeds} seeds, {max(r['update'] for r in records)} updates"
+
+
+def redraw_offline(run_dir: str, raw: dict[str, Any], figures: bool = True) -> str:
+    """`bulbjax report FIT_DIR` of an offline fit: `curves.png` and `table.md` from its
+    config.json (`offline`, `base`, `source`, `seed`) and `curves.jsonl` (or `.gz`). The
+    reconstruction grid needs the learners: `bulbjax fit --resume` draws it."""
+    import dataclasses
+
+    from bulbjax.data import synthetic
+    from bulbjax.envs.registry import env_class
+    from bulbjax.experiment.config import OfflineConfig, config_from_dict
+
+    base = config_from_dict(raw["base"])
+    if base.env == synthetic.NAME:
+        movers = raw["offline"].get("movers")
+        fields = {f.name for f in dataclasses.fields(OfflineConfig)} - {"base", "movers"}
+        oc = OfflineConfig(base=base, movers=synthetic.MoversConfig(**movers) if movers else None,
+                           **{k: v for k, v in raw["offline"].items() if k in fields})
+        state_spec = oc.movers_config().state_spec
+    else:
+        state_spec = env_class(base.env).state_spec
+    path = os.path.join(run_dir, "curves.jsonl")
+    path = next((p for p in (path, path + ".gz") if os.path.exists(p)), None)
+    if path is None:
+        raise ValueError(f"{run_dir}/curves.jsonl (or .gz) does not exist: is {run_dir} the --out "
+                         "folder of a `bulbjax fit`?")
+    records = read_jsonl(path, tolerate_partial=True)
+    if not records:
+        raise ValueError(f"{path} has no probe yet: nothing to draw (wait for the first)")
+    return write_offline_reports(run_dir, records, report_spec(state_spec, records),
+                                 offline_title(raw["source"], base.seeds, records),
+                                 footer=f"redrawn by `bulbjax report` from {len(records)} records",
+                                 figures=figures)
+
+
+def merge_seeds(run_dirs: Sequence[str], out_dir: str, figures: bool = True) -> str:
     """`bulbjax report RUN_A RUN_B ... --merge-seeds --out DIR`: one report over the seeds of
     several runs of one configuration made with different base seeds (`--seed`): e.g. half the
     seeds on each of two GPUs side by side, or in two sessions. Seeds are renumbered run after
@@ -384,7 +372,43 @@ def merge_seeds(run_dirs: Sequence[str], out_dir: str) -> str:
     cls = env_class(cfg.env)
     names = ", ".join(f"{s['run_dir']} (seed {s['base_seed']}: {s['seeds']} seeds)" for s in sources)
     return write_reports(out_dir, merged, cfg, report_spec(cls.state_spec, merged), cls.solved_return,
-                         footer=f"seeds of {len(runs)} runs merged by `bulbjax report --merge-seeds`: {names}")
+                         footer=f"seeds of {len(runs)} runs merged by `bulbjax report --merge-seeds`: {names}",
+                         figures=figures)
+
+
+def merge_sources(merged_dir: str) -> list[str]:
+    """The run folders a merged folder (`--merge-seeds --out`) pooled, in its order, found again
+    where they are now: for each `merged_from` entry of its config.json, the one folder beside it
+    whose config.json has that base seed and seed count (results are committed as `seed0/`,
+    `seed1/`, `merged/` side by side; the recorded `run_dir` is the path on the machine that
+    merged them), else the recorded path if it exists. A clear error when neither is found."""
+    with open(os.path.join(merged_dir, "config.json")) as f:
+        sources = json.load(f).get("merged_from")
+    if not sources:
+        raise ValueError(f"{merged_dir} is no merged folder (its config.json has no merged_from)")
+    parent = os.path.dirname(os.path.normpath(merged_dir))
+    beside = []  # (folder, base seed, seeds) of the runs beside it
+    for name in sorted(os.listdir(parent or ".")):
+        d = os.path.join(parent, name)
+        if os.path.samefile(d, merged_dir) or not os.path.isfile(os.path.join(d, "config.json")):
+            continue
+        with open(os.path.join(d, "config.json")) as f:
+            raw = json.load(f)
+        if "merged_from" in raw or "offline" in raw:
+            continue
+        seed = run_options_of(raw)["seed"]
+        beside.append((d, 0 if seed is None else seed, read_run_config(d)[0].seeds))
+    out = []
+    for s in sources:
+        hits = [d for d, seed, n in beside if seed == s["base_seed"] and n == s["seeds"]]
+        if len(hits) == 1:
+            out.append(hits[0])
+        elif os.path.isdir(s["run_dir"]):
+            out.append(s["run_dir"])
+        else:
+            raise ValueError(f"{merged_dir}: the run of base seed {s['base_seed']} ({s['seeds']} seeds, "
+                             f"merged from {s['run_dir']}) is neither beside it nor at that path")
+    return out
 
 
 def rl_compare(run_dirs: Sequence[str], out_dir: str, solved_return: float | None = None) -> str:
@@ -416,7 +440,7 @@ def rl_compare(run_dirs: Sequence[str], out_dir: str, solved_return: float | Non
         if not records:
             raise ValueError(f"{metrics_path(d)} has no epoch yet")
         epochs, r = rl_curve(records)
-        ep, mean, half = _rl_band(epochs, r)
+        ep, mean, half = rl_band(epochs, r)
         observes = cfg.rl_input + (f", last {cfg.rl_frames} frames" if cfg.rl_frames > 1 else "")
         line, = ax.plot(ep, mean, label=observes)
         ax.fill_between(ep, mean - half, mean + half, color=line.get_color(), alpha=0.2)

@@ -28,6 +28,7 @@ from bulbjax.envs import registry
 from bulbjax.experiment.config import (ExperimentConfig, OfflineConfig, RunOptions, preset as named_preset,
                                        read_run_config, run_options_of, small_config)
 from bulbjax.learners import LearnerConfig, is_sequential_name, parse_learner_options
+from bulbjax.learners.plugins import load_learner_spec, parse_learner_list
 from bulbjax.rl.ppo_config import parse_ppo_options
 
 # `bulbjax fit --small`: a CPU-sized dataset (worlds, steps per world, held-out steps per world).
@@ -35,10 +36,9 @@ SMALL_DATASET: dict[str, int] = {"data_worlds": 32, "data_steps": 128, "heldout_
 
 
 def parse_learners(text: str | Sequence[str]) -> tuple[str, ...]:
-    """`"vae, vae_rpl"` (a command line's comma-separated list) or a sequence -> learner names."""
-    if isinstance(text, str):
-        return tuple(x.strip() for x in text.split(",") if x.strip())
-    return tuple(text)
+    """`"vae, vae_rpl, mod:Mine"` (a command line's comma-separated list) or a sequence ->
+    learner names (a learner of one's own loaded: `learners.plugins.parse_learner_list`)."""
+    return parse_learner_list(text)
 
 
 def parse_version(text: int | str) -> int | str:
@@ -100,8 +100,10 @@ def _overrides(overrides: Mapping[str, Any]) -> dict[str, Any]:
         raise ValueError(f"ExperimentConfig has no settable fields {unknown}; these can be overridden: "
                          f"{', '.join(sorted(fields))} (learner settings: learner=... or KEY=VALUE options)")
     out = dict(overrides)
-    if "learners" in out:
-        out["learners"] = parse_learners(out["learners"])
+    if "learners" in out:  # learners of one's own loaded (the config records their specs)
+        out["learners"] = parse_learner_list(out["learners"])
+    if str(out.get("rl_input", "")).count(":") > 1:  # latent:MODULE:NAME
+        out["rl_input"] = "latent:" + load_learner_spec(out["rl_input"].split(":", 1)[1])
     if "version" in out:
         out["version"] = parse_version(out["version"])
     if isinstance(out.get("probe_variants"), str):
@@ -208,6 +210,9 @@ def resolve_offline(preset: str | None = None, *, overrides: Mapping[str, Any] |
     if env is None and not preset:
         raise ValueError("fit needs --env (an environment of `bulbjax envs`, or SyntheticMovers) or --preset")
     synth = env == synthetic.NAME
+    if env is not None and not synth and env not in registry.env_names():
+        raise ValueError(f"unknown environment {env!r}; available: {', '.join(registry.env_names())} "
+                         f"and, for `bulbjax fit` only, {synthetic.NAME}")
     if synth:  # SyntheticMovers' own defaults, under what was given
         overrides = {"resolution": 32, "sequence_length": 8, **overrides, "multicolour": False}
     base = resolve(preset, overrides=overrides, learner=learner, learner_options=learner_options,

@@ -19,16 +19,9 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
-import datetime
-import hashlib
-import importlib.metadata
 import json
 import os
-import platform
-import shlex
 import signal
-import subprocess
-import sys
 import time
 from dataclasses import dataclass
 from typing import Any, Callable, Sequence
@@ -37,16 +30,15 @@ import jax
 
 from bulbjax import distributed
 from bulbjax.experiment import report, rundir
-from bulbjax.experiment.checkpoint import CHECKPOINT_DIR, Checkpointer
+from bulbjax.experiment.checkpoint import CHECKPOINT_DIR, Checkpointer, CheckpointWriteError
 from bulbjax.experiment.console import StageLog
 from bulbjax.experiment.config import IDENTITY, ExperimentConfig, RunOptions, read_run_config, run_options_of
 from bulbjax.experiment.groups import SeedGroups
 from bulbjax.experiment.loop import Experiment
+from bulbjax.experiment.provenance import VERSIONED, git_state, provenance, source_hash  # noqa: F401
 from bulbjax.experiment.records import (epoch_records, last_returns, nanmean, read_jsonl, scalars, write_jsonl,
                                         write_jsonl_atomic)
 
-VERSIONED = ("jax", "jaxlib", "flax", "optax", "orbax-checkpoint", "mujoco", "mujoco-mjx",
-             "mujoco-warp", "warp-lang", "numpy", "bulbjax")
 TB_DIR = "tb"
 
 
@@ -56,72 +48,6 @@ class RunResult:
     stopped: str  # "done", "max-minutes", "stop-after", "signal SIGTERM", ...
     records: list[dict[str, Any]]
     checkpoint: int | None  # epoch of the newest checkpoint
-
-
-# ---------------------------------------------------------------------------- provenance
-def provenance(argv: Sequence[str] | None = None, experiment: Experiment | SeedGroups | None = None
-               ) -> dict[str, Any]:
-    """Where and how a stretch of the run was made: command line, package versions, git commit
-    of the bulbjax checkout (and whether it had uncommitted changes), devices, host, time."""
-    versions = {}
-    for pkg in VERSIONED:
-        try:
-            versions[pkg] = importlib.metadata.version(pkg)
-        except importlib.metadata.PackageNotFoundError:
-            versions[pkg] = None
-    devs = jax.devices()
-    out = {
-        "command": shlex.join(sys.argv if argv is None else argv),
-        "cwd": os.getcwd(),
-        "time_utc": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
-        "versions": versions,
-        "python": platform.python_version(),
-        "host": platform.node(),
-        "backend": jax.default_backend(),
-        "device_kind": devs[0].device_kind,
-        "device_count": len(devs),
-        **git_state(),
-        "source_sha256": source_hash(),
-    }
-    if isinstance(experiment, SeedGroups):
-        out.update(experiment.provenance())
-        out["compiler_options"] = dict(experiment.exp.compiler_options)
-    elif experiment is not None:
-        out["mesh"] = dict(experiment.mesh.shape)
-        out["compiler_options"] = dict(experiment.compiler_options)
-    return out
-
-
-def source_hash(package_dir: str | None = None) -> str:
-    """SHA-256 of the bulbjax package's Python sources (relative paths and contents, in sorted
-    order). Names the code a run used where git cannot: a copy of the tree on another machine
-    whose `.git` is stale or missing reports a wrong or no commit, but the same hash as the
-    commit's own checkout."""
-    root = package_dir or os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-    h = hashlib.sha256()
-    files = sorted(os.path.relpath(os.path.join(d, f), root)
-                   for d, _, fs in os.walk(root) for f in fs if f.endswith(".py"))
-    for rel in files:
-        h.update(rel.replace(os.sep, "/").encode() + b"\0")
-        with open(os.path.join(root, rel), "rb") as f:
-            h.update(f.read() + b"\0")
-    return h.hexdigest()
-
-
-def git_state() -> dict[str, Any]:
-    """Commit and dirty flag of the git checkout bulbjax is imported from (None outside git)."""
-    root = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
-
-    def git(*args: str) -> str | None:
-        try:
-            r = subprocess.run(["git", "-C", root, *args], capture_output=True, text=True, timeout=20)
-        except (OSError, subprocess.SubprocessError):
-            return None
-        return r.stdout.strip() if r.returncode == 0 else None
-
-    commit = git("rev-parse", "HEAD")
-    status = git("status", "--porcelain", "--untracked-files=no") if commit else None
-    return {"git_commit": commit, "git_dirty": None if status is None else bool(status)}
 
 
 # ---------------------------------------------------------------------------- config.json
@@ -167,10 +93,10 @@ def saved_processes(raw: dict[str, Any]) -> int:
     return int(raw.get("provenance", {}).get("processes", 1))
 
 
-def check_processes(run_dir: str, raw: dict[str, Any]) -> None:
-    """Raise ValueError when this resume runs with another process count than the run: each
-    process's checkpoints hold its own seed groups."""
-    saved, now = saved_processes(raw), jax.process_count()
+def check_processes(run_dir: str, raw: dict[str, Any], processes: int | None = None) -> None:
+    """Raise ValueError when this resume runs with another process count (`processes`, default
+    this run's) than the run: each process's checkpoints hold its own seed groups."""
+    saved, now = saved_processes(raw), jax.process_count() if processes is None else processes
     if saved != now:
         raise ValueError(f"--resume {run_dir}: the run was made by {saved} process(es) and this resume has {now}; "
                          f"each process checkpoints its own seeds, so resume with {saved} process(es) "
@@ -270,7 +196,8 @@ def run(cfg: ExperimentConfig, opts: RunOptions, run_dir: str, *, resume: bool =
         experiment: Experiment | None = None, argv: Sequence[str] | None = None,
         log: Callable[[str], None] = print, progress: bool = True,
         on_epoch: Callable[[int], None] | None = None,
-        compiler_options: dict[str, Any] | None = None, layout: str = "auto") -> RunResult:
+        compiler_options: dict[str, Any] | None = None, layout: str = "auto", t0: float | None = None,
+        compile_only: bool = False) -> RunResult:
     """Run (or, with `resume`, continue) the experiment `cfg` in `run_dir`; see the module doc.
     A fresh run refuses a folder that holds a run (ValueError naming it) unless `overwrite`,
     which deletes that run's metrics, checkpoints and plots first (`rundir.check_out_dir`).
@@ -281,12 +208,15 @@ def run(cfg: ExperimentConfig, opts: RunOptions, run_dir: str, *, resume: bool =
     devices' seed groups and writes its own checkpoints (`checkpoints/process_<i>`), process 0
     alone writes config.json, metrics.jsonl and the reports;
     `on_epoch(epochs_done)` is called after each epoch's metrics are written (tests);
-    `compiler_options`: XLA options for the jitted init and epoch (recorded in the provenance)."""
+    `compiler_options`: XLA options for the jitted init and epoch (recorded in the provenance);
+    `t0`: when the stretch started (default now; the CLI's: its process start), from which the
+    stage lines and --max-minutes count; `compile_only`: build, trace and compile init and the
+    epoch (filling the compile cache), then stop, writing no config, metrics or checkpoint."""
     from tqdm import tqdm
 
     from bulbjax.learners import check_finite
 
-    t0 = time.time()
+    t0 = time.time() if t0 is None else t0
     writer = distributed.is_writer()
     if not writer:
         progress = False
@@ -322,8 +252,9 @@ def run(cfg: ExperimentConfig, opts: RunOptions, run_dir: str, *, resume: bool =
     else:
         raw["provenance"] = stretch
     # cleanup_tmp: a checkpoint a killed stretch left half-written goes (each process writes its own)
+    # background: each process's checkpoint files are written while the next epochs run
     ckpt = Checkpointer(run_dir, keep=opts.keep, process=jax.process_index() if groups.processes > 1 else None,
-                        cleanup_tmp=True)
+                        cleanup_tmp=True, background=True)
     # init and the epochs this run uses, traced before anything else in this process so that a
     # resumed stretch compiles the same programs as the fresh one (and hits the compile cache);
     # probe_every is part of a run's identity, so fresh and resumed stretches trace the same ones
@@ -334,6 +265,13 @@ def run(cfg: ExperimentConfig, opts: RunOptions, run_dir: str, *, resume: bool =
         programs.prepare(*(("epoch",) if resume else ("init", "epoch")))
     stages.line("compiling " + ("the epoch" if resume else "init and the epoch")
                 + " in the background (or loading them from the compile cache)")
+    if compile_only:
+        with stages("compiling init and the epoch"):
+            programs.compiled("init")
+            programs.compiled("epoch")
+        log("compiled init and the epoch into the compile cache (--compile-only: no epoch ran)")
+        distributed.barrier("bulbjax-run-end")
+        return RunResult(epochs_done=0, stopped="compile-only", records=[], checkpoint=None)
     if resume:
         like = {"run": groups.abstract_state(), "key": groups.abstract_key()}
         with stages(f"restoring the checkpoint of epoch {ckpt.latest()}"):
@@ -345,7 +283,10 @@ def run(cfg: ExperimentConfig, opts: RunOptions, run_dir: str, *, resume: bool =
         raw["resumes"][-1]["from_epoch"] = start
         log(f"resuming {run_dir} at epoch {start} (checkpoints: {ckpt.steps()})")
     else:
-        with stages("compiling and running init"):
+        with stages("compiling init"):
+            programs.compiled("init")
+        # several processes: init gathers the reference states of all, so it waits for the slowest
+        with stages("running init" + (" (with the other processes)" if groups.processes > 1 else "")):
             rs = programs.init(jax.random.PRNGKey(opts.seed))
             jax.block_until_ready(rs)
         key, start, records = groups.put_key(jax.random.PRNGKey(opts.seed + 1)), 0, []
@@ -376,8 +317,11 @@ def run(cfg: ExperimentConfig, opts: RunOptions, run_dir: str, *, resume: bool =
         with StopSignal(bar.write) as stop:
             # every process takes process 0's decisions (their clocks and signals differ): one
             # collective before the first epoch, then one after each
-            if epoch < cfg.epochs and distributed.broadcast_flag(late()):
-                stopped = "max-minutes"
+            if epoch < cfg.epochs:
+                with (stages("waiting for the other processes") if groups.processes > 1
+                      else contextlib.nullcontext()):
+                    if distributed.broadcast_flag(late()):
+                        stopped = "max-minutes"
             while epoch < cfg.epochs and stopped == "done":
                 if opts.stop_after and epoch - start >= opts.stop_after:
                     stopped = "stop-after"
@@ -418,6 +362,7 @@ def run(cfg: ExperimentConfig, opts: RunOptions, run_dir: str, *, resume: bool =
             if saved != epoch:
                 _save(ckpt, run_dir, epoch, rs, key)
                 saved = epoch
+            _save(ckpt, run_dir, epoch, None, None)  # the last write finished (or its error raised)
     finally:
         bar.close()
         ckpt.close()
@@ -425,7 +370,11 @@ def run(cfg: ExperimentConfig, opts: RunOptions, run_dir: str, *, resume: bool =
             tb.close()
     if figs is not None and epoch > start and drawn != epoch:  # and at the end
         figs.draw(groups.group_state(rs), run_dir, epoch)
-    if stopped != "done":
+    if stopped == "max-minutes" and epoch == start:  # the budget went on start-up
+        log(f"start-up took {t_init:.0f} s of the {60 * opts.max_minutes:.0f} s allowed (--max-minutes "
+            f"{opts.max_minutes:g}); no epoch ran. Continue with: bulbjax run --resume {run_dir} (and a "
+            "larger --max-minutes, or none)")
+    elif stopped != "done":
         log(f"stopped after epoch {epoch} ({stopped}); continue with: bulbjax run --resume {run_dir}")
     wall = time.time() - t0
     first = f", first epoch {t_first:.1f} s" if t_first is not None else ""
@@ -442,10 +391,16 @@ def run(cfg: ExperimentConfig, opts: RunOptions, run_dir: str, *, resume: bool =
 
 
 def _save(ckpt: Checkpointer, run_dir: str, epoch: int, rs: Any, key: Any) -> None:
-    """The checkpoint of `epoch` epochs done; a failed write stops the run with a clear error
-    (the checkpoints before it stay: orbax renames a checkpoint's folder only once complete)."""
+    """The checkpoint of `epoch` epochs done (`rs` None: only wait for the one being written); a
+    failed write, this one's or an earlier background one's, stops the run with a clear error (the
+    checkpoints before it stay: a checkpoint's folder is renamed only once complete)."""
     try:
-        ckpt.save(epoch, {"run": rs, "key": key}, {"epoch": epoch})
+        if rs is None:
+            ckpt.wait()
+        else:
+            ckpt.save(epoch, {"run": rs, "key": key}, {"epoch": epoch})
+    except CheckpointWriteError as err:
+        raise _write_failed(run_dir, f"the checkpoint of epoch {err.epoch}", err.__cause__ or err) from err
     except Exception as err:  # OSError, or tensorstore's errors for a full or read-only disk
         raise _write_failed(run_dir, f"the checkpoint of epoch {epoch}", err) from err
 

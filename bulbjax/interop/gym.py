@@ -30,6 +30,9 @@ one-dimensional Box); an action outside the space, NaN included, is refused with
 Info (vector env; every key `k` comes with a boolean mask `_k`, gymnasium's convention): the
 other view (`state` or `pixels`), and where an episode ended `episode_return` / `episode_length`.
 
+Registration: importing this module (or `bulbjax.gym`) registers every domain with gymnasium as
+`bulbjax/<Name>-v0` (`register_envs`).
+
 Seeding: `reset(seed=s)` starts every world from `jax.random.PRNGKey(s)` exactly as
 `env.reset(jax.random.PRNGKey(s))` would (one key for all worlds: a list of per-world seeds is
 refused); `reset()` without a seed draws the key from the adapter's `np_random`, itself seeded
@@ -57,6 +60,7 @@ except ImportError as e:  # pragma: no cover - depends on the install
 import bulbjax
 from bulbjax.envs.base import EnvState, MjxPixelEnv, RenderInput
 from bulbjax.envs.batch import where_tree
+from bulbjax.envs.registry import env_class
 
 OBS_KINDS = ("pixels", "state")
 AUTORESET_MODES = {"next_step": AutoresetMode.NEXT_STEP, "same_step": AutoresetMode.SAME_STEP}
@@ -82,7 +86,7 @@ class _Core:
     """Jitted reset / step / last-observation functions over one bulbjax env, and the host-side
     action checks shared by the vector and the single env."""
 
-    def __init__(self, env: MjxPixelEnv, obs: str):
+    def __init__(self, env: MjxPixelEnv, obs: str, single: bool = False):
         if obs not in OBS_KINDS:
             raise ValueError(f"obs must be one of {OBS_KINDS}, got {obs!r}")
         self.env = env
@@ -94,6 +98,7 @@ class _Core:
                              f'{env.name} was made with render={env.config.render!r}, observation='
                              f'{env.config.observation!r}: use obs="state" or make it with render=True')
         self.num_envs = env.num_envs
+        self.single = single  # a `GymEnv`: messages name no world
         self.reset = jax.jit(env.reset)
         self.step = jax.jit(self._step)
         self.last = jax.jit(self._last)
@@ -154,13 +159,17 @@ class _Core:
         if env.discrete:
             if a.shape == (n, 1):
                 a = a[:, 0]
-            if a.shape != (n,) or not (np.issubdtype(a.dtype, np.integer) or _integral(a)):
-                raise ValueError(f"{env.name} takes integer actions of shape ({n},) in [0, {env.num_actions}); "
-                                 f"got {a.dtype} {a.shape}")
-            if a.size and (a.min() < 0 or a.max() >= env.num_actions):
-                raise InvalidAction(f"you passed the invalid action(s) {a.min()}..{a.max()}: {env.name} actions "
-                                    f"must be in [0, {env.num_actions}). The supported action_space is "
-                                    f"`{self.single_action_space()}`")
+            number = np.issubdtype(a.dtype, np.integer) or np.issubdtype(a.dtype, np.floating)
+            if a.shape != (n,) or not number:
+                shape = "one integer action" if self.single else f"integer actions of shape ({n},)"
+                raise ValueError(f"{env.name} takes {shape} in [0, {env.num_actions}); got {a.dtype} "
+                                 f"{a.shape}")
+            with np.errstate(invalid="ignore"):
+                ok = (a >= 0) & (a < env.num_actions) & (np.mod(a, 1) == 0)  # NaN fails each
+            if not ok.all():
+                rule = f"not an integer in [0, {env.num_actions})"
+                fix = f"{env.name}'s actions are integers in [0, {env.num_actions})"
+                raise InvalidAction(self._invalid(a[~ok][0].item(), np.flatnonzero(~ok), rule, fix))
             return a.astype(np.int32)
         if a.shape == (n,) and env.action_size == 1:
             a = a[:, None]
@@ -170,10 +179,16 @@ class _Core:
         outside = ~(np.abs(a.astype(np.float64)) <= 1.0)  # NaN too
         if outside.any():
             w = np.flatnonzero(outside.any(axis=1))
-            raise InvalidAction(f"you passed the invalid action `{a[w[0]].tolist()}` (world {w[0]}; "
-                                f"{len(w)} world(s) NaN or outside [-1, 1]). The supported action_space is "
-                                f"`{self.single_action_space()}`: clip to [-1, 1] before stepping")
+            raise InvalidAction(self._invalid(a[w[0]].tolist(), w, "NaN or outside [-1, 1]",
+                                              "clip to [-1, 1] before stepping"))
         return a.astype(np.float32)
+
+    def _invalid(self, value: Any, worlds: np.ndarray, rule: str, fix: str) -> str:
+        """The one-line message of an action outside the space: the first bad value, its world
+        and how many worlds (a vector env), the space and what to do."""
+        where = "" if self.single else f" (world {worlds[0]}; {len(worlds)} world(s) {rule})"
+        return (f"you passed the invalid action `{value}`{where}. The supported action_space is "
+                f"`{self.single_action_space()}`: {fix}")
 
 
 class InvalidAction(gymnasium.error.InvalidAction, ValueError):
@@ -183,10 +198,6 @@ class InvalidAction(gymnasium.error.InvalidAction, ValueError):
     action_space.contains(action)` instead; an assert vanishes under `python -O`, this does not.
     (`env.step` itself clips such actions and counts them; the adapters refuse them, so a bug
     upstream is seen rather than silently clipped.)"""
-
-
-def _integral(a: np.ndarray) -> bool:
-    return np.issubdtype(a.dtype, np.floating) and bool(np.all(np.mod(a, 1) == 0))
 
 
 def _key_from(seed: int | None, rng: np.random.Generator) -> jax.Array:
@@ -292,8 +303,10 @@ class BulbjaxVectorEnv(VectorEnv):
         return (views[self.config.obs], out["reward"].astype(np.float32), terminated, truncated, info)
 
     def render(self) -> tuple[np.ndarray, ...] | None:
-        """The last frames, one per world (`render_mode="rgb_array"`)."""
+        """The last frames, one per world (`render_mode="rgb_array"`; without it None and a
+        warning, gymnasium's convention)."""
         if self.render_mode is None:
+            _warn_no_render_mode("make_vec")
             return None
         return tuple(self._last_views["pixels"])
 
@@ -302,6 +315,14 @@ class BulbjaxVectorEnv(VectorEnv):
         if other not in views:
             return {}
         return _masked({other: views[other]}, np.ones(self.num_envs, bool))
+
+
+def _warn_no_render_mode(maker: str) -> None:
+    """What gymnasium's own envs do when `render()` is called without a render mode: a warning
+    (render() then returns None)."""
+    gymnasium.logger.warn('render() returns frames only with render_mode="rgb_array": make the env '
+                          f'with {maker}(..., render_mode="rgb_array") (or gymnasium.make(..., '
+                          'render_mode="rgb_array"))')
 
 
 def _masked(values: dict[str, np.ndarray], mask: np.ndarray) -> dict[str, Any]:
@@ -325,7 +346,7 @@ class GymEnv(gymnasium.Env):
                              "use make_vec for batches")
         if render_mode not in (None, "rgb_array"):
             raise ValueError(f'render_mode must be None or "rgb_array", got {render_mode!r}')
-        self.core = _Core(env, AdapterConfig(obs=obs).obs)
+        self.core = _Core(env, AdapterConfig(obs=obs).obs, single=True)
         if render_mode == "rgb_array" and not self.core.frames:
             raise ValueError('render_mode="rgb_array" needs an env made with render=True')
         self.bulbjax_env = env
@@ -368,7 +389,10 @@ class GymEnv(gymnasium.Env):
                 {**self._info(views), **info})
 
     def render(self) -> np.ndarray | None:
+        """The current frame (`render_mode="rgb_array"`; without it None and a warning,
+        gymnasium's convention)."""
         if self.render_mode is None:
+            _warn_no_render_mode("make_env")
             return None
         if "pixels" not in self._views:
             raise RuntimeError("call reset() before render()")
@@ -399,12 +423,15 @@ def make_env(name: str, obs: str = "pixels", render_mode: str | None = None, **m
 
 def register_envs(prefix: str = "bulbjax") -> list[str]:
     """Register every bulbjax domain with gymnasium as `<prefix>/<Name>-v0` (single env through
-    `gymnasium.make`, vector env through `gymnasium.make_vec(..., vectorization_mode="vector_entry_point")`)."""
+    `gymnasium.make`, vector env through `gymnasium.make_vec(...,
+    vectorization_mode="vector_entry_point")`), with the domain's episode length as the spec's `max_episode_steps`. Importing this module
+    (or `bulbjax.gym`) already did it with the default prefix."""
     ids = []
     for name in bulbjax.env_names():
         env_id = f"{prefix}/{name}-v0"
         if env_id not in gymnasium.registry:
             gymnasium.register(env_id, entry_point=_entry(name), vector_entry_point=_vector_entry(name),
+                               max_episode_steps=env_class(name).episode_length,
                                nondeterministic=False)
         ids.append(env_id)
     return ids
@@ -417,6 +444,17 @@ def _entry(name: str):
 
 
 def _vector_entry(name: str):
-    def make(num_envs: int = 1, **kwargs: Any) -> BulbjaxVectorEnv:
+    def make(num_envs: int = 1, max_episode_steps: int | None = None,
+             **kwargs: Any) -> BulbjaxVectorEnv:
+        # gymnasium.make_vec hands over the spec's max_episode_steps: a bulbjax env truncates its
+        # episodes itself, at the domain's length, and a vector env has no TimeLimit to wrap it in
+        length = env_class(name).episode_length
+        if max_episode_steps not in (None, length):
+            raise ValueError(f"bulbjax/{name} vector envs truncate episodes at the domain's "
+                             f"{length} steps; max_episode_steps={max_episode_steps} is not "
+                             "supported (leave it out)")
         return make_vec(name, num_envs, **kwargs)
     return make
+
+
+register_envs()

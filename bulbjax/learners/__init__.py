@@ -2,7 +2,8 @@
 
 `make_learner(name, latent_dim, config, action_dim=1)` builds a registered learner (registry.py:
 a new learner is one module that calls `register_learner`, plus one import line at the end of
-this file), among them the built-in frame learners
+this file; a learner of one's own, outside bulbjax, is loaded by `load_learner_spec`, plugins.py),
+among them the built-in frame learners
 - `vae`: VAE_v0, plain conv VAE (beta=1, no replay retention);
 - `vae_rpl`: the same model, asking replay to retain 50% of the initial frames;
 - `beta_vae`: beta-VAE with beta=5 (the paper's best) and the same 50% retention;
@@ -31,6 +32,7 @@ from bulbjax.learners.base import (
     parse_learner_options,
 )
 from bulbjax.learners.networks import ConvEncoder, DeconvDecoder, check_frame_shape
+from bulbjax.learners.plugins import load_learner_spec
 from bulbjax.learners.registry import (has_frame_latent_name, is_sequential_name, learner_names, register_learner,
                                        registration, unregister_learner)
 from bulbjax.learners.sequential import DSA, PRED, SEQUENTIAL_LEARNERS, SVAE, SequentialVAE
@@ -132,6 +134,7 @@ __all__ = [
     "has_frame_latent_name",
     "is_sequential_name",
     "learner_names",
+    "load_learner_spec",
     "register_learner",
     "registration",
     "unregister_learner",

@@ -12,11 +12,15 @@ take and return, how windows and the equal-compute rule plug in) and registers i
     def make_mine(latent_dim: int, config: LearnerConfig, action_dim: int) -> "Mine":
         return Mine(latent_dim=latent_dim, config=config)
 
-The one line imports the module from `bulbjax/learners/__init__.py` (so that `bulbjax run
---learners mine` and a resumed run find it); a script or test may instead import its own module
-before it builds an `ExperimentConfig`. From then on the name is accepted wherever learner names
-are (`ExperimentConfig.learners`, `--learners`, `--rl-input latent:mine`), and the experiment
-gives the learner its replay (or window) buffer, its update program and its probes.
+For a learner shipped with bulbjax, the one line imports the module from
+`bulbjax/learners/__init__.py` (so that `bulbjax run --learners mine` and a resumed run find
+it). A learner of one's own needs no line here: `--learners vae_rpl,mymodule:Mine` (or
+`path/to/file.py:Mine`, or an installed package's entry point) imports and, if need be,
+registers it (`bulbjax.learners.plugins.load_learner_spec`), and the run's config records the
+spec; a script or test may also import its own module before it builds an `ExperimentConfig`.
+From then on the name is accepted wherever learner names are (`ExperimentConfig.learners`,
+`--learners`, `--rl-input latent:mine`), and the experiment gives the learner its replay (or
+window) buffer, its update program and its probes.
 """
 
 from __future__ import annotations

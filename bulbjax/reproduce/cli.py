@@ -1,0 +1,48 @@
+"""The `bulbjax reproduce` subcommand's flags (the main CLI adds them with `add_parser`)."""
+
+from __future__ import annotations
+
+import argparse
+
+from bulbjax.reproduce.plan import FIGURES, SCALES
+
+
+def cmd_reproduce(args: argparse.Namespace) -> int:
+    from bulbjax.reproduce.main import reproduce
+
+    summary = reproduce(args.figures, args.scale, args.out, gpus=args.gpus, shard=args.shard,
+                        add_learners=args.add_learner or (), dry_run=args.dry_run, overwrite=args.overwrite,
+                        max_minutes=args.max_minutes, progress_every=args.progress_every)
+    return 1 if summary.get("failed") else 0
+
+
+def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
+    """`bulbjax reproduce`: the paper's figures as one plan of jobs over this host's GPUs."""
+    rp = sub.add_parser(
+        "reproduce", help="run the paper's figures (Figs. 2-5) as one plan of jobs, one process per GPU",
+        description="Run the paper's figures as a plan of jobs (one seed of a preset each), one `bulbjax run` "
+                    "process per GPU taking the next job, then write OUT/results.md. Run the same command "
+                    "again to continue unfinished jobs (finished ones are skipped).",
+        formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+    rp.add_argument("--figures", default="all",
+                    help=f"comma-separated figures ({', '.join(FIGURES)}, all) or presets of them (e.g. fig2-ant)")
+    rp.add_argument("--scale", default="paper", choices=SCALES,
+                    help="paper: the paper's seeds and epochs; quick: every figure on one GPU in ~15 min; "
+                         "tiny: CPU-sized, 2 epochs (tests)")
+    rp.add_argument("--out", default="runs/reproduce", help="the plan's folder (runs, logs, results.md)")
+    rp.add_argument("--gpus", type=int, default=None,
+                    help="GPUs of this host to use (default all visible); without GPUs: CPU worker processes "
+                         "(default 1)")
+    rp.add_argument("--shard", default=None, metavar="K/N",
+                    help="this host's share K of a plan split over N hosts (e.g. a SLURM array task), "
+                         "balanced by estimated cost; every host computes the same split")
+    rp.add_argument("--add-learner", action="append", metavar="SPEC",
+                    help="a learner of your own (pkg.module:Name, docs/extending.md) run beside the paper's in "
+                         "every figure; repeatable")
+    rp.add_argument("--dry-run", action="store_true", help="print the jobs and the estimated time, run nothing")
+    rp.add_argument("--overwrite", action="store_true", help="start afresh: delete the plan's folder first")
+    rp.add_argument("--max-minutes", type=float, default=0.0,
+                    help="stop every job (checkpointed) after this wall time; the same command continues (0: none)")
+    rp.add_argument("--progress-every", type=float, default=30.0, help="seconds between progress lines")
+    rp.set_defaults(fn=cmd_reproduce)
+    return rp

@@ -1,0 +1,158 @@
+"""How long a plan should take: per-preset epoch and start-up times (`epoch_times.json`, measured
+by `benchmarks/epoch_times.py`), each job's cost, and the plan's wall time on G GPUs from the
+same queue the scheduler runs (`queue_order`, list scheduling: each free GPU takes the next
+job whose inputs are ready).
+
+A job's cost is its start-up plus its epochs left times the preset's epoch time. The first job of
+a preset on a host starts cold (XLA compiles the programs); later ones find them in the
+persistent compile cache (`bulbjax.compile_cache`, shared by the host's processes) once the first
+has compiled, and start warm.
+"""
+
+from __future__ import annotations
+
+import heapq
+import json
+import subprocess
+from dataclasses import dataclass
+from importlib import resources
+from typing import Sequence
+
+from bulbjax.reproduce.plan import Job
+
+TIMES_FILE = "epoch_times.json"
+
+
+@dataclass(frozen=True)
+class Timing:
+    """One preset's times on one device kind: seconds per epoch (one seed per process) and from
+    process start to the first epoch, cold and warm (`derived`: how an unmeasured entry was
+    worked out)."""
+
+    epoch_s: float
+    startup_cold_s: float
+    startup_warm_s: float
+    extra_seed_s: float = 0.0  # seconds each further seed of the same process adds to an epoch
+    derived: str = ""
+
+    def epoch_of(self, seeds: int) -> float:
+        """Seconds per epoch of a process running `seeds` seeds."""
+        return self.epoch_s + self.extra_seed_s * max(0, seeds - 1)
+
+
+def device_kind(gpus: Sequence[str] = ()) -> str:
+    """The kind of this host's first usable GPU as `nvidia-smi` names it ("NVIDIA H100 80GB
+    HBM3"), or "cpu" without one. Asks nvidia-smi, not JAX: the scheduler must not take GPU
+    memory its workers need."""
+    if not gpus:
+        return "cpu"
+    try:
+        out = subprocess.run(["nvidia-smi", "--query-gpu=name", "--format=csv,noheader", "-i", str(gpus[0])],
+                             capture_output=True, text=True, timeout=30)
+        name = out.stdout.strip().splitlines()[0].strip() if out.returncode == 0 and out.stdout.strip() else ""
+    except (OSError, subprocess.SubprocessError, IndexError):
+        name = ""
+    return name or "unknown GPU"
+
+
+def load_times(kind: str) -> tuple[dict[str, Timing], str]:
+    """The times of `kind` and the kind they are for: the kind's own where the table has it,
+    else the table's fallback (an H100's), said in the second value."""
+    table = json.loads(resources.files("bulbjax.reproduce").joinpath(TIMES_FILE).read_text())
+    kinds = table["kinds"]
+    used = kind if kind in kinds else table["fallback"]
+    times = {p: Timing(**{k: v for k, v in t.items() if k in Timing.__dataclass_fields__})
+             for p, t in kinds[used].items()}
+    return times, used
+
+
+def job_cost(job: Job, times: dict[str, Timing], warm: bool = False, epochs_done: int = 0) -> float:
+    """Seconds `job` should hold a GPU: start-up (warm or cold) plus its epochs left at the
+    epoch time of its seeds."""
+    t = times["recon" if job.kind == "recon" else job.preset]
+    start = t.startup_warm_s if warm else t.startup_cold_s
+    left = 0 if job.kind == "recon" else max(0, job.epochs - epochs_done)
+    return start + left * t.epoch_of(job.seeds)
+
+
+def queue_order(jobs: Sequence[Job], times: dict[str, Timing]) -> list[Job]:
+    """The order GPUs take jobs in: longest (cold) first, so short jobs fill in beside long
+    ones at the end; ties keep the plan's order."""
+    return sorted(jobs, key=lambda j: (-job_cost(j, times), jobs.index(j)))
+
+
+@dataclass(frozen=True)
+class Estimate:
+    """A plan's estimate on `gpus` GPUs: the busy GPU-seconds, the wall time, each job's
+    start and end (seconds from the start)."""
+
+    gpus: int
+    gpu_s: float
+    wall_s: float
+    spans: dict[str, tuple[float, float]]
+
+    @property
+    def utilisation(self) -> float:
+        return self.gpu_s / (self.gpus * self.wall_s) if self.wall_s > 0 else 1.0
+
+
+def simulate(jobs: Sequence[Job], times: dict[str, Timing], gpus: int,
+             epochs_done: dict[str, int] | None = None, finished: Sequence[str] = ()) -> Estimate:
+    """The schedule the queue makes of `jobs` on `gpus` GPUs (jobs in `finished` skipped, runs
+    continued from `epochs_done`): each free GPU takes the first job of `queue_order` whose
+    input job (`after`) has ended; a job starts warm when a job of its preset has started and
+    compiled (its cold start-up passed) on this host before."""
+    if gpus < 1:
+        raise ValueError(f"a plan needs at least one GPU (or CPU slot), got {gpus}")
+    done = dict.fromkeys(finished, 0.0)
+    ids = {j.id for j in jobs}
+    done.update({j.after: 0.0 for j in jobs if j.after and j.after not in ids})  # inputs made before
+    epochs_done = epochs_done or {}
+    todo = [j for j in queue_order(jobs, times) if j.id not in done]
+    free = [(0.0, g) for g in range(gpus)]
+    heapq.heapify(free)
+    compiled: dict[str, float] = {}  # preset -> when its programs are in the cache
+    spans: dict[str, tuple[float, float]] = {}
+    end_of: dict[str, float] = dict(done)
+    gpu_s = 0.0
+    while todo:
+        now, g = heapq.heappop(free)
+        ready = [j for j in todo if j.after is None or j.after in end_of]
+        if not ready:  # every job left waits for one that is still running: wait for the next end
+            later = min(t for t in (spans[j.after][1] for j in todo if j.after in spans) if t > now)
+            heapq.heappush(free, (later, g))
+            continue
+        j = min(ready, key=lambda x: (max(now, end_of.get(x.after, 0.0)), todo.index(x)))
+        start = max(now, end_of.get(j.after, 0.0) if j.after else now)
+        key = "recon" if j.kind == "recon" else j.preset
+        warm = key in compiled and compiled[key] <= start
+        cost = job_cost(j, times, warm, epochs_done.get(j.id, 0))
+        t = times[key]
+        compiled.setdefault(key, start + (t.startup_warm_s if warm else t.startup_cold_s))
+        spans[j.id] = (start, start + cost)
+        end_of[j.id] = start + cost
+        gpu_s += cost
+        todo.remove(j)
+        heapq.heappush(free, (start + cost, g))
+    wall = max((e for _, e in spans.values()), default=0.0)
+    return Estimate(gpus, gpu_s, wall, spans)
+
+
+def hms(seconds: float) -> str:
+    """Seconds as h:mm:ss."""
+    s = int(round(max(0.0, seconds)))
+    return f"{s // 3600}:{s % 3600 // 60:02d}:{s % 60:02d}"
+
+
+def times_markdown() -> str:
+    """The table of `epoch_times.json` as markdown (docs/reproduce.md holds it; a test keeps the
+    two equal)."""
+    table = json.loads(resources.files("bulbjax.reproduce").joinpath(TIMES_FILE).read_text())
+    lines = ["| device | preset | s per epoch, 1 seed | + per further seed | start-up cold / warm (s) | source |",
+             "|---|---|---|---|---|---|"]
+    for kind, presets in table["kinds"].items():
+        for preset, t in presets.items():
+            lines.append(f"| {kind} | {preset} | {t['epoch_s']} | {t.get('extra_seed_s', 0)} | "
+                         f"{t['startup_cold_s']} / {t['startup_warm_s']} | "
+                         f"{t.get('derived') or t.get('measured') or ''} |")
+    return "\n".join(lines)

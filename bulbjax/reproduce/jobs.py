@@ -1,0 +1,103 @@
+"""A plan's jobs on disk: what each has done (read from its run folder, so a rerun of the same
+command knows without a record of its own), and the command line that starts or continues it."""
+
+from __future__ import annotations
+
+import glob
+import os
+import sys
+from typing import Sequence
+
+from bulbjax.experiment import rundir
+from bulbjax.reproduce.plan import Job, fig4_learners
+
+# a periodic checkpoint about every this many seconds of epochs, so that a killed job loses
+# little; a job stopped by a signal or --max-minutes checkpoints as it stops anyway
+CHECKPOINT_SECONDS = 300.0
+
+
+def job_dir(out: str, job: Job) -> str:
+    return os.path.join(out, job.run_dir)
+
+
+def epochs_done(out: str, job: Job) -> int:
+    """Epochs of `job`'s run kept in its newest complete checkpoint (0: none yet); a recon job
+    counts its epochs once its figure is drawn."""
+    if job.kind == "recon":
+        return job.epochs if recon_done(out, job) else 0
+    steps = rundir.checkpoint_steps(job_dir(out, job))
+    return max(steps) if steps else 0
+
+
+def recon_done(out: str, job: Job) -> bool:
+    return bool(glob.glob(os.path.join(glob.escape(job_dir(out, job)), "recon_*.png")))
+
+
+def is_done(out: str, job: Job) -> bool:
+    """Whether `job` has nothing left to do: its run checkpointed its last epoch, or its figure
+    is drawn."""
+    return recon_done(out, job) if job.kind == "recon" else epochs_done(out, job) >= job.epochs
+
+
+def epochs_written(out: str, job: Job) -> int:
+    """Epochs whose records a running job has written (the last line of its metrics.jsonl, read
+    from the file's end: a long run's file is large); 0 before the first."""
+    path = os.path.join(job_dir(out, job), "metrics.jsonl")
+    try:
+        with open(path, "rb") as f:
+            f.seek(0, os.SEEK_END)
+            size = f.tell()
+            f.seek(max(0, size - 65536))
+            tail = f.read().splitlines()
+    except OSError:
+        return 0
+    import json
+
+    for line in reversed(tail):
+        try:
+            return int(json.loads(line)["epoch"]) + 1
+        except (ValueError, KeyError, TypeError):
+            continue
+    return 0
+
+
+def command(out: str, job: Job, epoch_s: float, max_minutes: float = 0.0, source: Job | None = None,
+            learners: Sequence[str] = ()) -> list[str]:
+    """The `bulbjax` command line that starts `job`, or continues it from its newest checkpoint
+    (a folder without one, from a job killed while starting, starts afresh over it).
+    `max_minutes` > 0: the run stops itself (checkpointing) after that long. A recon job draws
+    the Fig. 4 columns among `learners`, the learners of its `source` run."""
+    base = [sys.executable, "-m", "bulbjax"]
+    d = job_dir(out, job)
+    if job.kind == "recon":
+        if source is None:
+            raise ValueError(f"job {job.id} redraws a run: give its source job")
+        cols = fig4_learners(learners)
+        cmd = [*base, "recon", job_dir(out, source), "--out", d]
+        return cmd + (["--learners", ",".join(cols)] if cols else [])
+    every = job.checkpoint_every or max(10, int(CHECKPOINT_SECONDS / max(epoch_s, 1e-3)))
+    stretch = ["--epochs", str(job.epochs), "--checkpoint-every", str(every)]
+    if max_minutes > 0:
+        stretch += ["--max-minutes", f"{max_minutes:.2f}"]
+    if rundir.checkpoint_steps(d):
+        return [*base, "run", "--resume", d, *stretch]
+    fresh = [*base, "run", "--preset", job.preset, "--seeds", str(job.seeds), "--seed", str(job.seed),
+             "--probe-every", str(job.probe_every), "--out", d, *job.flags, *stretch]
+    if job.recon_every:
+        fresh += ["--recon-every", str(job.recon_every)]
+    if os.path.exists(os.path.join(d, "config.json")):
+        fresh.append("--overwrite")  # a start that never reached a checkpoint: nothing to keep
+    return fresh
+
+
+def last_line(path: str, width: int = 300) -> str:
+    """The last non-empty line of a log (what a failed job said last), shortened to `width`."""
+    try:
+        with open(path, "rb") as f:
+            f.seek(0, os.SEEK_END)
+            f.seek(max(0, f.tell() - 16384))
+            lines = [ln.strip() for ln in f.read().decode(errors="replace").splitlines() if ln.strip()]
+    except OSError:
+        return "(no log)"
+    line = lines[-1] if lines else "(empty log)"
+    return line if len(line) <= width else line[: width - 3] + "..."

@@ -1,0 +1,178 @@
+"""`bulbjax reproduce`: the paper's figures by one command, over every GPU of a host (or a share of
+the plan on each of several hosts), continued by running the same command again.
+
+The steps: the plan (`plan.plan_jobs`: figures -> jobs of one seed each), this host's share of it
+(`--shard K/N`), the estimate on this host's GPUs (`estimate.simulate`, printed before anything
+starts, and alone with `--dry-run`), the queue (`queue.Queue`: one process per GPU), then the
+results page (`results.write`) and `summary.json` (GPUs, utilisation, estimated and measured wall
+time, each job's measured epoch time).
+"""
+
+from __future__ import annotations
+
+import datetime
+import json
+import os
+import shutil
+import time
+from typing import Any, Callable, Sequence
+
+from bulbjax.experiment.config import PRESETS
+from bulbjax.reproduce import jobs as J
+from bulbjax.reproduce import results
+from bulbjax.reproduce.estimate import device_kind, hms, job_cost, load_times, simulate
+from bulbjax.reproduce.plan import (PLAN_FILE, Job, parse_figures, parse_shard, plan_differences, plan_jobs,
+                                    plan_record, read_plan, shard_of)
+from bulbjax.reproduce.queue import Queue, Slot
+
+
+def learner_names(specs: Sequence[str]) -> list[str]:
+    """The registered names of `--add-learner` specs (a registered name, `pkg.module:Name` or
+    `path/file.py:Name`, imported and registered by `bulbjax.learners.plugins.load_learner_spec`);
+    a clear one-line error for one that does not load or is one of the paper's learners."""
+    from bulbjax.learners import learner_names as known
+    from bulbjax.learners.plugins import parse_learner_list
+
+    paper = {n for p in PRESETS.values() for n in p.learners}
+    out = []
+    for spec in specs:
+        (name,) = parse_learner_list([spec])  # a name, a spec loaded, or an installed package's learner
+        if name not in known():
+            raise ValueError(f"--add-learner {spec!r}: not a registered learner; give pkg.module:Name of your "
+                             f"learner (docs/extending.md) or one of: {', '.join(known())}")
+        if name in paper:
+            raise ValueError(f"--add-learner {spec}: {name!r} is already in the paper's runs; add a learner of "
+                             "your own")
+        out.append(name)
+    return out
+
+
+def slots_of(gpus: int | None) -> tuple[list[Slot], str]:
+    """This host's slots: one per visible GPU (the first `gpus` of them), or `gpus` CPU workers
+    (default 1) on a host without one; and the device kind."""
+    from bulbjax import local_processes
+
+    visible = local_processes.visible_gpus()
+    if gpus is not None and gpus < 1:
+        raise ValueError(f"--gpus {gpus}: give 1 or more (the GPUs of this host to use)")
+    if visible:
+        if gpus is not None and gpus > len(visible):
+            raise ValueError(f"--gpus {gpus}: this host has {len(visible)} GPU(s) "
+                             f"({', '.join(visible)}; CUDA_VISIBLE_DEVICES / nvidia-smi)")
+        use = visible[: gpus or None]
+        return [Slot(f"GPU {g}", g) for g in use], device_kind(use)
+    return [Slot(f"cpu{i}", None) for i in range(gpus or 1)], "cpu"
+
+
+def _check_ycb(jobs: Sequence[Job]) -> None:
+    if any("ycb" in j.preset for j in jobs):
+        from bulbjax.assets.ycb import YCB_DIR_ENV
+
+        d = os.environ.get(YCB_DIR_ENV)
+        if not d or not os.path.isdir(d):
+            raise ValueError(f"Fig. 5 (fig5-rearrange-ycb) reads the YCB models from ${YCB_DIR_ENV}, which "
+                             f"{'is not set' if not d else f'names no folder ({d})'}: set it to the YCB "
+                             "google_16k folder, or leave Fig. 5 out (--figures fig2,fig3,fig4)")
+
+
+def _open_out(out: str, record: dict, overwrite: bool, dry_run: bool) -> None:
+    """Check `out` can hold this plan: missing, empty, or holding the same plan (continued).
+    Another plan there is refused unless `overwrite`, which clears a plan's folder (and only
+    a plan's: a folder holding anything else is never deleted)."""
+    path = os.path.join(out, PLAN_FILE)
+    if os.path.exists(path):
+        diff = plan_differences(read_plan(path), record)
+        if overwrite:
+            if not dry_run:
+                shutil.rmtree(out)
+        elif diff:
+            raise ValueError(f"{out} holds a plan made with other settings ({'; '.join(diff)}): run the same "
+                             "command to continue it, or add --overwrite to start afresh (deletes its runs)")
+    elif os.path.isdir(out) and os.listdir(out):
+        raise ValueError(f"{out} is not empty and holds no reproduce plan: give --out a new or empty folder")
+
+
+def plan_table(out: str, jobs: Sequence[Job], times: dict, est_gpus: int) -> tuple[list[str], Any]:
+    done = {j.id for j in jobs if J.is_done(out, j)}
+    ep = {j.id: J.epochs_done(out, j) for j in jobs if j.id not in done}
+    est = simulate(jobs, times, est_gpus, ep, finished=sorted(done))
+    lines = [f"{'job':<28} {'epochs':>11} {'estimate':>9}  state"]
+    for j in jobs:
+        state = "done" if j.id in done else f"continue from epoch {ep[j.id]}" if ep.get(j.id) else "new"
+        cost = 0.0 if j.id in done else job_cost(j, times, epochs_done=ep.get(j.id, 0))
+        epochs = "recon" if j.kind == "recon" else f"{ep.get(j.id, j.epochs if j.id in done else 0)}/{j.epochs}"
+        lines.append(f"{j.id:<28} {epochs:>11} {hms(cost):>9}  {state}")
+    return lines, est
+
+
+def reproduce(figures: str | Sequence[str] = "all", scale: str = "paper", out: str = "runs/reproduce",
+              gpus: int | None = None, shard: str | None = None, add_learners: Sequence[str] = (),
+              dry_run: bool = False, overwrite: bool = False, max_minutes: float = 0.0,
+              progress_every: float = 30.0, log: Callable[[str], None] = print) -> dict[str, Any]:
+    """Run (or with `dry_run`, only plan) the paper's `figures` at `scale` into `out`; returns the
+    summary (also `out/summary.json`). Rerunning with the same arguments continues unfinished
+    jobs and skips finished ones. `shard` "K/N": this host's share of a plan split over N hosts.
+    `add_learners`: learner specs run beside the paper's learners in every figure."""
+    figs = parse_figures(figures)
+    share = parse_shard(shard)
+    if max_minutes < 0:
+        raise ValueError(f"--max-minutes must be >= 0 (0: no limit), got {max_minutes}")
+    names = learner_names(add_learners)
+    all_jobs = plan_jobs(figs, scale, list(add_learners))
+    slots, kind = slots_of(gpus)
+    times, times_kind = load_times(kind)
+    costs = {j.id: job_cost(j, times) for j in all_jobs}
+    mine = all_jobs
+    if share is not None:
+        k, n = share
+        where = shard_of(all_jobs, costs, n)
+        mine = [j for j in all_jobs if where[j.id] == k - 1]
+    record = plan_record(figs, scale, list(add_learners), all_jobs)
+    _open_out(out, record, overwrite, dry_run)
+    if not dry_run:
+        _check_ycb(mine)
+    lines, est = plan_table(out, mine, times, len(slots))
+    note = "" if times_kind == kind else f" (estimates of an {times_kind}: none measured on this kind yet)"
+    log(f"plan: {len(mine)} job(s)" + (f", shard {share[0]}/{share[1]} of {len(all_jobs)}" if share else "")
+        + f", scale {scale}, on {len(slots)} {kind} slot(s){note}\n" + "\n".join(lines)
+        + f"\nestimated: {est.gpu_s / 3600:.2f} GPU-hours, {hms(est.wall_s)} wall on {len(slots)} slot(s) "
+        f"(utilisation {est.utilisation:.0%})")
+    summary: dict[str, Any] = {"gpus": len(slots), "device_kind": kind, "times_of": times_kind,
+                               "estimated_wall_s": est.wall_s, "estimated_gpu_s": est.gpu_s,
+                               "shard": list(share) if share else None, "jobs_planned": len(mine)}
+    if dry_run:
+        return summary
+    os.makedirs(out, exist_ok=True)
+    with open(os.path.join(out, PLAN_FILE), "w") as f:
+        json.dump(record, f, indent=1)
+    learners_of = _learners_of(names)
+    deadline = time.monotonic() + 60 * max_minutes if max_minutes else None
+    status = f"status_shard{share[0]}of{share[1]}.json" if share else "status.json"
+    q = Queue(out, mine, all_jobs, slots, times, deadline, progress_every, learners_of, log, status)
+    ran = q.run()
+    summary.update(measured_wall_s=ran["wall_s"], utilisation=ran["utilisation"], busy_s=ran["busy_s"],
+                   gpu_hours=ran["busy_s"] / 3600, failed=ran["failed"], unfinished=ran["unfinished"],
+                   jobs=ran["jobs"], finished_utc=datetime.datetime.now(datetime.timezone.utc).isoformat(
+                       timespec="seconds"))
+    ran_any = any(r["attempts"] for r in ran["jobs"].values())
+    if ran_any:  # a rerun that found everything done keeps the summary of the stretch that ran
+        name = f"summary_shard{share[0]}of{share[1]}.json" if share else "summary.json"
+        with open(os.path.join(out, name), "w") as f:
+            json.dump(summary, f, indent=1)
+    page = results.write(out, summary if ran_any else results.read_summary(out), out_name=out)
+    log(f"results: {page}" + (f"; failed: {', '.join(ran['failed'])}" if ran["failed"] else "")
+        + (f"; unfinished: {len(ran['unfinished'])} job(s): run the same command to continue"
+           if ran["unfinished"] else ""))
+    return summary
+
+
+def _learners_of(added: Sequence[str]) -> Callable[[Job], list[str]]:
+    """A run job's learners (its `--learners` flag, else its preset's, with `added`)."""
+    def of(job: Job) -> list[str]:
+        flags = list(job.flags)
+        if "--learners" in flags:
+            specs = flags[flags.index("--learners") + 1].split(",")
+            own = [s for s in specs if ":" not in s]
+            return own + [n for n in added if n not in own]
+        return [*PRESETS[job.preset].learners, *added]
+    return of

@@ -1,0 +1,164 @@
+"""A plan's results: each preset's seeds merged into one run folder (`bulbjax report
+--merge-seeds`: its fig2.png, table.md, findings.md), Fig. 4's reconstructions, and one page
+(`results.md`) over every figure: the figures, every claim's verdict with its band, the PPO
+returns per seed, each preset's table. Written at the end of `bulbjax reproduce` and by
+`bulbjax report OUT` on a plan's folder, from the runs' own metrics, so it can be redrawn at any
+time and never says what the runs do not."""
+
+from __future__ import annotations
+
+import glob
+import json
+import os
+import shutil
+from typing import Any, Sequence
+
+import numpy as np
+
+from bulbjax.experiment import report
+from bulbjax.experiment.records import band, ci90, last_returns, metrics_path, probed, read_jsonl
+from bulbjax.reproduce import jobs as J
+from bulbjax.reproduce.estimate import hms
+from bulbjax.reproduce.plan import PLAN_FILE, TITLES, Job, job_of, read_plan
+
+PAGE = "results.md"
+
+
+def plan_of(out: str) -> tuple[dict, list[Job]]:
+    """The plan saved in a reproduce folder and its jobs; a clear error for any other folder."""
+    path = os.path.join(out, PLAN_FILE)
+    if not os.path.exists(path):
+        raise ValueError(f"{out} holds no {PLAN_FILE}: give the --out folder of a `bulbjax reproduce`")
+    plan = read_plan(path)
+    return plan, [job_of(d) for d in plan["jobs"]]
+
+
+def runs_by_preset(jobs: Sequence[Job]) -> dict[tuple[str, str], list[Job]]:
+    """The run jobs of each (figure, preset), in seed order."""
+    out: dict[tuple[str, str], list[Job]] = {}
+    for j in jobs:
+        if j.kind == "run":
+            out.setdefault((j.figure, j.preset), []).append(j)
+    return {k: sorted(v, key=lambda j: j.seed) for k, v in out.items()}
+
+
+def merged_dir(out: str, figure: str, preset: str) -> str:
+    return os.path.join(out, figure, preset)
+
+
+def merge(out: str, figure: str, preset: str, seeds: Sequence[Job]) -> str | None:
+    """Merge the finished seeds of one preset into `OUT/<figure>/<preset>` (their reports there);
+    returns that folder, or None while any seed is unfinished. One seed: its reports copied."""
+    if not all(J.is_done(out, j) for j in seeds):
+        return None
+    dest = merged_dir(out, figure, preset)
+    dirs = [J.job_dir(out, j) for j in seeds]
+    if len(dirs) > 1:
+        report.merge_seeds(dirs, dest)
+    else:
+        report.redraw(dirs[0])
+        os.makedirs(dest, exist_ok=True)
+        for name in ("config.json", "fig2.png", "table.md", "findings.md", "objects.png"):
+            if os.path.exists(os.path.join(dirs[0], name)):
+                shutil.copy2(os.path.join(dirs[0], name), os.path.join(dest, name))
+        shutil.copy2(metrics_path(dirs[0]), os.path.join(dest, os.path.basename(metrics_path(dirs[0]))))
+    return dest
+
+
+def _body(path: str) -> str:
+    """A report file without its first heading (the page gives its own)."""
+    with open(path) as f:
+        lines = f.read().splitlines()
+    if lines and lines[0].startswith("#"):
+        lines = lines[1:]
+    return "\n".join(lines).strip()
+
+
+def ppo_returns(run_dir: str) -> str:
+    """The PPO return of each seed over the last 3 probed epochs, and their mean ± 90% band."""
+    records = read_jsonl(metrics_path(run_dir), tolerate_partial=True)
+    epochs = sorted({r["epoch"] for r in probed(records)})[-3:]
+    ret, _ = last_returns(records, epochs)
+    if not np.isfinite(ret).any():
+        return "PPO return: no episode finished."
+    mean, half = ci90(ret[np.isfinite(ret)])
+    seeds = ", ".join(f"seed {i}: {r:.1f}" for i, r in enumerate(ret))
+    return (f"PPO return per seed (epochs {', '.join(map(str, epochs))}): {seeds}; "
+            f"mean {band(mean, half, int(np.isfinite(ret).sum()), digits=1)}.")
+
+
+def write(out: str, summary: dict[str, Any] | None = None, out_name: str | None = None) -> str:
+    """Merge every finished preset and write `OUT/results.md`; returns its path. `summary`: the
+    last stretch's (`summary.json`), said in one line; `out_name`: the folder as the user named
+    it (default `out`)."""
+    plan, jobs = plan_of(out)
+    name = out_name or out
+    lines = [f"# The paper's figures, reproduced ({plan['scale']} scale)", "",
+             f"Made by `bulbjax reproduce --figures {','.join(plan['figures'])} --scale {plan['scale']}"
+             + "".join(f" --add-learner {a}" for a in plan.get("add_learners", [])) + f" --out {name}`; "
+             f"redrawn by `bulbjax report {name}`. Errors are "
+             "normalised MAEs (1 = the constant predictor's level on π_rand); verdicts use paired 90% "
+             "bands over seeds (docs/probes.md).", ""]
+    if summary:
+        lines += [_summary_line(summary), ""]
+    lines += ["| job | figure | epochs done | state |", "|---|---|---|---|"]
+    for j in jobs:
+        done = J.epochs_done(out, j)
+        lines.append(f"| {j.id} | {j.figure} | {done} / {j.epochs} | "
+                     f"{'done' if J.is_done(out, j) else 'unfinished'} |")
+    lines.append("")
+    by_preset = runs_by_preset(jobs)
+    for fig in ("fig2", "fig3", "fig4", "fig5"):
+        mine = {p: s for (f, p), s in by_preset.items() if f == fig}
+        recon = [j for j in jobs if j.figure == fig and j.kind == "recon"]
+        if not mine and not recon:
+            continue
+        lines += [f"## {TITLES[fig]}", ""]
+        for preset, seeds in mine.items():
+            lines += _preset_section(out, fig, preset, seeds)
+        for j in recon:
+            pngs = sorted(glob.glob(os.path.join(glob.escape(J.job_dir(out, j)), "recon_*.png")))
+            if pngs:
+                rel = os.path.relpath(pngs[-1], out)
+                lines += [f"### {j.preset}: seed 0 after {j.epochs} epochs", "", f"![{j.preset}]({rel})", ""]
+            else:
+                lines += [f"### {j.preset}", "", "Not drawn yet (its Fig. 2 run is unfinished).", ""]
+    path = os.path.join(out, PAGE)
+    with open(path, "w") as f:
+        f.write("\n".join(lines).rstrip() + "\n")
+    return path
+
+
+def _preset_section(out: str, fig: str, preset: str, seeds: Sequence[Job]) -> list[str]:
+    done = sum(J.is_done(out, j) for j in seeds)
+    head = f"### {preset}: {sum(j.seeds for j in seeds)} seeds x {seeds[0].epochs} epochs"
+    dest = merge(out, fig, preset, seeds)
+    if dest is None:
+        return [head, "", f"{done} of {len(seeds)} jobs finished: their seeds are merged once all are.", ""]
+    rel = os.path.relpath(dest, out)
+    lines = [head, "", f"![{preset}]({rel}/fig2.png)", ""]
+    if os.path.exists(os.path.join(dest, "objects.png")):
+        lines += [f"![{preset} objects]({rel}/objects.png)", ""]
+    lines += [_body(os.path.join(dest, "findings.md")), "", ppo_returns(dest), "",
+              f"Errors per learner and state group: [{rel}/table.md]({rel}/table.md).", ""]
+    boxes = sorted(glob.glob(os.path.join(glob.escape(J.job_dir(out, seeds[0])), "boxes_*.png")))
+    recon = sorted(glob.glob(os.path.join(glob.escape(J.job_dir(out, seeds[0])), "recon_*.png")))
+    for label, pngs in (("reconstructions", recon), ("SPAIR's boxes", boxes)):
+        if pngs:
+            lines += [f"Seed 0's {label}, last drawn: ![{label}]({os.path.relpath(pngs[-1], out)})", ""]
+    return lines
+
+
+def _summary_line(s: dict[str, Any]) -> str:
+    est = s.get("estimated_wall_s")
+    return (f"This stretch: {s.get('gpus')} {s.get('device_kind')} slot(s), {hms(s.get('measured_wall_s', 0))} "
+            f"wall (estimated {hms(est) if est is not None else '-'}), utilisation "
+            f"{(s.get('utilisation') or 0):.0%}, {s.get('gpu_hours', 0):.2f} GPU-hours.")
+
+
+def read_summary(out: str) -> dict[str, Any] | None:
+    path = os.path.join(out, "summary.json")
+    if not os.path.exists(path):
+        return None
+    with open(path) as f:
+        return json.load(f)

@@ -1,0 +1,192 @@
+"""`bulbjax run`: from its flags to `bulbjax.experiment.run.run`, in this process or as one
+process per GPU of this host (`bulbjax.local_processes`); split from `bulbjax.cli`, which parses
+the flags and uses `_settings` (the flags as `bulbjax.experiment.resolve`'s arguments) from here."""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+
+
+def _settings(args: argparse.Namespace) -> dict:
+    """The flags of `run` and `fit` as `bulbjax.experiment.resolve`'s arguments (the flags given;
+    text values are parsed and checked there)."""
+    flags = (("env", "env"), ("seeds", "seeds"), ("epochs", "epochs"), ("sequence_length", "sequence_length"),
+             ("learners", "learners"), ("version", "version"), ("rl_input", "rl_input"), ("rl_frames", "rl_frames"),
+             ("seed_loop", "learner_seed_loop"), ("programs", "programs"), ("ppo_updates", "ppo_updates_per_epoch"),
+             ("resolution", "resolution"), ("graph_mode", "graph_mode"),
+             ("probe_variants", "probe_variants"))
+    overrides = {field: getattr(args, flag) for flag, field in flags if getattr(args, flag, None) is not None}
+    if getattr(args, "multicolour", False):
+        overrides["multicolour"] = True
+    learner = {}
+    if getattr(args, "lr", None) is not None:
+        learner["lr"] = args.lr
+    if getattr(args, "bf16", False):
+        learner["compute_dtype"] = "bfloat16"
+    if getattr(args, "rnn_unroll", None) is not None:
+        learner["rnn_unroll"] = args.rnn_unroll
+    return dict(overrides=overrides, learner=learner, learner_options=getattr(args, "learner_option", None) or (),
+                small=bool(getattr(args, "small", False)), ppo_options=getattr(args, "ppo_option", None) or ())
+
+
+def _parse_ids(text: str | None) -> tuple[int, ...] | None:
+    """`--local-devices 0,1` -> (0, 1)."""
+    if text is None:
+        return None
+    try:
+        return tuple(int(x) for x in text.split(",") if x.strip())
+    except ValueError as err:
+        raise ValueError(f"--local-devices {text!r} must be device numbers separated by commas, e.g. 0,1") from err
+
+
+def _stretch_options(args: argparse.Namespace) -> dict:
+    return dict(checkpoint_every=args.checkpoint_every, keep=args.keep, max_minutes=args.max_minutes,
+                stop_after=args.stop_after, tensorboard=args.tensorboard, recon_every=args.recon_every)
+
+
+def _per_gpu(args: argparse.Namespace, out: str) -> int | None:
+    """On a host with several GPUs (`--layout auto` or `processes`): run one process per GPU
+    (`bulbjax.local_processes`: in one process the GPUs would take turns in MJX-Warp's Python
+    callbacks) and return its exit code; None where one process is the layout. What would make
+    every worker refuse the run (the folder, a resume's settings or process count) is refused
+    here, in one line, before any worker starts."""
+    from bulbjax import local_processes
+
+    gpus = local_processes.visible_gpus()[: args.devices or None]
+    if len(gpus) < 2:
+        if args.layout == "processes":
+            raise ValueError(f"--layout processes runs one process per GPU and this host has {len(gpus)} "
+                             "(CUDA_VISIBLE_DEVICES / nvidia-smi): leave --layout at auto")
+        return None
+    from bulbjax.experiment.resolve import resolve, resolve_resume
+
+    settings = _settings(args)
+    if args.resume:  # the seed count of the run being resumed
+        cfg, opts = resolve_resume(args.resume, args.preset, seed=args.seed, probe_every=args.probe_every,
+                                   **settings, **_stretch_options(args))
+        seeds = cfg.seeds
+    else:
+        seeds = resolve(args.preset, **settings).seeds
+    n = local_processes.process_count(seeds, len(gpus))
+    if n < len(gpus):
+        print(f"{seeds} seeds on {len(gpus)} GPUs: {n} process(es), one GPU each, {len(gpus) - n} GPU(s) idle "
+              f"(every process runs as many seeds: give --seeds a multiple of {len(gpus)} to use all)", flush=True)
+    if n < 2:
+        return None
+    if args.resume:
+        from bulbjax.experiment.config import read_run_config
+        from bulbjax.experiment.run import check_processes, check_resume
+
+        check_resume(args.resume, cfg, opts)
+        check_processes(args.resume, read_run_config(args.resume)[1], processes=n)
+    return local_processes.run_per_gpu(args.argv, gpus[:n], out)
+
+
+def cmd_run(args: argparse.Namespace) -> int:
+    """Map the flags to (config, options, folder) (`bulbjax.experiment.resolve`; a resumed run
+    starts from its own config.json, and `run.check_resume` refuses any flag that changes what it
+    computes: only --epochs may grow it) and hand over to `bulbjax.experiment.run.run`. The
+    console names each start-up stage with the seconds since the process started (Python and the
+    imports, joining `jax.distributed`, the JAX backend, then `run`'s own stages)."""
+    import shutil
+    import tempfile
+
+    from bulbjax import distributed
+    from bulbjax.experiment.console import StageLog, process_start_time
+    from bulbjax.experiment.rundir import check_out_dir
+
+    t_start = process_start_time()
+    said: list[str] = []  # the start-up lines before the log file opens: copied into it
+    stages = StageLog(lambda line: (print(line, flush=True), said.append(line)), t_start)
+    stages.line(f"Python start-up and imports: {getattr(args, 't_main', t_start) - t_start:.1f} s")
+    dist = distributed.DistributedConfig.from_env(
+        coordinator=args.coordinator, num_processes=args.num_processes, process_id=args.process_id,
+        local_device_ids=_parse_ids(args.local_devices), auto=args.distributed)
+    if args.resume and args.overwrite:
+        raise ValueError("--resume continues the run in its folder and --overwrite deletes it: give one of them")
+    if args.resume and args.out is not None and os.path.abspath(args.out) != os.path.abspath(args.resume):
+        raise ValueError(f"--resume {args.resume} continues that run in its own folder; leave out --out {args.out}")
+    if args.compile_only and args.resume:
+        raise ValueError("--compile-only compiles a fresh run's programs (a resume loads the same ones): "
+                         "leave out --resume")
+    # --compile-only: a throw-away folder (its logs too), no run folder of the user's is touched
+    out = tempfile.mkdtemp(prefix="bulbjax-compile-only-") if args.compile_only else (
+        args.resume or args.out or "runs/latest")
+    try:
+        # before any process starts or joins: a run in the way or an unwritable folder is one line
+        # (a resume's missing folder is left to resolve_resume's message, not created here)
+        if not args.resume or os.path.isdir(out):
+            check_out_dir(out, resume=bool(args.resume), overwrite=args.overwrite or args.compile_only)
+        if not dist.wanted and args.layout in ("auto", "processes"):
+            spread = _per_gpu(args, out)
+            if spread is not None:
+                return spread
+        # before anything else touches JAX's devices: a multi-process run joins its peers first
+        if dist.wanted:
+            with stages(f"joining jax.distributed as process {'?' if dist.process_id is None else dist.process_id} "
+                        f"of {'?' if dist.num_processes is None else dist.num_processes}"):
+                distributed.initialize(dist)
+        import jax
+
+        with stages("starting the JAX backend"):
+            local = jax.local_devices()
+        return _run_here(args, out, local, t_start, said)
+    finally:
+        if args.compile_only:
+            shutil.rmtree(out, ignore_errors=True)
+
+
+def _run_here(args: argparse.Namespace, out: str, local: list, t_start: float, said: list[str]) -> int:
+    """`cmd_run` in this process, once it joined its peers (if any) and its backend is up."""
+    import jax
+
+    from bulbjax import distributed
+    from bulbjax.experiment.config import RunOptions
+    from bulbjax.experiment.console import log_to_file
+    from bulbjax.experiment.resolve import parse_compiler_options, resolve, resolve_resume
+    from bulbjax.experiment.run import run
+    from bulbjax.experiment.rundir import log_name
+
+    settings = _settings(args)
+    if args.resume:
+        cfg, opts = resolve_resume(args.resume, args.preset, seed=args.seed, probe_every=args.probe_every,
+                                   **settings, **_stretch_options(args))
+    else:
+        cfg = resolve(args.preset, **settings)
+        opts = RunOptions(seed=0 if args.seed is None else args.seed,
+                          probe_every=1 if args.probe_every is None else args.probe_every, **_stretch_options(args))
+    if args.devices is not None and not 1 <= args.devices <= len(local):
+        raise ValueError(f"--devices {args.devices}: this machine has {len(local)} local devices")
+    # every process's first D local devices (D: --devices, default all of them)
+    devices = [d for p in range(jax.process_count())
+               for d in [x for x in jax.devices() if x.process_index == p][: args.devices or None]]
+    compiler_options = parse_compiler_options(args.xla_option or [])
+    argv = ["bulbjax", *getattr(args, "argv", [])]
+    with log_to_file(os.path.join(out, log_name(jax.process_index())), fresh=args.overwrite, header=" ".join(argv),
+                     preamble=said):
+        run(cfg, opts, out, resume=bool(args.resume), overwrite=args.overwrite, devices=devices, argv=argv,
+            compiler_options=compiler_options, layout="groups" if args.layout == "processes" else args.layout,
+            t0=t_start, compile_only=args.compile_only)
+    distributed.shutdown()
+    return 0
+
+
+def leave_failed_run(code: int) -> None:
+    """A process of a multi-process run that failed exits now, its error printed: on the way out
+    JAX would wait at its shutdown barrier (up to 5 minutes) for processes that wait for this one
+    in a collective. The launcher (or the cluster manager) stops them; with process 0 gone its
+    coordination service goes and the others stop too. Nothing for one process."""
+    from bulbjax import distributed
+
+    if not distributed.active():
+        return
+    for stream in (sys.stdout, sys.stderr):
+        try:
+            stream.flush()
+        except (OSError, ValueError):
+            pass
+    os._exit(code)
+
+

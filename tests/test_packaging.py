@@ -1,0 +1,93 @@
+"""The package installs like any other (issue 58): a wheel built from the sources carries every
+file bulbjax reads at run time (the MJCF models, package data found through
+`importlib.resources`), and installed into an empty folder outside the checkout it makes an
+environment and runs `bulbjax envs` from another working directory, with the checkout's own
+copy out of reach; on a machine without the NVIDIA driver, without Warp's line about it."""
+
+from __future__ import annotations
+
+import os
+import shutil
+import subprocess
+import sys
+import zipfile
+
+import pytest
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+MJCF = os.path.join(ROOT, "bulbjax", "envs", "mjcf")
+# what a build reads: the project file, its readme and the packages it finds
+SOURCES = ("pyproject.toml", "README.md", "bulbjax", "pybullet_compat")
+
+
+def _pip(*args: str, cwd: str) -> None:
+    r = subprocess.run([sys.executable, "-m", "pip", *args], cwd=cwd, capture_output=True,
+                       text=True, timeout=300)
+    assert r.returncode == 0, f"pip {' '.join(args)}:\n{r.stdout[-3000:]}\n{r.stderr[-3000:]}"
+
+
+@pytest.fixture(scope="module")
+def installed(tmp_path_factory) -> str:
+    """The wheel built (no build isolation: the test extra brings `wheel`) from a copy of the
+    sources (the checkout stays untouched by build/ and egg-info) and installed with
+    `pip install --target` into an empty folder; returns that folder."""
+    pytest.importorskip("wheel", reason="setuptools < 70.1 builds wheels with `wheel` (test extra)")
+    tmp = tmp_path_factory.mktemp("packaging")
+    src = tmp / "src"
+    src.mkdir()
+    for name in SOURCES:
+        path = os.path.join(ROOT, name)
+        if os.path.isdir(path):
+            shutil.copytree(path, src / name,
+                            ignore=shutil.ignore_patterns("__pycache__", "*.egg-info"))
+        else:
+            shutil.copy(path, src / name)
+    _pip("wheel", "--no-deps", "--no-build-isolation", "-q", "-w", str(tmp / "wheels"), str(src),
+         cwd=str(tmp))
+    wheels = os.listdir(tmp / "wheels")
+    assert len(wheels) == 1 and wheels[0].endswith(".whl"), wheels
+    wheel = str(tmp / "wheels" / wheels[0])
+    with zipfile.ZipFile(wheel) as z:
+        names = set(z.namelist())
+    models = sorted(f for f in os.listdir(MJCF) if f.endswith(".xml"))
+    assert models, f"no MJCF files in {MJCF}"
+    missing = [m for m in models if f"bulbjax/envs/mjcf/{m}" not in names]
+    assert not missing, f"the wheel lacks the MJCF files {missing} (pyproject.toml's package-data)"
+    site = tmp / "site"
+    _pip("install", "--no-deps", "--no-index", "-q", "--target", str(site), wheel, cwd=str(tmp))
+    return str(site)
+
+
+def _python(site: str, cwd: str, *args: str) -> subprocess.CompletedProcess:
+    """Python with only the installed copy on PYTHONPATH, in `cwd` (outside the checkout), no
+    MJCF folder given."""
+    env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "BULBJAX_MJCF_DIR")}
+    env["PYTHONPATH"] = site
+    return subprocess.run([sys.executable, *args], cwd=cwd, env=env, capture_output=True,
+                          text=True, timeout=600)
+
+
+def test_installed_wheel_makes_an_environment(installed, tmp_path):
+    code = ("import os, sys, jax, bulbjax\n"
+            "from bulbjax.envs.base import asset_dir\n"
+            f"site = os.path.realpath({installed!r})\n"
+            "here = os.path.realpath(bulbjax.__file__)\n"
+            "assert here.startswith(site + os.sep), here\n"
+            "assert os.path.realpath(asset_dir()).startswith(site + os.sep), asset_dir()\n"
+            "env = bulbjax.make('CartPole', num_envs=2, render=False)\n"
+            "state = jax.jit(env.reset)(jax.random.PRNGKey(0))\n"
+            "print('lowdim', state.lowdim.shape)\n")
+    r = _python(installed, str(tmp_path), "-c", code)
+    assert r.returncode == 0, r.stderr[-4000:]
+    assert "lowdim (2, 4)" in r.stdout
+    from bulbjax.envs import render
+
+    if not render._cuda_driver_loads():  # a CPU-only machine: Warp's no-driver line is not printed
+        assert "NVIDIA CUDA driver" not in r.stderr, r.stderr
+
+
+def test_installed_cli_lists_the_environments(installed, tmp_path):
+    r = _python(installed, str(tmp_path), "-m", "bulbjax", "envs")
+    assert r.returncode == 0, r.stderr[-4000:]
+    names = [line.split()[0] for line in r.stdout.splitlines() if line.strip()]
+    assert "CartPole" in names and "ReacherRearrangeGeom" in names, r.stdout

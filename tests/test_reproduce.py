@@ -1,0 +1,239 @@
+"""`bulbjax reproduce` (issue 57): the plan as data, its shards, its estimate, bad input, and one
+real run on two CPU slots (the queue, a killed job continued from its checkpoint, a failing job
+reported and retried once without holding up the rest, the results page)."""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import signal
+import subprocess
+import sys
+import time
+
+import pytest
+
+from bulbjax.reproduce import estimate, plan
+from bulbjax.reproduce.estimate import Timing, simulate
+from bulbjax.reproduce.main import reproduce
+from bulbjax.reproduce.plan import Job, plan_jobs, shard_of
+from bulbjax.reproduce.queue import Queue, Slot
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+
+
+def test_the_paper_plan() -> None:
+    jobs = plan_jobs("all", "paper")
+    runs = [j for j in jobs if j.kind == "run"]
+    assert len({j.id for j in jobs}) == len(jobs) == 4 * 6 + 3 + 3 + 4
+    for preset in ("fig2-cartpole", "fig2-invpend", "fig2-halfcheetah", "fig2-ant"):
+        mine = [j for j in runs if j.preset == preset]
+        assert [j.seed for j in mine] == list(range(6)) and {j.epochs for j in mine} == {1000}
+    assert sorted(j.seed for j in runs if j.preset == "fig5-rearrange-ycb") == [0, 1, 2]
+    assert all("--bf16" in j.flags and j.seeds == 1 for j in runs)
+    recon = [j for j in jobs if j.kind == "recon"]
+    assert {j.after for j in recon} == {f"{p}/seed0" for p in plan.figure_specs("paper")["fig2"].presets}
+
+
+def test_quick_tiny_and_figure_selection() -> None:
+    quick = plan_jobs("fig2,fig3", "quick")
+    assert [(j.id, j.seeds) for j in quick][:2] == [("fig2-cartpole/seeds0-1", 2), ("fig2-invpend/seeds0-1", 2)]
+    assert {j.epochs for j in quick if "halfcheetah" in j.id} == {20}
+    alone = plan_jobs("fig4", "paper")  # Fig. 4 plans the seed-0 runs it draws
+    assert sorted(j.id for j in alone if j.kind == "run") == sorted(f"{p}/seed0" for p in
+                                                                    plan.figure_specs("paper")["fig2"].presets)
+    one = plan_jobs("fig2-ant,fig4", "tiny")
+    assert [j.id for j in one] == ["fig2-ant/seed0", "fig2-ant/seed1", "fig4/fig2-ant"]
+    added = plan_jobs("fig2-invpend", "paper", ["mymod:Mine"])[0].flags
+    assert added[-2:] == ("--learners", "vae,vae_rpl,beta_vae,svae,pred,dsa,mymod:Mine")
+
+
+def test_shards_split_the_plan_the_same_way_everywhere() -> None:
+    jobs = plan_jobs("all", "paper")
+    times, _ = estimate.load_times("NVIDIA H100 80GB HBM3")
+    cost = {j.id: estimate.job_cost(j, times) for j in jobs}
+    for n in (1, 2, 3, 4):
+        where = shard_of(jobs, cost, n)
+        assert where == shard_of(list(jobs), dict(cost), n)  # the same split from the plan alone
+        assert set(where.values()) == set(range(n)) and set(where) == {j.id for j in jobs}
+        assert all(where[j.id] == where[j.after] for j in jobs if j.after)
+        loads = [sum(cost[i] for i, k in where.items() if k == s) for s in range(n)]
+        assert max(loads) - min(loads) <= max(cost.values())  # balanced to within one job
+
+
+def test_the_estimate_is_the_queue_simulated() -> None:
+    t = {"a": Timing(10.0, 100.0, 20.0), "recon": Timing(0.0, 30.0, 30.0)}
+    run = [Job(f"a/seed{i}", "fig2", "run", "a", i, 10, f"runs/a/seed{i}") for i in range(2)]
+    # two jobs on two slots: side by side, both cold (neither has compiled when the other starts)
+    assert simulate(run, t, 2).wall_s == 200.0
+    # on one slot the second starts warm: 200 + 20 + 100
+    est = simulate(run, t, 1)
+    assert est.wall_s == 320.0 and est.utilisation == 1.0
+    recon = Job("fig4/a", "fig4", "recon", "a", 0, 10, "fig4/a", after="a/seed0")
+    est = simulate([*run, recon], t, 2)
+    assert est.spans["fig4/a"][0] == est.spans["a/seed0"][1]  # drawn once its run has ended
+    assert simulate([recon], t, 1).wall_s == 30.0  # its run finished before: ready at once
+    assert simulate(run, t, 1, epochs_done={"a/seed0": 10, "a/seed1": 5}).wall_s == 100 + 20 + 50
+
+
+def test_the_docs_table_is_the_times_file() -> None:
+    with open(os.path.join(ROOT, "docs", "reproduce.md"), encoding="utf-8") as f:
+        text = f.read()
+    table = re.search(r"<!-- epoch-times.*?-->\n(.*?)\n<!-- /epoch-times -->", text, re.S).group(1)
+    assert table == estimate.times_markdown()
+
+
+@pytest.mark.parametrize("kw, says", [
+    (dict(figures="fig9"), "unknown figure"),
+    (dict(shard="3/2"), "--shard '3/2' must be K/N"),
+    (dict(shard="0/2"), "must be K/N"),
+    (dict(gpus=0), "--gpus 0"),
+    (dict(scale="huge"), "unknown --scale"),
+    (dict(add_learners=["no_such_learner"]), "not a registered learner"),
+    (dict(add_learners=["vae_rpl"]), "already in the paper's runs"),
+    (dict(max_minutes=-1), "--max-minutes"),
+])
+def test_bad_input_is_one_clear_error_and_changes_nothing(tmp_path, kw, says) -> None:
+    out = tmp_path / "plan"
+    with pytest.raises(ValueError, match=re.escape(says)):
+        reproduce(**{"out": str(out), "dry_run": True, **kw}, log=lambda s: None)
+    assert not out.exists()
+
+
+def test_an_out_folder_of_another_plan_or_of_something_else_is_refused(tmp_path) -> None:
+    out = tmp_path / "plan"
+    said: list[str] = []
+    reproduce("fig2-cartpole", "tiny", str(out), dry_run=True, log=said.append)
+    assert "fig2-cartpole/seed1" in said[0] and "estimated:" in said[0] and not out.exists()
+    out.mkdir()
+    (out / plan.PLAN_FILE).write_text(json.dumps(plan.plan_record(["fig2-cartpole"], "tiny", [], [])))
+    with pytest.raises(ValueError, match=r"other settings \(scale: saved 'tiny', given 'quick'\).*--overwrite"):
+        reproduce("fig2-cartpole", "quick", str(out), dry_run=True, log=said.append)
+    reproduce("fig2-cartpole", "tiny", str(out), dry_run=True, log=said.append)  # the same plan: continues
+    other = tmp_path / "other"
+    other.mkdir()
+    (other / "notes.txt").write_text("mine")
+    with pytest.raises(ValueError, match="holds no reproduce plan"):
+        reproduce("fig2-cartpole", "tiny", str(other), dry_run=True, overwrite=True, log=said.append)
+    assert (other / "notes.txt").exists()
+
+
+def test_the_cli_says_a_bad_shard_in_one_line(tmp_path) -> None:
+    r = subprocess.run([sys.executable, "-m", "bulbjax", "reproduce", "--shard", "3/2", "--out", str(tmp_path / "o")],
+                       capture_output=True, text=True, timeout=120, env=dict(os.environ, JAX_PLATFORMS="cpu"))
+    assert r.returncode == 2
+    assert r.stderr.strip().count("\n") == 0 and "--shard '3/2' must be K/N" in r.stderr
+
+
+def test_a_failing_job_is_retried_once_and_holds_up_nothing(tmp_path) -> None:
+    """A job whose run cannot start (an unknown learner) fails, is reported with what it said,
+    started once more, and left failed; a job queued behind it on the one slot still runs (here
+    a recon of a run that does not exist, which fails too: both are tried, neither blocks)."""
+    bad = Job("fig2-cartpole/seed0", "fig2", "run", "fig2-cartpole", 0, 1, "runs/fig2-cartpole/seed0",
+              flags=("--small", "--learners", "no_such_learner"))
+    after = Job("fig2-invpend/seed0", "fig2", "run", "fig2-invpend", 0, 1, "runs/fig2-invpend/seed0",
+                flags=("--small", "--learners", "also_not_one"))
+    said: list[str] = []
+    times, _ = estimate.load_times("cpu")
+    q = Queue(str(tmp_path), [bad, after], [bad, after], [Slot("cpu0", None)], times, progress_every=1e9,
+              log=said.append, poll_s=0.2)
+    summary = q.run()
+    assert summary["failed"] == [bad.id, after.id]
+    for job in (bad, after):
+        rec = summary["jobs"][job.id]
+        assert rec["attempts"] == 2 and len(rec["errors"]) == 2
+        assert "unknown learners" in rec["errors"][0]
+    text = "\n".join(said)
+    assert "FAILED fig2-cartpole/seed0" in text and "trying it once more" in text and "giving up on it" in text
+
+
+def _kill_when(pattern: str, ready, timeout: float = 900.0) -> bool:
+    """SIGKILL the process whose command line matches `pattern` once `ready()`; False on timeout."""
+    end = time.monotonic() + timeout
+    while time.monotonic() < end:
+        if ready():
+            pids = subprocess.run(["pgrep", "-f", pattern], capture_output=True, text=True).stdout.split()
+            for pid in pids:
+                os.kill(int(pid), signal.SIGKILL)
+            return bool(pids)
+        time.sleep(0.2)
+    return False
+
+
+def test_a_tiny_plan_on_two_slots(tmp_path) -> None:
+    """The command itself on two CPU slots: two seeds side by side; seed 0 killed after its
+    first checkpoint is reported, continued from that checkpoint and finished; the results page
+    pools both seeds; a rerun finds everything done and starts nothing."""
+    from bulbjax.experiment import rundir
+
+    out = tmp_path / "paper"
+    cmd = [sys.executable, "-m", "bulbjax", "reproduce", "--scale", "tiny", "--figures", "fig2-cartpole",
+           "--gpus", "2", "--out", str(out), "--progress-every", "5"]
+    log = open(tmp_path / "console.txt", "w")
+    proc = subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT, env=dict(os.environ, JAX_PLATFORMS="cpu"))
+    seed0 = out / "runs" / "fig2-cartpole" / "seed0"
+    killed = _kill_when(f"bulbjax run --preset fig2-cartpole --seeds 1 --seed 0 .*{seed0}",
+                        lambda: rundir.checkpoint_steps(str(seed0)) == [1])
+    rc = proc.wait(timeout=1200)
+    log.close()
+    console = (tmp_path / "console.txt").read_text()
+    assert rc == 0, console
+    assert killed, console
+    assert "FAILED fig2-cartpole/seed0 (exit -9" in console and "start fig2-cartpole/seed0 on " in console
+    assert re.search(r"start fig2-cartpole/seed0 on cpu\d \(attempt 2, from epoch 1\)", console), console
+    assert "done fig2-cartpole/seed1" in console and "done fig2-cartpole/seed0" in console
+    relaunch = (out / "logs" / "fig2-cartpole_seed0.txt").read_text()
+    assert f"run --resume {seed0}" in relaunch  # continued, not started over
+    records = [json.loads(x) for x in (seed0 / "metrics.jsonl").read_text().splitlines()]
+    assert [r["epoch"] for r in records] == [0, 1]  # epoch 0 not repeated, epoch 1 written once
+    page = (out / "results.md").read_text()
+    assert "### fig2-cartpole: 2 seeds x 2 epochs" in page and "replay fixes VAE_v0" in page
+    assert (out / "fig2" / "fig2-cartpole" / "fig2.png").exists()
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["gpus"] == 2 and summary["failed"] == [] and 0 < summary["utilisation"] <= 1
+    again = subprocess.run(cmd, capture_output=True, text=True, timeout=300, env=dict(os.environ, JAX_PLATFORMS="cpu"))
+    assert again.returncode == 0 and "start " not in again.stdout and "2 done, 0 running" in again.stdout
+
+
+def test_the_results_page_holds_the_generated_claims_tables() -> None:
+    """docs/results.md's claims tables are what `bulbjax report docs/results` writes from the
+    committed folders' findings.md (themselves regenerated from the metrics by
+    tests/test_results_regenerate.py): the page cannot drift from the numbers."""
+    from bulbjax.reproduce import claims
+
+    results = os.path.join(ROOT, "docs", "results")
+    with open(os.path.join(ROOT, "docs", "results.md"), encoding="utf-8") as f:
+        page = f.read()
+    assert page.count("<!-- claims:") == len(claims.read_spec(results)["tables"]) >= 3
+    assert claims.render(page, results) == page, "run `bulbjax report docs/results` to regenerate docs/results.md"
+    # and a changed number would show: the generated table depends on the findings
+    assert "**holds**, π_rand +0.345 ± 0.033" in page
+    assert claims.bands("overall, π_rand: a 0.1, b 0.5; b - a = +0.400 ± 0.050; overall, π_curr: a 0.2, b 0.2; "
+                        "b - a = +0.000 ± 0.010") == "π_rand +0.400 ± 0.050; π_curr +0.000 ± 0.010"
+    with pytest.raises(ValueError, match="does not define"):
+        claims.render("<!-- claims:nope -->\n<!-- /claims:nope -->", results)
+
+
+def test_an_added_learner_joins_every_run_job(tmp_path, monkeypatch) -> None:
+    """`--add-learner MODULE:NAME` loads the learner (a module outside the package), and every
+    run job of the plan runs it beside the preset's learners; the recon job draws it too."""
+    (tmp_path / "my_plugin_mod.py").write_text(
+        "from bulbjax.learners import make_learner\n"
+        "def Mine(latent_dim, config, action_dim):\n"
+        "    return make_learner('vae', latent_dim, config, action_dim)\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    said: list[str] = []
+    s = reproduce("fig2-invpend,fig4", "paper", str(tmp_path / "out"), dry_run=True,
+                  add_learners=["my_plugin_mod:Mine"], log=said.append)
+    assert s["jobs_planned"] == 7 and "fig4/fig2-invpend" in said[0]
+    jobs = plan_jobs("fig2-invpend", "paper", ["my_plugin_mod:Mine"])
+    assert all(j.flags[-1].endswith(",my_plugin_mod:Mine") for j in jobs)
+    from bulbjax.reproduce.main import _learners_of
+
+    assert _learners_of(["Mine"])(jobs[0])[-1] == "Mine"
+    assert plan.fig4_learners(_learners_of(["Mine"])(jobs[0])) == ["vae_rpl", "svae", "pred", "dsa", "Mine"]
+    assert plan.fig4_learners(["vae_rpl", "stdim", "dsa"]) == ["vae_rpl", "dsa"]  # no reconstruct: no row
+    with pytest.raises(ValueError, match="cannot import|No module"):
+        reproduce("fig2-invpend", "paper", str(tmp_path / "o2"), dry_run=True, add_learners=["no_mod_xyz:Mine"],
+                  log=said.append)
