@@ -78,9 +78,10 @@ def is_report_value(path: tuple[str, ...]) -> bool:
     """Whether the number at `path` of a record is one that tables and findings average over
     seeds and epochs before printing 3 decimals: the PPO return, a probe's group and overall
     errors (`probes/<learner>/<stream>/groups|overall/...`, the same under `linear_probes`) and
-    the object-probe summaries."""
+    the object-probe summaries; the probe variants' likewise (`probes_common`, ...)."""
+    probes = (("probes",), ("linear_probes",), ("probes_common",), ("probes_window",), ("probes_raw",))
     return (path[:1] == ("rl_return",) or path[:1] == ("objects",)
-            or (path[:1] in (("probes",), ("linear_probes",)) and len(path) > 3 and path[3] in ("groups", "overall")))
+            or (path[:1] in probes and len(path) > 3 and path[3] in ("groups", "overall")))
 
 
 def is_probed(record: dict[str, Any]) -> bool:

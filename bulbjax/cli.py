@@ -45,6 +45,16 @@ def cmd_report(args: argparse.Namespace) -> int:
         tab = report.rl_compare(args.run_dirs, out)
         print(f"{tab}\nplot: {os.path.join(out, 'rl_compare.png')}\ntable: {os.path.join(out, 'rl_compare.md')}")
         return 0
+    if getattr(args, "probe_protocol", False):
+        if not args.out:
+            raise ValueError("--probe-protocol writes table.md into a folder: give it with "
+                             "--out DIR (e.g. docs/results/probe_protocol)")
+        from bulbjax.experiment import protocol
+
+        fp32 = getattr(args, "fp32", None) or ()
+        print(protocol.probe_protocol_table(args.run_dirs, fp32, args.out))
+        print(f"table: {os.path.join(args.out, 'table.md')}")
+        return 0
     if args.merge_seeds:
         if not args.out:
             raise ValueError("--merge-seeds writes a new run folder: give it with --out DIR")
@@ -258,6 +268,11 @@ def main(argv: Sequence[str] | None = None) -> int:
                    help="stop after this wall time, checkpoint and report the epochs done (0: no limit)")
     r.add_argument("--probe-every", type=int, default=None,
                    help="probe every k epochs (and at the first and last; default 1); plots keep epochs on the x axis")
+    r.add_argument("--probe-variants", default=None, metavar="LIST",
+                   help="probe-protocol variants computed beside the present probe, "
+                        "comma-separated: common (one probe set for every learner), window "
+                        "(sequential learners' whole window), raw (raw MAE per group), or none "
+                        "(default none; docs/probes.md)")
     r.add_argument("--resume", default=None, metavar="RUN_DIR",
                    help="continue the run in RUN_DIR from its newest checkpoint with its own config.json "
                         "(flags that would change it are an error; --epochs may extend it)")
@@ -323,10 +338,17 @@ def main(argv: Sequence[str] | None = None) -> int:
     rp.add_argument("--merge-seeds", action="store_true",
                     help="one report over the seeds of several runs of one configuration made with "
                          "different --seed (e.g. half the seeds on each of two GPUs), into --out")
+    rp.add_argument("--probe-protocol", action="store_true",
+                    help="the Fig. 2 claims of the runs (one per domain, made with "
+                         "--probe-variants) under each probe variant side by side, into "
+                         "--out/table.md")
+    rp.add_argument("--fp32", action="append", default=None, metavar="RUN_DIR",
+                    help="with --probe-protocol: a domain's second run in fp32, its verdicts "
+                         "as the last column (repeatable, one per domain)")
     rp.add_argument("--out", default=None,
                     help="folder of the outputs: fig2.png, table.md, findings.md of one run "
-                         "(default: RUN_DIR itself), of --merge-seeds (required), or of "
-                         "--compare-rl (default: the first run's parent folder)")
+                         "(default: RUN_DIR itself), of --merge-seeds or --probe-protocol "
+                         "(required), or of --compare-rl (default: the first run's parent folder)")
     rp.set_defaults(fn=cmd_report)
     o = sub.add_parser("fit", help="offline: train learners on one cached random-policy dataset, "
                                    "probe every M updates", formatter_class=HelpFormatter)

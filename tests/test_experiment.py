@@ -414,3 +414,93 @@ def test_presets_and_cli_overrides():
     with pytest.raises(ValueError, match="version"):
         dataclasses.replace(cart, version="all")
     assert main(["run", "--preset", "nope", "--out", "/tmp/bulbjax_nope"]) == 2
+
+
+# ---------------------------------------------------------------- probe-protocol variants (issue 59)
+VARIANTS = ("common", "window", "raw")
+# all but dsa (the longest compile): a prefix of ALL, so the same draws as `run`'s
+WITH_VARIANTS = ALL[:5]
+
+
+@pytest.fixture(scope="module")
+def run_variants():
+    """The fixture `run`'s experiment with every probe variant and without dsa: its init and first
+    epoch under the same keys (learner i of a run draws with key i: a prefix of `run`'s learners
+    gets `run`'s draws)."""
+    cfg = dataclasses.replace(tiny_six_config(), learners=WITH_VARIANTS, probe_variants=VARIANTS)
+    exp = Experiment(cfg)
+    rs0 = exp.init(jax.random.PRNGKey(0))
+    probe_set0 = jax.device_get(rs0.probe_set)
+    rs1, m1 = exp.epoch(rs0, jax.random.PRNGKey(1))
+    return exp, probe_set0, jax.device_get(rs1), jax.device_get(m1)
+
+
+def test_variants_leave_the_present_probe_unchanged(run, run_variants):
+    """The records of a tiny run with every probe variant equal those of the run without them
+    (same keys), bit for bit, up to the variants' own keys; so does the run state."""
+    exp, _, _, m1, *_, rs1 = run
+    expv, _, rsv, mv = run_variants
+    def keep(m: dict) -> dict:  # the metrics of `WITH_VARIANTS`
+        return {k: ({n: v[n] for n in WITH_VARIANTS} if k in ("learners", "probes") else v)
+                for k, v in m.items()}
+
+    plain = records.epoch_records(0, keep(m1), exp.spec)
+    withv = records.epoch_records(0, mv, expv.spec, VARIANTS)
+    assert len(plain) == len(withv) == SEEDS
+    for a, b in zip(plain, withv):
+        assert set(b) - set(a) == {"probes_common", "probes_window", "probes_raw"}
+        assert json.dumps({k: b[k] for k in a}, sort_keys=True) == json.dumps(a, sort_keys=True)
+        for key in ("probes_common", "probes_window", "probes_raw"):
+            assert set(b[key]) == set(WITH_VARIANTS) and set(b[key]["vae"]) == {"curr", "rand"}
+    same = lambda x: {n: x.learners[n] for n in WITH_VARIANTS}  # noqa: E731
+    assert _max_abs_diff((same(rsv), rsv.buffers, rsv.windows, rsv.ppo),
+                         (same(rs1), rs1.buffers, rs1.windows, rs1.ppo)) == 0.0
+
+
+def test_common_probe_set_is_the_same_pairs_for_every_learner(run, run_variants):
+    """Every learner of a seed, frame or sequential, fits the common variant's probe on the same
+    pairs: the same constant predictor (their states' median) and spread, where each learner's
+    own buffer gives the present probes different ones. The random-policy part is a fixed draw
+    of init's windows, kept unchanged."""
+    _, _, _, _, _, windows0, _ = run
+    exp, set0, rs1, m = run_variants
+    common = {n: m["probes"][n]["variants"]["common"] for n in WITH_VARIANTS}
+    present = {n: m["probes"][n]["rand"]["baseline"] for n in WITH_VARIANTS}
+    for stream in ("curr", "rand"):
+        first = common["vae"][stream]
+        for n in WITH_VARIANTS[1:]:
+            np.testing.assert_array_equal(common[n][stream]["baseline"], first["baseline"])
+            np.testing.assert_array_equal(common[n][stream]["spread"], first["spread"])
+        assert not all(np.array_equal(common[n][stream]["mae"], first["mae"]) for n in WITH_VARIANTS)
+    assert not all(np.array_equal(present[n], present["vae"]) for n in WITH_VARIANTS)
+    # the random-policy part: ceil(16 / 2 / 4) = 2 windows of L = 4 steps per seed, from init's windows
+    w = set0.windows
+    assert w.frames.shape == (SEEDS, 2, 4, 32, 32, 3) and set0.rand_windows == 2
+    assert np.all((set0.world >= 0) & (set0.world < exp.N))
+    init = windows0.windows.frames[:, :, :4]  # init's window buffer before any epoch: its windows
+    for s in range(SEEDS):
+        for i in range(2):
+            assert any(np.array_equal(w.frames[s, i], init[s, j]) for j in range(init.shape[1]))
+    jax.tree.map(np.testing.assert_array_equal, rs1.probe_set, set0)  # kept, never overwritten
+
+
+def test_whole_window_latent_has_the_learners_window_size(run):
+    """The window variant's latent is the learner's whole window: its L per-step latents in order,
+    L x Z numbers, paired with the state at the window's last step; the held-out windows' per-step
+    latents are recovered from the present probe's context latents."""
+    from bulbjax.eval import probe
+    from bulbjax.experiment import probe_variants as pv
+
+    exp, *_, rs1 = run
+    buf = jax.tree.map(lambda x: x[0], rs1.windows[buffer_key(0.5)])
+    for name in ("svae", "pred", "dsa"):
+        learner, params = exp.learners[name], jax.tree.map(lambda x: x[0], rs1.learners[name].params)
+        pairs = jax.jit(lambda p, b: (pv.window_pairs(learner, p, b), learner.encode(p, b.windows)))
+        (tz, ts), z = pairs(params, buf)
+        l, c = learner.sequence_length, buf.capacity
+        assert l == 4 and tz.shape == (c, l * learner.latent_dim) and ts.shape == (c, exp.env.state_dim)
+        np.testing.assert_array_equal(tz.reshape(z.shape), z)
+        np.testing.assert_array_equal(ts, buf.windows.states[:, l - 1])
+        context = pv.context_of(learner, exp.config.probe)
+        ctx = probe.context_latents(z, context)
+        np.testing.assert_array_equal(pv.held_step_latents(ctx, context), z)

@@ -31,7 +31,8 @@ def tiny() -> ExperimentConfig:
         ppo_updates_per_epoch=1, frames_per_epoch=8, replay_capacity=32, sequence_length=4,
         learner=LearnerConfig(batch_size=8, conv_features=(8, 8, 8, 8), hidden=16, lr=1e-3),
         learner_batches=1, eval_frames=8, probe_train_frames=16,
-        probe=ProbeConfig(hidden=(16,), steps=20, batch_size=16), reference_steps=16)
+        probe=ProbeConfig(hidden=(16,), steps=20, batch_size=16), reference_steps=16,
+        probe_variants=("common", "window", "raw"))  # the common set's init part is checkpointed
 
 
 @pytest.fixture(scope="module")
@@ -70,6 +71,7 @@ def test_resume_is_bit_identical(exp, straight, tmp_path):
     assert len(a) == len(b) == 4 * 2
     assert [json.loads(x)["epoch"] for x in b] == [0, 0, 1, 1, 2, 2, 3, 3]
     assert a == b  # every float of every record, bit for bit (JSON round-trips float64 exactly)
+    assert all({"probes_common", "probes_window", "probes_raw"} <= set(json.loads(x)) for x in b)
     cfg = json.load(open(os.path.join(d, "config.json")))
     assert cfg["resumes"][0]["from_epoch"] == 2 and cfg["run"] == {"seed": 0, "probe_every": 1}
     assert os.path.getsize(os.path.join(d, "fig2.png")) > 10_000
@@ -247,6 +249,8 @@ def test_report_redraws_a_run_in_progress(straight, tmp_path):
     assert os.path.getsize(run_dir / "fig2.png") > 10_000
     tab = (run_dir / "table.md").read_text()
     assert "3 epochs" in tab and "epoch 0, 1, 2;" in tab  # epoch 3 (incomplete) left out
+    assert "| svae (window) | π_rand |" in tab and "## Raw MAE" in tab  # the probe variants' rows
+    assert "## The claims under the probe protocol's variants" in (run_dir / "findings.md").read_text()
     assert main(["report", str(tmp_path / "nothing")]) == 2
 
 

@@ -21,6 +21,10 @@ from bulbjax.rl.ppo_config import PPOConfig
 SEED_LOOPS = ("auto", "vmap", "map", "hybrid")
 # How init and the epoch are compiled (`ExperimentConfig.programs`).
 PROGRAM_FORMS = ("fused", "split")
+# Probe-protocol variants computed beside the present probe (`ExperimentConfig.probe_variants`,
+# docs/probes.md "Variants of the protocol"): a common probe set for every learner of a seed,
+# the whole window's latent for the sequential learners, raw MAE per state group.
+PROBE_VARIANTS = ("common", "window", "raw")
 
 # Default window length of the sequential learners per domain (paper Sec. IV.A).
 SEQUENCE_LENGTHS: dict[str, int] = {"CartPole": 24, "InvertedPendulum": 24, "HalfCheetah": 16, "Ant": 16}
@@ -117,11 +121,27 @@ class ExperimentConfig:
     # side is slower than one after another; benchmarks/README.md, "Split programs"), so fused
     # is the default.
     programs: str = "fused"
+    # Probe-protocol variants (`PROBE_VARIANTS`) computed in the same run beside the present
+    # probe, which they leave unchanged (docs/probes.md, "Variants of the protocol"): "common"
+    # (every learner's probe fit on the same pairs: a fixed draw of random-policy steps kept from
+    # init and the epoch's new steps, half each), "window" (sequential learners: the whole
+    # window's latent -> the state at its last step, as bulb's code probes it), "raw" (the
+    # present probe's MAE per group in the state's units, unnormalised). () = none (runs made
+    # before the variants read back with none). "window" computes nothing in a run without
+    # sequential learners (`probe_variants_run`).
+    probe_variants: tuple[str, ...] = ()
 
     @property
     def rl_learner(self) -> str | None:
         """The learner whose latent PPO observes, or None for the true state."""
         return self.rl_input.split(":", 1)[1] if self.rl_input.startswith("latent:") else None
+
+    @property
+    def probe_variants_run(self) -> tuple[str, ...]:
+        """The probe variants this run computes: `probe_variants`, "window" only with a
+        sequential learner (it probes their whole windows)."""
+        seq = any(is_sequential_name(n) for n in self.learners)
+        return tuple(v for v in self.probe_variants if v != "window" or seq)
 
     @property
     def seq_len(self) -> int:
@@ -165,6 +185,11 @@ class ExperimentConfig:
             raise ValueError(f"learner_seed_loop must be one of {SEED_LOOPS}, got {self.learner_seed_loop!r}")
         if self.programs not in PROGRAM_FORMS:
             raise ValueError(f"programs must be one of {PROGRAM_FORMS}, got {self.programs!r}")
+        bad = [v for v in self.probe_variants if v not in PROBE_VARIANTS]
+        if bad or len(set(self.probe_variants)) != len(self.probe_variants):
+            raise ValueError(f"probe_variants must be distinct names of {', '.join(PROBE_VARIANTS)} "
+                             "(e.g. --probe-variants common,window,raw), got "
+                             f"{self.probe_variants!r}")
         if not (self.version == "random" or (isinstance(self.version, int) and self.version >= 0)):
             raise ValueError(f"version must be an int >= 0 or 'random', got {self.version!r}")
         for name in ("seeds", "epochs", "num_envs", "ppo_updates_per_epoch", "learner_batches",
@@ -358,7 +383,8 @@ def _fig2(env: str, learner_batches: int, ppo: PPOConfig | None = None) -> Exper
     batches per epoch (10 pendulums, 50 locomotion). `epochs` is an upper bound: the paper ran
     far longer than one GPU session allows, so runs are usually cut with --max-minutes.
     Two PPO updates per epoch (128 steps of 64 worlds), as in the README's H100 runs; `ppo`: the
-    domain's stability settings (`PENDULUM_PPO`, `INVPEND_PPO`, `HALFCHEETAH_PPO`)."""
+    domain's stability settings (`PENDULUM_PPO`, `INVPEND_PPO`, `HALFCHEETAH_PPO`). No probe
+    variants (`--probe-variants` adds them: +43% per probed epoch on the CPU, docs/probes.md)."""
     return ExperimentConfig(env=env, multicolour=True, learners=_FIG2_LEARNERS, seeds=6, epochs=1000,
                             ppo=ppo or PPOConfig(), ppo_updates_per_epoch=2, learner=LearnerConfig(lr=1e-4),
                             learner_batches=learner_batches)

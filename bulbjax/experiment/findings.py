@@ -15,7 +15,8 @@ from typing import Any, Sequence
 import numpy as np
 
 from bulbjax.eval.spec import StateEntry
-from bulbjax.experiment.records import STREAMS, ci90, excluded_groups, groups_of, per_seed_error, probed
+from bulbjax.experiment.records import (STREAMS, VARIANT_SOURCES, ci90, excluded_groups, groups_of,
+                                        per_seed_error, probed)
 
 PENDULUMS = ("CartPole", "InvertedPendulum")
 LOCOMOTION = ("HalfCheetah", "Ant")
@@ -23,13 +24,21 @@ SEQUENTIAL = ("svae", "pred", "dsa")
 CONTRASTIVE = ("stdim", "curl")
 
 
+Part = tuple[str, float, float]  # a paired difference: what, mean, half-width of its 90% band
+
+
 @dataclasses.dataclass(frozen=True)
 class Verdict:
-    """One claim: `holds`, `does not hold`, `undecided` or `not tested`, and the numbers."""
+    """One claim: `holds`, `does not hold`, `undecided` or `not tested`, and the numbers.
+    `learners`: those the claim compares; `parts`: each paired difference that decides it, as
+    `(what, mean, half-width of its 90% band)` (the variants' table shows them,
+    `bulbjax.experiment.protocol`)."""
 
     claim: str
     verdict: str
     detail: str
+    learners: tuple[str, ...] = ()
+    parts: tuple[Part, ...] = ()
 
 
 def paired_verdict(lower: np.ndarray, higher: np.ndarray) -> tuple[str, float, float]:
@@ -43,13 +52,22 @@ def paired_verdict(lower: np.ndarray, higher: np.ndarray) -> tuple[str, float, f
     return verdict, mean, half
 
 
-def _lower(records, a: str, b: str, stream: str, group: str | None, epochs) -> tuple[str, str]:
-    """Verdict and numbers for "a's error is lower than b's" (paired over seeds)."""
-    ea, eb = (per_seed_error(records, x, stream, group, epochs) for x in (a, b))
+def _lower(records, a: str, b: str, stream: str, group: str | None, epochs,
+           source: tuple[str, str] = VARIANT_SOURCES["present"]) -> tuple[str, str, Part]:
+    """Verdict, numbers and the paired difference for "a's error is lower than b's" (paired over
+    seeds), the errors read from `source` (`records.VARIANT_SOURCES`)."""
+    ea, eb = (per_seed_error(records, x, stream, group, epochs, probes=source[0], value=source[1])
+              for x in (a, b))
     verdict, mean, half = paired_verdict(ea, eb)
-    what = group or "overall"
-    return verdict, (f"{what}, {stream_label(stream)}: {a} {np.nanmean(ea):.3f}, {b} {np.nanmean(eb):.3f}; "
-                     f"{b} - {a} = {mean:+.3f} ± {half:.3f}")
+    what, where = group or "overall", stream_label(stream)
+    detail = (f"{what}, {where}: {a} {_mean(ea)}, {b} {_mean(eb)}; "
+              f"{b} - {a} = {mean:+.3f} ± {half:.3f}")
+    return verdict, detail, (f"{b} - {a}, {what}, {where}", mean, half)
+
+
+def _mean(x: np.ndarray) -> str:
+    x = x[np.isfinite(x)]
+    return f"{np.mean(x):.3f}" if x.size else "nan"
 
 
 def stream_label(stream: str) -> str:
@@ -68,12 +86,28 @@ def _combine(verdicts: Sequence[str]) -> str:
 
 
 def check(records: Sequence[dict[str, Any]], spec: Sequence[StateEntry], env: str,
-          last: int = 3) -> tuple[list[Verdict], list[int]]:
-    """The Fig. 2 claims on the last `last` probed epochs; returns the verdicts and those epochs."""
+          last: int = 3, variant: str = "present") -> tuple[list[Verdict], list[int]]:
+    """The Fig. 2 claims on the last `last` probed epochs; returns the verdicts and those epochs.
+    `variant`: whose errors decide them (`records.VARIANT_SOURCES`: the present probe's, or a
+    probe-protocol variant's; the added-learner and probes-agree rows only for the present
+    probe)."""
+    source = VARIANT_SOURCES[variant]
     epochs = sorted({r["epoch"] for r in probed(records)})[-last:]
-    have = set(probed(records)[0]["probes"]) if probed(records) else set()
+    have = set().union(*(r.get(source[0], {}) for r in probed(records) if r["epoch"] in epochs))
     vel = _velocity_group(spec)
     out: list[Verdict] = []
+
+    def lower(a: str, b: str, stream: str, group: str | None) -> tuple[str, str, Part]:
+        return _lower(records, a, b, stream, group, epochs, source)
+
+    def one(claim: str, names: tuple[str, ...], parts: list, verdict: str | None = None) -> Verdict:
+        """A claim decided by `parts` (`lower`'s): all hold -> holds (`_combine`), unless given."""
+        return Verdict(claim, verdict or _combine([v for v, *_ in parts]),
+                       "; ".join(d for _, d, _ in parts), names, tuple(p for *_, p in parts))
+
+    def both(name: str, group: str | None) -> list:
+        """`name` below vae_rpl on `group`, on π_rand and π_curr."""
+        return [lower(name, "vae_rpl", s, group) for s in ("rand", "curr")]
 
     def missing(*names: str) -> str | None:
         lack = [n for n in names if n not in have]
@@ -81,58 +115,58 @@ def check(records: Sequence[dict[str, Any]], spec: Sequence[StateEntry], env: st
 
     claim = "replay fixes VAE_v0 on π_rand (vae_rpl's error below vae's)"
     if m := missing("vae", "vae_rpl"):
-        out.append(Verdict(claim, m, ""))
+        out.append(Verdict(claim, m, "", ("vae", "vae_rpl")))
     else:
-        out.append(Verdict(claim, *_lower(records, "vae_rpl", "vae", "rand", None, epochs)))
+        out.append(one(claim, ("vae", "vae_rpl"), [lower("vae_rpl", "vae", "rand", None)]))
 
     claim = "β-VAE no better than VAE_rpl (beta_vae's error not below vae_rpl's on either stream)"
     if m := missing("beta_vae", "vae_rpl"):
-        out.append(Verdict(claim, m, ""))
+        out.append(Verdict(claim, m, "", ("beta_vae", "vae_rpl")))
     else:
-        parts = [_lower(records, "beta_vae", "vae_rpl", s, None, epochs) for s in ("rand", "curr")]
-        better = any(v == "holds" for v, _ in parts)  # beta_vae significantly lower somewhere
+        parts = [lower("beta_vae", "vae_rpl", s, None) for s in ("rand", "curr")]
+        better = any(v == "holds" for v, *_ in parts)  # beta_vae significantly lower somewhere
         seeds = len({r["seed"] for r in records})
         worse_or_same = "does not hold" if better else "holds" if seeds >= 2 else "undecided"
-        out.append(Verdict(claim, worse_or_same, "; ".join(d for _, d in parts)))
+        out.append(one(claim, ("beta_vae", "vae_rpl"), parts, worse_or_same))
 
     for name in SEQUENTIAL:
         claim = f"sequential learners better on velocity: {name} below vae_rpl on {vel or 'velocity'}"
         if vel is None:
-            out.append(Verdict(claim, "not tested (no velocity group in this domain's state)", ""))
+            out.append(Verdict(claim, "not tested (no velocity group in this domain's state)", "",
+                               (name, "vae_rpl")))
         elif m := missing(name, "vae_rpl"):
-            out.append(Verdict(claim, m, ""))
+            out.append(Verdict(claim, m, "", (name, "vae_rpl")))
         else:
-            parts = [_lower(records, name, "vae_rpl", s, vel, epochs) for s in ("rand", "curr")]
-            out.append(Verdict(claim, _combine([v for v, _ in parts]), "; ".join(d for _, d in parts)))
+            out.append(one(claim, (name, "vae_rpl"), both(name, vel)))
 
     claim = "PRED best on the pendulums (pred's error below every other learner's on π_rand)"
+    others = tuple(sorted(have - {"pred"}))
     if env not in PENDULUMS:
-        out.append(Verdict(claim, "not tested (not a pendulum domain)", ""))
+        out.append(Verdict(claim, "not tested (not a pendulum domain)", "", ("pred",) + others))
     elif m := missing("pred"):
-        out.append(Verdict(claim, m, ""))
+        out.append(Verdict(claim, m, "", ("pred",) + others))
     else:
-        parts = [_lower(records, "pred", o, "rand", None, epochs) for o in sorted(have - {"pred"})]
-        out.append(Verdict(claim, _combine([v for v, _ in parts]), "; ".join(d for _, d in parts)))
+        out.append(one(claim, ("pred",) + others, [lower("pred", o, "rand", None) for o in others]))
 
     claim = "on locomotion PRED ahead of VAE_rpl on π_curr"
     if env not in LOCOMOTION:
-        out.append(Verdict(claim, "not tested (not a locomotion domain)", ""))
+        out.append(Verdict(claim, "not tested (not a locomotion domain)", "", ("pred", "vae_rpl")))
     elif m := missing("pred", "vae_rpl"):
-        out.append(Verdict(claim, m, ""))
+        out.append(Verdict(claim, m, "", ("pred", "vae_rpl")))
     else:
-        out.append(Verdict(claim, *_lower(records, "pred", "vae_rpl", "curr", None, epochs)))
+        out.append(one(claim, ("pred", "vae_rpl"), [lower("pred", "vae_rpl", "curr", None)]))
     for name in CONTRASTIVE:  # beyond the paper: rows only where the run has the learner
         if name not in have:
             continue
         for group in [g for g in ("position", vel) if g and g in groups_of(spec)]:
             claim = f"contrastive vs VAE_rpl on {group}: {name} below vae_rpl (beyond the paper)"
             if m := missing("vae_rpl"):
-                out.append(Verdict(claim, m, ""))
+                out.append(Verdict(claim, m, "", (name, "vae_rpl")))
                 continue
-            parts = [_lower(records, name, "vae_rpl", s, group, epochs) for s in ("rand", "curr")]
-            out.append(Verdict(claim, _combine([v for v, _ in parts]), "; ".join(d for _, d in parts)))
-    out += added_learner_rows(records, spec, epochs)
-    out += _probe_agreement(records, epochs)
+            out.append(one(claim, (name, "vae_rpl"), both(name, group)))
+    if variant == "present":
+        out += added_learner_rows(records, spec, epochs)
+        out += _probe_agreement(records, epochs)
     return out, epochs
 
 
@@ -158,7 +192,9 @@ def added_learner_rows(records: Sequence[dict[str, Any]], spec: Sequence[StateEn
                     out.append(Verdict(claim, f"not tested (the run has no {other})", ""))
                     continue
                 parts = [_lower(records, name, other, s, group, epochs) for s in ("rand", "curr")]
-                out.append(Verdict(claim, _combine([v for v, _ in parts]), "; ".join(d for _, d in parts)))
+                out.append(Verdict(claim, _combine([v for v, *_ in parts]),
+                                   "; ".join(d for _, d, _ in parts), (name, other),
+                                   tuple(p for *_, p in parts)))
     return out
 
 
@@ -196,4 +232,75 @@ def markdown(verdicts: Sequence[Verdict], epochs: Sequence[int], seeds: int) -> 
               f"differences paired by seed ({seeds} seeds), 90% Student-t band. A claim holds when "
               "the band lies on its side of 0, does not hold when it lies on the other side, and is "
               "undecided when it contains 0."]
+    return "\n".join(lines)
+
+
+# ------------------------------------------------------------------------- probe-protocol variants
+# Column heads of the variants' verdicts (`records.VARIANT_SOURCES`; "fp32": the present probe
+# of a second run in fp32, `bulbjax.experiment.protocol`).
+VARIANT_LABELS = {"present": "present probe", "common": "common probe set",
+                  "window": "whole window (sequential)", "raw": "raw MAE", "fp32": "fp32 run"}
+
+
+def variant_checks(records: Sequence[dict[str, Any]], spec: Sequence[StateEntry], env: str,
+                   last: int = 3) -> tuple[dict[str, list[Verdict]], list[int]]:
+    """The Fig. 2 claims under every probe variant the records carry (`records.variants_of`:
+    the present probe first), on the same last `last` probed epochs."""
+    from bulbjax.experiment.records import variants_of
+
+    out, epochs = {}, []
+    for v in variants_of(records):
+        out[v], epochs = check(records, spec, env, last, variant=v)
+        if v != "present":
+            out[v] = [x for x in out[v] if not x.claim.startswith("probes agree")]
+    return out, epochs
+
+
+def _sequential(name: str) -> bool:
+    from bulbjax.learners import is_sequential_name
+
+    return is_sequential_name(name)
+
+
+def variant_cell(v: Verdict, variant: str) -> str:
+    """One claim's verdict under one variant as a table cell: the verdict and the paired
+    difference(s) that decide it (higher - lower error ± 90% band; all of them for up to two,
+    else the one nearest to turning the verdict). Under "window", a claim without a sequential
+    learner reads "n/a" (the variant changes only the sequential learners' probes)."""
+    if variant == "window" and v.learners and not any(_sequential(n) for n in v.learners):
+        return "n/a (no sequential learner)"
+    if not v.parts:
+        return v.verdict
+    parts = list(v.parts)
+    if len(parts) > 2:
+        lo = lambda p: p[1] - p[2]  # noqa: E731  lower end of a part's band
+        hi = lambda p: p[1] + p[2]  # noqa: E731
+        if v.verdict == "holds":
+            parts = [min(parts, key=lo)]
+        elif v.verdict == "does not hold":
+            parts = [min(parts, key=hi)]
+        else:
+            parts = [next((p for p in parts if lo(p) <= 0 <= hi(p)), parts[0])]
+    nums = "; ".join(f"{label} {mean:+.3f} ± {half:.3f}" for label, mean, half in parts)
+    return f"**{v.verdict}** ({nums})"
+
+
+def variants_markdown(sets: dict[str, list[Verdict]], epochs: Sequence[int], seeds: int) -> str:
+    """The claims (rows) under each variant (columns) of `sets` (`variant_checks`, or with an
+    "fp32" column added), one cell per claim and variant (`variant_cell`)."""
+    cols = list(sets)
+    head = " | ".join(VARIANT_LABELS.get(c, c) for c in cols)
+    lines = [f"| claim (paper, Fig. 2) | {head} |", "|---|" + "---|" * len(cols)]
+    for i, v in enumerate(sets[cols[0]]):
+        same = [c for c in cols if i < len(sets[c]) and sets[c][i].claim == v.claim]
+        cells = [variant_cell(sets[c][i], c) if c in same else "–" for c in cols]
+        lines.append(f"| {v.claim} | " + " | ".join(cells) + " |")
+    lines += ["", f"Epochs {', '.join(map(str, epochs))}; {seeds} seeds; each cell: the verdict "
+              "and the paired difference (higher - lower error, mean ± 90% Student-t band over "
+              "seeds) that decides it. present probe: each learner's probe fit on its own replay "
+              "(sequential learners: steps t-1, t); common probe set: every learner's probe fit on "
+              "the same pairs; whole window: the sequential learners' whole window's latent -> "
+              "the state at its last step, every learner scored on the held-out windows' last "
+              "steps; raw MAE: the present probe's MAE averaged over a group's entries in the "
+              "state's units (docs/probes.md, \"Variants of the protocol\")."]
     return "\n".join(lines)

@@ -27,6 +27,7 @@ from bulbjax.experiment.config import ExperimentConfig
 from bulbjax.experiment.devices import Devices
 from bulbjax.experiment.learning import Learning
 from bulbjax.experiment.policy import Policy
+from bulbjax.experiment import probe_variants as pv
 from bulbjax.experiment.probing import Probing, object_pixels, probe_targets
 from bulbjax.experiment.seeds import SeedGroup, Team, resolve_seed_loop, with_seed_loop
 from bulbjax.experiment.state import EnvStage, PolicyHistory, RunState
@@ -75,7 +76,9 @@ class Experiment:
         # Object-level probe (multi-object domains): names and states -> image positions (px)
         # of the true objects, None for domains without objects in the state (nothing computed).
         self.probing = Probing(self.team, c.probe, c.probe_train_frames, c.resolution,
-                               object_pixels(self.env), objects.default_radius(c.resolution), self.targets)
+                               object_pixels(self.env), objects.default_radius(c.resolution),
+                               self.targets, c.probe_variants_run)
+        self.common_probes = "common" in c.probe_variants  # the common probe set is kept and drawn
         shapes = jax.eval_shape(self._init, jax.random.PRNGKey(0))
         self._state_sh = dev.state_shardings(shapes)
         rep = dev.replicated
@@ -147,15 +150,25 @@ class Experiment:
         ref_targets = self.targets(ref_states)
         ref_spread = probe.spread(ref_targets.reshape((-1, ref_targets.shape[-1])))
         # Fill replay with frames of the random policy; retained learners keep a share of them.
-        buffers = self.streams.init_buffers(ppo_state, k_fill, k_keep)
+        frames, states = self.streams.initial_frames(ppo_state, k_fill)
+        buffers = self.streams.fill_buffers(frames, states, k_keep)
+        initial = pv.frames_as_windows(frames, states, self.action_dim)
         # Keys of the window buffers are folded in, so frame-only runs keep their random streams.
-        windows = self.streams.init_windows(ppo_state, jax.random.fold_in(key, 1)) if self.window_length else {}
+        windows = {}
+        if self.window_length:
+            k_win = jax.random.fold_in(key, 1)
+            initial = self.streams.initial_windows(ppo_state, k_win)
+            windows = self.streams.fill_windows(initial, k_win)
+        # The common probe set's random-policy part: a fixed draw of those steps (`probe_variants`).
+        probe_set = (pv.initial_part(initial, self.N, c.probe_train_frames // 2,
+                                     jax.random.fold_in(key, pv.COMMON_FOLD), self.eval_length)
+                     if self.common_probes else None)
         # PPO on a sequential learner's latent: every policy-driven world's window starts at its first frame.
         history = ({"train": policy.history_start(train_env), "curr": policy.history_start(curr_env)}
                    if policy.keeps_history else {})
         return RunState(ppo=ppo_state, learners={}, buffers=buffers, windows=windows,
                         train_env=train_env, curr_env=curr_env, rand_env=rand_env, policy_history=history,
-                        ref_spread=ref_spread, epoch=jnp.zeros((), jnp.int32))
+                        ref_spread=ref_spread, epoch=jnp.zeros((), jnp.int32), probe_set=probe_set)
 
     def reference_states(self, key: jax.Array) -> jax.Array:
         """The states `[reference_steps, S*N, D]` that init's reference spread is taken over (the
@@ -185,9 +198,20 @@ class Experiment:
         # worlds of this epoch's rollouts reset because their physics went non-finite (`EnvState.counts`)
         nonfinite = self.devices.per_seed(train_env.counts["nonfinite_resets"] - resets_before).sum(1)
         with jax.named_scope("bj.replay"):
-            buffers = self.streams.replay_phase(buffers, steps, k_rep)
-        with jax.named_scope("bj.windows"):
-            windows = self.streams.window_phase(windows, steps, jax.random.fold_in(k_rep, 1))
+            frames, states = self.streams.epoch_frames(steps, k_rep)
+            buffers = self.streams.insert_frames(buffers, frames, states, k_rep)
+        fresh = None  # the epoch's new steps: the common probe set's current-policy part
+        if self.common_probes and not windows:  # frames (as windows of one step)
+            index = jnp.broadcast_to(jnp.arange(frames.shape[1]), frames.shape[:2])
+            new = pv.frames_as_windows(frames, states, self.action_dim)
+            fresh = pv.fresh_part(new, index, self.N, 1)
+        if windows:
+            with jax.named_scope("bj.windows"):
+                k_win = jax.random.fold_in(k_rep, 1)
+                new, index = self.streams.epoch_windows(steps, k_win)
+                windows = self.streams.insert_windows(windows, new, k_win)
+                if self.common_probes:
+                    fresh = pv.fresh_part(new, index, self.N, self.eval_length)
         metrics = {
             "rl_return": jnp.where(count > 0, ret_sum / jnp.maximum(count, 1), jnp.nan),
             "rl_episodes": count,
@@ -198,7 +222,7 @@ class Experiment:
                                **{f"windows_{k}": b.num_dropped for k, b in windows.items()}},
         }
         return EnvStage(ppo_state, train_env, buffers, windows, train_hist, metrics, epoch + 1,
-                        k_learn, k_eval, k_probe)
+                        k_learn, k_eval, k_probe, fresh)
 
     def eval_stage(self, ppo_state: PPOState, curr_env: EnvState, rand_env: EnvState,
                    rl_learners: dict | None, curr_hist: PolicyHistory | None, key: jax.Array) -> tuple:
@@ -228,13 +252,15 @@ class Experiment:
         curr_env, rand_env = rs.curr_env, rs.rand_env
 
         def evaluate(ops: tuple) -> tuple:
-            curr_env, rand_env, curr_hist, ppo_state, learners, buffers, windows = ops
+            curr_env, rand_env, curr_hist, ppo_state, learners, buffers, windows, probe_set, fresh = ops
+            common = pv.common_set(probe_set, fresh) if self.common_probes else None
             curr_env, rand_env, held_out, curr_hist = self.eval_stage(ppo_state, curr_env, rand_env,
                                                                       rl_learners(learners), curr_hist, k_eval)
             return curr_env, rand_env, curr_hist, self.probing.probe_phase(learners, buffers, held_out, k_probe,
-                                                                           windows)
+                                                                           windows, common)
 
-        ops = (curr_env, rand_env, hist.get("curr"), ppo_state, learners, buffers, windows)
+        ops = (curr_env, rand_env, hist.get("curr"), ppo_state, learners, buffers, windows, rs.probe_set,
+               env.fresh)
         if isinstance(probe, (bool, np.bool_)):
             if probe:
                 curr_env, rand_env, curr_hist, metrics["probes"] = evaluate(ops)
@@ -262,7 +288,7 @@ class Experiment:
                 hist["curr"] = curr_hist
         new = RunState(ppo=ppo_state, learners=learners, buffers=buffers, windows=windows,
                        train_env=train_env, curr_env=curr_env, rand_env=rand_env, policy_history=hist,
-                       ref_spread=rs.ref_spread, epoch=env.epoch)
+                       ref_spread=rs.ref_spread, epoch=env.epoch, probe_set=rs.probe_set)
         if self.sharded:  # the next epoch gets the layout this one got
             new = jax.lax.with_sharding_constraint(new, self._state_sh)
         return new, metrics

@@ -22,6 +22,8 @@ from bulbjax.data.sequence import Windows
 from bulbjax.envs import rearrange
 from bulbjax.eval import angles, linear, objects, probe
 from bulbjax.eval.spec import StateEntry
+from bulbjax.experiment import probe_variants as pv
+from bulbjax.experiment.probe_variants import ProbeSet
 from bulbjax.experiment.seeds import Team, over_seeds, stack_members, switch_buffer, unstack_members
 from bulbjax.learners import is_sequential
 
@@ -124,6 +126,15 @@ def fit_and_score(latents: dict[str, Any], held: dict[str, Windows], key: jax.Ar
     (`probe.standardise`).
     Returns `{stream: {"mae", "baseline", "spread", "inputs_clamped", "linear_mae", "linear_log10_lambda"
     (, "objects", "angle")}}`, each `[D]` in the targets' units."""
+    return fit_present(latents, held, key, config, score_objects, targets)[0]
+
+
+def fit_present(latents: dict[str, Any], held: dict[str, Windows], key: jax.Array,
+                config: probe.ProbeConfig,
+                score_objects: Callable[[jax.Array, Windows], dict] | None = None,
+                targets: ProbeTargets | None = None) -> tuple[dict, probe.ProbeParams, jax.Array]:
+    """`fit_and_score`'s scores, with the fitted MLP probe and its training targets (what the
+    probe-protocol variants score beside it, `probe_variants.variant_scores`)."""
     targets = targets or ProbeTargets(())
     tz, ts = latents["tz"], targets(latents["ts"])
     p = probe.fit(key, tz, ts, config, groups=latents["groups"])
@@ -149,7 +160,7 @@ def fit_and_score(latents: dict[str, Any], held: dict[str, Windows], key: jax.Ar
                                     "baseline": angles.mean_angle_error(const[:, pairs], s[:, pairs], v)}
         if score_objects is not None:
             res[stream]["objects"] = score_objects(zw, w)
-    return res
+    return res, p, ts
 
 
 def probe_learner(learner: Any, params: Any, train: Any, held: dict[str, Windows], key: jax.Array,
@@ -215,6 +226,8 @@ class Probing:
     objects: tuple[list[str], Callable] | None = None
     object_radius: float = 0.0
     targets: ProbeTargets | None = None  # what is regressed (default: the states as they are)
+    # probe-protocol variants computed beside the present probe (`ExperimentConfig.probe_variants`)
+    variants: tuple[str, ...] = ()
 
     def object_scorer(self, learner: Any) -> Callable[[jax.Array, Windows], dict] | None:
         """The object-level probe of one seed's held-out stream for a learner with boxes (SPAIR,
@@ -236,76 +249,113 @@ class Probing:
         return score
 
     def probe_phase(self, learners: dict, buffers: dict, held_out: dict, key: jax.Array,
-                    windows: dict | None = None) -> dict:
+                    windows: dict | None = None, common: ProbeSet | None = None) -> dict:
         """Alignment probes: fit latents -> true state on replay data, evaluate on the held-out
         windows' valid steps. Frame learners: one latent per frame. Sequential learners: the
         per-step latents of replay windows (probe_train_frames valid steps drawn from them) and
         of the held-out windows; the latent at step t is matched with the state at step t.
         Learners with boxes (SPAIR) in domains with objects also get the object-level probe
         on the same held-out steps, per stream under `"objects"` (`object_scorer`). One
-        `probe_unit` per unit (`Team.units`)."""
+        `probe_unit` per unit (`Team.units`). With probe-protocol variants (`variants`), each
+        learner's output also has `"variants"` (`probe_variants.variant_scores`); `common`: the
+        common probe set `[S, ...]` (`probe_variants.common_set`) the "common" variant needs."""
         out = {}
         for unit in self.team.units():
-            out.update(self.probe_unit(unit, learners, buffers, held_out, key, windows))
+            out.update(self.probe_unit(unit, learners, buffers, held_out, key, windows, common))
         return {n: out[n] for n in self.team.learners}
 
     def probe_unit(self, unit: Sequence[str], learners: dict, buffers: dict, held_out: dict,
-                   key: jax.Array, windows: dict | None = None) -> dict:
+                   key: jax.Array, windows: dict | None = None,
+                   common: ProbeSet | None = None) -> dict:
         """`probe_phase` for one unit (`Team.units`), with the keys its members get in the whole
         phase; its ops carry the scope `bj.probe.<members>`."""
+        if "common" in self.variants and common is None:
+            raise ValueError("the 'common' probe variant needs the common probe set "
+                             "(probe_variants.common_set)")
         with jax.named_scope(f"bj.probe.{'+'.join(unit)}"):
-            return self._probe_unit(unit, learners, buffers, held_out, key, windows)
+            return self._probe_unit(unit, learners, buffers, held_out, key, windows, common)
+
+    def _variant_keys(self, key: jax.Array) -> jax.Array:
+        """`[S, 2]`: each seed's key of the common set's draws and fit, the same for every learner
+        (folded out of the phase's key: nothing the present probes draw is consumed)."""
+        return self.team.seed_keys(jax.random.fold_in(key, pv.COMMON_FOLD))
 
     def _probe_unit(self, unit: Sequence[str], learners: dict, buffers: dict, held_out: dict,
-                    key: jax.Array, windows: dict | None) -> dict:
-        t, cfg, frames = self.team, self.config, self.train_frames
+                    key: jax.Array, windows: dict | None, common: ProbeSet | None) -> dict:
+        t, cfg, frames, variants = self.team, self.config, self.train_frames, self.variants
         if len(unit) > 1:
-            return self._probe_group(unit, learners, buffers, held_out, key)
+            return self._probe_group(unit, learners, buffers, held_out, key, common)
         (name,) = unit
         learner, seq, i = t.learners[name], t.sequential[name], list(t.learners).index(name)
 
-        def latents_seed(k_c, k_s, lstate, b, held):
+        def latents_seed(k_c, k_s, lstate, b, held, com, k_com):
             if seq:
                 train = sequence.sample(b, k_s, -(-frames // learner.sequence_length))
             else:
                 f, states, extras = replay.sample_with_extras(b, k_s, frames)
                 train = (f, states, extras["world"])
-            return probe_latents(learner, lstate.params, train, held, k_c, cfg, frames)
+            lat = probe_latents(learner, lstate.params, train, held, k_c, cfg, frames)
+            if variants:
+                lat["variants"] = pv.variant_latents(learner, lstate.params, b, com, k_com, cfg,
+                                                     frames, variants)
+            return lat
 
-        def fit_seed(lat, k_f, k_s, lstate, b, held):
-            return fit_and_score(lat, held, k_f, cfg, self.object_scorer(learner), self.targets)
+        def fit_seed(lat, k_f, k_s, lstate, b, held, com, k_com):
+            present = {k: v for k, v in lat.items() if k != "variants"}
+            score = self.object_scorer(learner)
+            res, p, ts = fit_present(present, held, k_f, cfg, score, self.targets)
+            if variants:
+                res["variants"] = pv.variant_scores(learner, lat, p, ts, held, k_com,
+                                                    jax.random.fold_in(k_f, pv.WINDOW_FOLD), cfg,
+                                                    self.targets or ProbeTargets(()), variants)
+            return res
 
         keys = t.seed_keys(jax.random.fold_in(key, i))
         k_s, k_p = jax.vmap(jax.random.split)(keys).swapaxes(0, 1)
         buf = t.buffer_of(name, buffers, windows)
-        return {name: probe_over_seeds(t.loop_of(name), latents_seed, fit_seed, k_p,
-                                       k_s, learners[name], buf, held_out)}
+        k_com = self._variant_keys(key)
+        return {name: probe_over_seeds(t.loop_of(name), latents_seed, fit_seed, k_p, k_s,
+                                       learners[name], buf, held_out, common, k_com)}
 
     def _probe_group(self, group: Sequence[str], learners: dict, buffers: dict, held_out: dict,
-                     key: jax.Array) -> dict:
+                     key: jax.Array, common: ProbeSet | None) -> dict:
         """`probe_phase` for a group of VAEs (`update_groups`): the encodings with the run's seed
         loop over seeds and members, the probe MLPs of all seeds and members vmapped side by
         side. Same keys as each member's own probe (`probe_over_seeds`), so the same numbers."""
-        t, cfg, frames = self.team, self.config, self.train_frames
+        t, cfg, frames, variants = self.team, self.config, self.train_frames, self.variants
         template, bufs, which, keys = t.group_inputs(group, buffers, key)
         split = jax.vmap(jax.vmap(jax.random.split))
         k_s, k_p = jnp.moveaxis(split(keys), 2, 0)  # each [S, G, 2]
         k_c, k_f = jnp.moveaxis(split(k_p), 2, 0)
         score = self.object_scorer(template)
+        targets = self.targets or ProbeTargets(())
 
         def draw(b, k):
             f, states, extras = replay.sample_with_extras(b, k, frames)
             return f, states, extras["world"]
 
-        def latents_seed(kc, ks, states, bs, held):
+        def latents_seed(kc, ks, states, bs, held, com, k_com):
             def member(kcm, ksm, state, w):
                 train = switch_buffer(w, bs, draw, ksm)
-                return probe_latents(template, state.params, train, held, kcm, cfg, frames)
+                lat = probe_latents(template, state.params, train, held, kcm, cfg, frames)
+                if variants:  # a frame learner's: the common pairs only
+                    lat["variants"] = pv.variant_latents(template, state.params, None, com, k_com,
+                                                         cfg, frames, variants)
+                return lat
             return t.over_seeds(member, kc, ks, states, which)
 
-        def fit_seed(lat, kf, held):
-            return jax.vmap(lambda l, k: fit_and_score(l, held, k, cfg, score, self.targets))(lat, kf)
+        def fit_seed(lat, kf, held, k_com):
+            def member(l, k):
+                present = {n: v for n, v in l.items() if n != "variants"}
+                res, p, ts = fit_present(present, held, k, cfg, score, self.targets)
+                if variants:
+                    k_w = jax.random.fold_in(k, pv.WINDOW_FOLD)
+                    res["variants"] = pv.variant_scores(template, l, p, ts, held, k_com, k_w, cfg,
+                                                        targets, variants)
+                return res
+            return jax.vmap(member)(lat, kf)
 
         states = stack_members([learners[n] for n in group])
-        lat = t.over_seeds(latents_seed, k_c, k_s, states, bufs, held_out)
-        return unstack_members(jax.vmap(fit_seed)(lat, k_f, held_out), group)
+        k_com = self._variant_keys(key)
+        lat = t.over_seeds(latents_seed, k_c, k_s, states, bufs, held_out, common, k_com)
+        return unstack_members(jax.vmap(fit_seed)(lat, k_f, held_out, k_com), group)

@@ -15,6 +15,7 @@ from jax.sharding import Mesh
 
 from bulbjax.experiment.config import PROGRAM_FORMS
 from bulbjax.experiment.loop import Experiment
+from bulbjax.experiment.probe_variants import common_set
 from bulbjax.experiment.state import RunState
 
 
@@ -68,6 +69,15 @@ class Stages:
         for u in self.units:
             self.jits[self.probe_name(u)] = jit(functools.partial(exp.probing.probe_unit, u))
 
+    def common(self, probe_set: Any, fresh: Any, abstract: bool = False) -> Any:
+        """The common probe set of an epoch (`probe_variants.common_set`; None without the
+        variant), or its shapes (`abstract`)."""
+        if not self.exp.common_probes:
+            return None
+        if abstract:
+            return jax.eval_shape(common_set, probe_set, fresh)
+        return common_set(probe_set, fresh)
+
     @staticmethod
     def learn_name(unit: Sequence[str]) -> str:
         return "epoch/learn/" + "+".join(unit)
@@ -95,9 +105,11 @@ class Stages:
             t["epoch/eval"] = self.jits["epoch/eval"].trace(rs.ppo, rs.curr_env, rs.rand_env,
                                                             rl_learners(rs.learners), hist.get("curr"), key)
             held = t["epoch/eval"].out_info[2]
+            common = self.common(rs.probe_set, t["epoch/env"].out_info.fresh, abstract=True)
             for u in self.units:
-                t[self.probe_name(u)] = self.jits[self.probe_name(u)].trace(_members(rs.learners, u), rs.buffers,
-                                                                            held, key, rs.windows)
+                probe = self.jits[self.probe_name(u)]
+                t[self.probe_name(u)] = probe.trace(_members(rs.learners, u), rs.buffers, held, key,
+                                                    rs.windows, common)
         return t
 
     def init(self, run: Callable[[str], Callable], key: jax.Array) -> RunState:
@@ -130,13 +142,14 @@ class Stages:
             if curr_hist is not None:
                 hist["curr"] = curr_hist
             probes: dict[str, Any] = {}
+            common = self.common(rs.probe_set, env.fresh)
             for u in self.units:
                 probes.update(run(self.probe_name(u))(_members(learners, u), env.buffers, held, env.k_probe,
-                                                      env.windows))
+                                                      env.windows, common))
             metrics["probes"] = {n: probes[n] for n in exp.learners}
         new = RunState(ppo=env.ppo, learners=learners, buffers=env.buffers, windows=env.windows,
                        train_env=env.train_env, curr_env=curr_env, rand_env=rand_env, policy_history=hist,
-                       ref_spread=rs.ref_spread, epoch=env.epoch)
+                       ref_spread=rs.ref_spread, epoch=env.epoch, probe_set=rs.probe_set)
         return new, metrics
 
 

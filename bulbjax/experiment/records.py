@@ -27,7 +27,16 @@ NORM_NOTE = ("normalised error = MAE / reference spread of each state entry (mea
              "predicting the random-policy median on π_rand frames")
 
 
-def epoch_records(epoch: int, metrics: Any, spec: Sequence[StateEntry]) -> list[dict[str, Any]]:
+# The probe-protocol variants' errors in a record (`ExperimentConfig.probe_variants`): key of
+# the per-learner, per-stream summaries and the value read as a learner's error (the constant
+# predictor's: `baseline` in place of `mae`). "present" is the present probe's.
+VARIANT_SOURCES: dict[str, tuple[str, str]] = {
+    "present": ("probes", "mae_norm"), "common": ("probes_common", "mae_norm"),
+    "window": ("probes_window", "mae_norm"), "raw": ("probes_raw", "mae")}
+
+
+def epoch_records(epoch: int, metrics: Any, spec: Sequence[StateEntry],
+                  variants: Sequence[str] = ()) -> list[dict[str, Any]]:
     """One JSON-able record per seed from the epoch's metrics (arrays with a leading seed axis).
     Epochs without a probe (`--probe-every`) have an empty `probes`. The linear (ridge) probe of
     the same pairs is under `linear_probes[learner][stream]` (`linear_summary`: groups and
@@ -35,7 +44,10 @@ def epoch_records(epoch: int, metrics: Any, spec: Sequence[StateEntry]) -> list[
     probe (SPAIR in multi-object domains) also get `objects[learner][stream]`
     (`bulbjax.eval.objects.summary_of`: per object and averaged); other records have no `objects`.
     `probe_inputs_clamped[learner][stream]`: the share of held-out steps whose latent the probes
-    clamped to their fit range (`bulbjax.eval.probe.standardise`)."""
+    clamped to their fit range (`bulbjax.eval.probe.standardise`). Probe-protocol variants
+    (`VARIANT_SOURCES`): the device's `"common"` and `"window"` scores as `probes_common` and
+    `probes_window` (summarised as `probes`), and with "raw" in `variants` `probes_raw`
+    (`raw_summary` of `probes`)."""
     m = _to_numpy(metrics)
     seeds = len(m["rl_return"])
     names = objects.object_names(spec)
@@ -53,6 +65,13 @@ def epoch_records(epoch: int, metrics: Any, spec: Sequence[StateEntry]) -> list[
         }
         rec["ref_spread"] = [float(x) for x in m["ref_spread"][s]]
         for name, streams in m.get("probes", {}).items():
+            extra = streams.get("variants", {})
+            streams = {k: v for k, v in streams.items() if k != "variants"}
+            for v, per_stream in extra.items():
+                rec.setdefault(VARIANT_SOURCES[v][0], {})[name] = {
+                    st: summarise(d["mae"][s], d["baseline"][s], m["ref_spread"][s], spec,
+                                  spread_D=d["spread"][s])
+                    for st, d in per_stream.items()}
             rec["probes"][name] = {
                 stream: summarise(d["mae"][s], d["baseline"][s], m["ref_spread"][s], spec,
                                   spread_D=d["spread"][s])
@@ -69,8 +88,36 @@ def epoch_records(epoch: int, metrics: Any, spec: Sequence[StateEntry]) -> list[
                 if "objects" in d:
                     one = {k: v[s] for k, v in d["objects"].items()}
                     rec.setdefault("objects", {}).setdefault(name, {})[stream] = objects.summary_of(one, names)
+            if "raw" in variants:
+                rec.setdefault("probes_raw", {})[name] = {st: raw_summary(x)
+                                                          for st, x in rec["probes"][name].items()}
         out.append(rec)
     return out
+
+
+def raw_summary(summary: dict[str, Any]) -> dict[str, Any]:
+    """The "raw" probe variant of one learner's stream (`summarise`'s output): per group and
+    overall the plain mean of its entries' MAE and of the constant predictor's, in the state's
+    units (no normalisation, every entry counted, excluded ones too; `units`: those it mixes, as
+    the paper's mean absolute error does), and `n` entries."""
+    entries = summary["entries"]
+
+    def mean(names: list[str]) -> dict[str, Any]:
+        return {"n": len(names), "units": sorted({entries[n]["unit"] for n in names}),
+                "mae": float(np.mean([entries[n]["mae"] for n in names])),
+                "baseline": float(np.mean([entries[n]["baseline"] for n in names]))}
+
+    groups: dict[str, list[str]] = {}
+    for n, e in entries.items():
+        groups.setdefault(e["group"], []).append(n)
+    return {"groups": {g: mean(ns) for g, ns in groups.items()}, "overall": mean(list(entries))}
+
+
+def variants_of(records: Sequence[dict[str, Any]]) -> list[str]:
+    """The probe variants (`VARIANT_SOURCES`, "present" first) whose errors the probed records
+    carry."""
+    recs = probed(records)
+    return [v for v, (k, _) in VARIANT_SOURCES.items() if any(r.get(k) for r in recs)]
 
 
 def linear_summary(d: dict[str, Any], s: int, ref_spread_D: Any, spec: Sequence[StateEntry]) -> dict[str, Any]:
@@ -241,12 +288,14 @@ def has_objects(records: Sequence[dict[str, Any]]) -> bool:
 
 
 def per_seed_error(records: Sequence[dict[str, Any]], learner: str, stream: str, group: str | None,
-                   at: Sequence[int], x_key: str = "epoch", probes: str = "probes") -> np.ndarray:
+                   at: Sequence[int], x_key: str = "epoch", probes: str = "probes",
+                   value: str = "mae_norm") -> np.ndarray:
     """`[seeds]` normalised error of `learner` on `stream` (`group`, or overall when None), each
     seed's mean over its probed records whose `x_key` is in `at` (NaN for a seed without any);
     `learner="constant"` gives the constant predictor's (`baseline_norm`). `probes` names the
     probe: `"probes"` (the MLP) or `"linear_probes"` (the ridge probe; records of runs made
-    before it existed have none: NaN)."""
+    before it existed have none: NaN), or a probe variant's (`VARIANT_SOURCES`: its key and
+    `value`, e.g. `"probes_raw"` and `"mae"`; the constant's is `baseline` in place of `mae`)."""
     seeds = sorted({r["seed"] for r in records})
     out = np.full(len(seeds), np.nan)
     for i, s in enumerate(seeds):
@@ -255,9 +304,11 @@ def per_seed_error(records: Sequence[dict[str, Any]], learner: str, stream: str,
             if r["seed"] != s or r[x_key] not in at or not r.get(probes):
                 continue
             name = next(iter(r[probes])) if learner == "constant" else learner
+            if name not in r[probes]:
+                continue
             x = r[probes][name][stream]
             x = x["overall"] if group is None else x["groups"][group]
-            vals.append(x["baseline_norm" if learner == "constant" else "mae_norm"])
+            vals.append(x["baseline" + value[3:] if learner == "constant" else value])
         if vals:
             out[i] = float(nanmean(vals))
     return out

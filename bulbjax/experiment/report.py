@@ -15,9 +15,10 @@ from bulbjax.eval import objects
 from bulbjax.eval.spec import StateEntry
 from bulbjax.experiment import findings
 from bulbjax.experiment.config import read_run_config, run_options_of
-from bulbjax.experiment.records import (STREAMS, band, ci90, epochs_to_reach, excluded_groups, groups_of,
-                                        has_linear, has_objects, last_returns, metrics_path, per_seed_error,
-                                        probed, read_jsonl, rl_curve, write_jsonl)
+from bulbjax.experiment.records import (STREAMS, VARIANT_SOURCES, band, ci90, epochs_to_reach,
+                                        excluded_groups, groups_of, has_linear, has_objects,
+                                        last_returns, metrics_path, per_seed_error, probed,
+                                        read_jsonl, rl_curve, variants_of, write_jsonl)
 from bulbjax.experiment.report_plots import (OLD_NORM_NOTE, has_reference_spread, norm_note, plot,
                                              plot_objects, rl_band)
 
@@ -58,6 +59,11 @@ def table(records: Sequence[dict[str, Any]], spec: Sequence[StateEntry], last: i
         for name in learners if linear else []:
             cells = [cell(name, stream, g, "linear_probes") for g in groups + ["overall"]]
             lines.append(f"| {name} (linear) | {label} | " + " | ".join(cells) + " |")
+        for variant in ("common", "window"):  # probe-protocol variants, where the run has them
+            key = VARIANT_SOURCES[variant][0]
+            for name in [n for n in learners if any(n in r.get(key, {}) for r in recs)]:
+                cells = [cell(name, stream, g, key) for g in groups + ["overall"]]
+                lines.append(f"| {name} ({variant}) | {label} | " + " | ".join(cells) + " |")
     lines.append("")
     lines.append(f"{x_key} {', '.join(str(e) for e in epochs)}; "
                  + (f"mean ± 90% CI over {len(seeds)} seeds." if len(seeds) > 1 else "1 seed: no band over seeds."))
@@ -81,7 +87,39 @@ def table(records: Sequence[dict[str, Any]], spec: Sequence[StateEntry], last: i
         lines.append("Rows `<learner>`: the MLP probe; `<learner> (linear)`: closed-form ridge regression on the "
                      "same pairs and validation split, regulariser chosen per entry on it "
                      "(`bulbjax.eval.linear`).")
+    if {"common", "window"} & set(variants_of(recs)):
+        lines.append("Rows `<learner> (common)`: the probe fit on the common probe set (the same "
+                     "pairs for every learner of a seed); `<learner> (window)`: sequential learners' "
+                     "whole-window probe, every learner scored on the held-out windows' last steps "
+                     "(docs/probes.md, \"Variants of the protocol\").")
     lines.append(f"Errors: {norm_note(records)}; raw MAE in each entry's unit in metrics.jsonl.")
+    if "raw" in variants_of(recs):
+        raw = raw_table(recs, groups, epochs, x_key, streams)
+        lines += ["", "## Raw MAE (probe variant `raw`)", "", raw]
+    return "\n".join(lines)
+
+
+def raw_table(recs: Sequence[dict[str, Any]], groups: Sequence[str], epochs: Sequence[int],
+              x_key: str = "epoch", streams: Sequence[tuple[str, str]] = STREAMS) -> str:
+    """The present probe's MAE per group in the state's units (`probes_raw`,
+    `records.raw_summary`): mean ± 90% band over seeds, with the constant predictor's."""
+    learners = list(dict.fromkeys(n for r in recs for n in r.get("probes_raw", {})))
+    units = next(iter(next(r for r in recs if r.get("probes_raw"))["probes_raw"].values()))
+    units = next(iter(units.values()))
+    head = [f"{g} ({', '.join(units['groups'][g]['units'])})" for g in groups] + ["overall"]
+    lines = ["| learner | stream | " + " | ".join(head) + " |", "|" + "---|" * (2 + len(head))]
+    for stream, label in streams:
+        for name in learners + ["constant"]:
+            cells = []
+            for g in list(groups) + ["overall"]:
+                v = per_seed_error(recs, name, stream, None if g == "overall" else g, epochs, x_key,
+                                   "probes_raw", "mae")
+                mean, half = ci90(v)
+                cells.append(band(mean, half, int(np.isfinite(v).sum())))
+            lines.append(f"| {name} | {label} | " + " | ".join(cells) + " |")
+    lines += ["", "Plain mean of the group's entries' MAE, each in its own unit (a group mixing "
+              "units, e.g. m and rad, adds them as the paper's mean absolute error does); no "
+              "normalisation, every entry counted."]
     return "\n".join(lines)
 
 
@@ -153,6 +191,10 @@ def write_reports(run_dir: str, records: Sequence[dict[str, Any]], cfg: Any,
     else:
         verdicts, epochs = findings.check(records, spec, cfg.env, last=last)
         body, which = findings.markdown(verdicts, epochs, len(seeds)), "Fig. 2"
+        if len(variants_of(records)) > 1:  # probe-protocol variants: every claim under each
+            sets, epochs = findings.variant_checks(records, spec, cfg.env, last=last)
+            body += ("\n\n## The claims under the probe protocol's variants\n\n"
+                     + findings.variants_markdown(sets, epochs, len(seeds)))
     with open(os.path.join(run_dir, "findings.md"), "w") as f:
         f.write(f"# {title}: the paper's {which} findings\n\n{body}\n")
     return tab
@@ -170,7 +212,8 @@ def drop_partial_probes(records: Sequence[dict[str, Any]], seeds: int
     partial = sorted(e for e, n in probed_at.items() if n < seeds)
     if not partial:
         return list(records), []
-    gone = ("probes", "linear_probes", "objects", "probe_inputs_clamped")
+    gone = ("linear_probes", "objects", "probe_inputs_clamped",
+            *(key for key, _ in VARIANT_SOURCES.values()))  # "probes" and the variants' keys
     out = [r if r["epoch"] not in partial
            else {**{k: v for k, v in r.items() if k not in gone}, "probes": {}} for r in records]
     return out, partial

@@ -106,7 +106,15 @@ def _overrides(overrides: Mapping[str, Any]) -> dict[str, Any]:
         out["rl_input"] = "latent:" + load_learner_spec(out["rl_input"].split(":", 1)[1])
     if "version" in out:
         out["version"] = parse_version(out["version"])
+    if isinstance(out.get("probe_variants"), str):
+        out["probe_variants"] = parse_probe_variants(out["probe_variants"])
     return out
+
+
+def parse_probe_variants(text: str) -> tuple[str, ...]:
+    """`"common,window"` (a command line's list) -> ("common", "window"); "none" or "" -> ()."""
+    names = tuple(x.strip() for x in text.split(",") if x.strip())
+    return () if names in ((), ("none",)) else names
 
 
 def _learner(base: LearnerConfig, learner: Mapping[str, Any], options: Sequence[str]) -> LearnerConfig:
@@ -209,5 +217,7 @@ def resolve_offline(preset: str | None = None, *, overrides: Mapping[str, Any] |
         overrides = {"resolution": 32, "sequence_length": 8, **overrides, "multicolour": False}
     base = resolve(preset, overrides=overrides, learner=learner, learner_options=learner_options,
                    small=small, domain_ppo=not synth, ppo_options=ppo_options)
+    # an offline fit computes the present probe only (its probes: `offline.Offline`)
+    base = base.replace(probe_variants=())
     sizes = {**(SMALL_DATASET if small else {}), **(dataset or {})}
     return OfflineConfig(base=base, **sizes, **schedule)

@@ -333,7 +333,7 @@ def run(cfg: ExperimentConfig, opts: RunOptions, run_dir: str, *, resume: bool =
                     t_first = time.time() - t0 - t_init
                 for name, lm in m["learners"].items():
                     check_finite(lm, where=f"learner {name} at epoch {epoch}")
-                recs = epoch_records(epoch, m, exp.spec)
+                recs = epoch_records(epoch, m, exp.spec, cfg.probe_variants)
                 if writer:
                     try:  # metrics first: a checkpoint never runs ahead; whole records or none
                         write_jsonl(metrics_path, recs)

@@ -99,6 +99,9 @@ class RunState:
     policy_history: dict[str, PolicyHistory]
     ref_spread: jax.Array  # [D] reference spread of every state entry (random policy, at init)
     epoch: jax.Array
+    # the common probe set's random-policy part, kept from init (`probe_variants.ProbeSet`, [S]);
+    # None without the "common" probe variant (no leaves: checkpoints of runs without it unchanged)
+    probe_set: Any = None
 
 
 class EnvStage(NamedTuple):
@@ -114,3 +117,5 @@ class EnvStage(NamedTuple):
     k_learn: jax.Array
     k_eval: jax.Array
     k_probe: jax.Array
+    # the epoch's new steps of the current policy for the common probe set (`probe_variants`)
+    fresh: Any = None

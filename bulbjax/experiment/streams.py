@@ -97,12 +97,22 @@ class Streams:
     def init_buffers(self, ppo_state: PPOState, k_fill: jax.Array, k_keep: jax.Array) -> dict:
         """The frame buffers filled with frames of the random policy (fresh worlds reset from
         `k_fill`); retained learners keep a share of them (`k_keep`)."""
-        c, env = self.config, self.dev.env
+        return self.fill_buffers(*self.initial_frames(ppo_state, k_fill), k_keep)
+
+    def initial_frames(self, ppo_state: PPOState, k_fill: jax.Array) -> tuple[jax.Array, jax.Array]:
+        """`init_buffers`' frames `[S, C, H, W, 3]` and states of the random policy (fresh worlds
+        reset from `k_fill`); frame i of a seed came from world `i % N`."""
+        c = self.config
         steps = -(-c.replay_capacity // self.N)
         k_fill_reset, k_fill_roll = jax.random.split(k_fill)
         _, frames, states = self.collect(ppo_state, self.dev.env_reset(k_fill_reset), k_fill_roll, steps,
                                          random=True)
-        frames, states = frames[:, : c.replay_capacity], states[:, : c.replay_capacity]
+        return frames[:, : c.replay_capacity], states[:, : c.replay_capacity]
+
+    def fill_buffers(self, frames: jax.Array, states: jax.Array, k_keep: jax.Array) -> dict:
+        """The frame buffers filled with `initial_frames`; retained learners keep a share."""
+        env = self.dev.env
+        c = self.config
         rcfg = replay.ReplayConfig(capacity=c.replay_capacity)
         buffers = {}
         for frac in sorted(set(self.team.retention.values())):
@@ -118,13 +128,24 @@ class Streams:
         """Fill the window buffers with windows of a random-policy rollout (consecutive,
         non-overlapping windows per world), then retain a share of them for the sequential
         learners that ask for it (all of them by default: the paper's fix applied to all)."""
-        c, lw, env = self.config, self.window_length, self.dev.env
+        return self.fill_windows(self.initial_windows(ppo_state, key), key)
+
+    def initial_windows(self, ppo_state: PPOState, key: jax.Array) -> Windows:
+        """`init_windows`' windows `[S, C, window_length]` of a random-policy rollout; window i of
+        a seed came from world `i % N`."""
+        c, lw = self.config, self.window_length
         cap = sequence.capacity_in_windows(c.replay_capacity, lw)
         rounds = -(-cap // self.N)
-        k_reset, k_roll, k_keep = jax.random.split(key, 3)
+        k_reset, k_roll, _ = jax.random.split(key, 3)
         _, st = self.policy.rollout(ppo_state, self.dev.env_reset(k_reset), k_roll, rounds * lw, random=True)
         starts = jnp.broadcast_to((jnp.arange(rounds) * lw)[:, None], (rounds, self.S * self.N))
-        w = jax.tree.map(lambda x: x[:, :cap], self.windows(st, starts, lw))
+        return jax.tree.map(lambda x: x[:, :cap], self.windows(st, starts, lw))
+
+    def fill_windows(self, w: Windows, key: jax.Array) -> dict[str, sequence.WindowBuffer]:
+        """The window buffers filled with `initial_windows` (`key`: `init_windows`' own)."""
+        c, lw, env = self.config, self.window_length, self.dev.env
+        cap = sequence.capacity_in_windows(c.replay_capacity, lw)
+        k_keep = jax.random.split(key, 3)[2]
         out = {}
         fracs = {self.team.retention[n] for n, seq in self.team.sequential.items() if seq}
         for frac in sorted(fracs):
@@ -140,12 +161,21 @@ class Streams:
         """Render a random subset of the epoch's stored steps (all worlds of each chosen step;
         the policy's own frames where it kept them, `Rendered`) and write those frames of the
         current policy into every replay buffer."""
+        return self.insert_frames(buffers, *self.epoch_frames(steps, key), key)
+
+    def epoch_frames(self, steps: tuple, key: jax.Array) -> tuple[jax.Array, jax.Array]:
+        """`replay_phase`'s frames `[S, F, H, W, 3]` and states: a random subset of the epoch's
+        stored steps (all worlds of each), frame i of a seed from world `i % N`."""
         c = self.config
         ri, low = steps[:2]
-        k_pick, k_ins = jax.random.split(key)
+        k_pick = jax.random.split(key)[0]
         pick = jax.random.choice(k_pick, low.shape[0], (c.frames_per_epoch // self.N,), replace=False)
-        frames, states = self.frames_of_steps(jax.tree.map(lambda x: x[pick], ri), low[pick])
-        keys = self.team.seed_keys(k_ins)
+        return self.frames_of_steps(jax.tree.map(lambda x: x[pick], ri), low[pick])
+
+    def insert_frames(self, buffers: dict, frames: jax.Array, states: jax.Array,
+                      key: jax.Array) -> dict:
+        """`epoch_frames` written into every replay buffer (`key`: `replay_phase`'s own)."""
+        keys = self.team.seed_keys(jax.random.split(key)[1])
         world = {"world": jnp.broadcast_to(self._world_ids(frames.shape[1]), frames.shape[:2])}
         return {k: jax.vmap(replay.insert)(b, keys, frames, states, world) for k, b in buffers.items()}
 
@@ -155,10 +185,15 @@ class Streams:
         per seed (a random subset) into every window buffer: the frame buffers' frame budget."""
         if not windows:
             return windows
+        return self.insert_windows(windows, self.epoch_windows(steps, key)[0], key)
+
+    def epoch_windows(self, steps: tuple, key: jax.Array) -> tuple[Windows, jax.Array]:
+        """`window_phase`'s windows `[S, P, window_length]` and each one's index `[S, P]` among
+        the epoch's cuts (its world: index % N)."""
         c, lw = self.config, self.window_length
         per_epoch = max(1, c.frames_per_epoch // lw)
         rounds = -(-per_epoch // self.N)
-        k_start, k_pick, k_ins = jax.random.split(key, 3)
+        k_start, k_pick, _ = jax.random.split(key, 3)
         total = steps[1].shape[0]
         group = self.team.group
         # starts drawn for all of the run's worlds, this group's share kept (`SeedGroup`)
@@ -166,8 +201,11 @@ class Streams:
         w = self.windows(steps, starts, lw)
         picks = jax.vmap(lambda k: jax.random.permutation(k, rounds * self.N)[:per_epoch])(
             group.seed_keys(k_pick))
-        w = jax.vmap(lambda ws, p: jax.tree.map(lambda x: x[p], ws))(w, picks)
-        keys = group.seed_keys(k_ins)
+        return jax.vmap(lambda ws, p: jax.tree.map(lambda x: x[p], ws))(w, picks), picks
+
+    def insert_windows(self, windows: dict, w: Windows, key: jax.Array) -> dict:
+        """`epoch_windows` written into every window buffer (`key`: `window_phase`'s own)."""
+        keys = self.team.group.seed_keys(jax.random.split(key, 3)[2])
         return {k: jax.vmap(sequence.insert)(b, keys, w) for k, b in windows.items()}
 
     def eval_phase(self, ppo_state: PPOState, curr_env: EnvState, rand_env: EnvState, key: jax.Array,
