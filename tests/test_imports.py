@@ -7,7 +7,8 @@ module, else `pkg` itself). Importing `a.b.c` also runs the `__init__` of `a` an
 implicit edges are left out, as a package's `__init__` only hands names on.
 
 Layers, top to bottom (a module may import its own layer and the ones below, never above):
-  5. the command line: `bulbjax.cli`, `bulbjax.__main__`;
+  5. the command line and the commands it drives: `bulbjax.cli`, `bulbjax.__main__`,
+     `bulbjax.run_command` (`bulbjax run`), `bulbjax.reproduce.*` (the paper's plan of runs);
   4. experiments: `bulbjax.experiment.*` (config and its resolution, the epoch's parts, runs,
      reports);
   3. what an experiment is made of: `bulbjax.learners.*`, `bulbjax.envs.*`, `bulbjax.interop.*`,
@@ -31,7 +32,7 @@ ROOT = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))),
 
 # module-name prefix -> layer (the longest matching prefix wins)
 LAYERS: dict[str, int] = {
-    "bulbjax.cli": 5, "bulbjax.__main__": 5,
+    "bulbjax.cli": 5, "bulbjax.__main__": 5, "bulbjax.run_command": 5, "bulbjax.reproduce": 5,
     "bulbjax.experiment": 4,
     "bulbjax.learners": 3, "bulbjax.envs": 3, "bulbjax.interop": 3, "bulbjax.gym": 3, "bulbjax": 3,
     "bulbjax.data": 2, "bulbjax.eval": 2, "bulbjax.rl": 2,

@@ -338,6 +338,8 @@ def run(cfg: ExperimentConfig, opts: RunOptions, run_dir: str, *, resume: bool =
                     try:  # metrics first: a checkpoint never runs ahead; whole records or none
                         write_jsonl(metrics_path, recs)
                     except OSError as err:
+                        with contextlib.suppress(Exception):  # a checkpoint written in the background
+                            ckpt.wait()  # counts once complete: the message names the newest one
                         raise _write_failed(run_dir, f"metrics.jsonl (epoch {epoch})", err) from err
                 if tb:
                     tb.write(recs)
