@@ -114,6 +114,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     # --compile-only: a throw-away folder (its logs too), no run folder of the user's is touched
     out = tempfile.mkdtemp(prefix="bulbjax-compile-only-") if args.compile_only else (
         args.resume or args.out or "runs/latest")
+    made = not os.path.exists(out)  # a folder this command creates goes again if it fails empty
     try:
         # before any process starts or joins: a run in the way or an unwritable folder is one line
         # (a resume's missing folder is left to resolve_resume's message, not created here)
@@ -133,6 +134,10 @@ def cmd_run(args: argparse.Namespace) -> int:
         with stages("starting the JAX backend"):
             local = jax.local_devices()
         return _run_here(args, out, local, t_start, said)
+    except ValueError:  # bad input changes nothing: no empty run folder left behind
+        if made and os.path.isdir(out) and not os.listdir(out):
+            os.rmdir(out)
+        raise
     finally:
         if args.compile_only:
             shutil.rmtree(out, ignore_errors=True)
