@@ -117,11 +117,12 @@ def pytest_unconfigure(config) -> None:
 # gaps at the end, so both workers finish together. xdist's default order (most tests first) put
 # single-test files such as test_kill_resume and test_distributed at the very end, on one worker.
 LONGEST_FIRST = (
-    "test_experiment.py", "test_sharding.py", "test_object_probe.py", "test_incline.py", "test_run.py",
+    "test_experiment.py", "test_reproduce.py", "test_sharding.py", "test_object_probe.py", "test_incline.py",
+    "test_run.py", "test_plugins.py", "test_interop.py",
     "test_reset_pool.py", "test_chunked_reset.py", "test_rl_latent.py", "test_synthetic.py", "test_rl_sequential.py",
     "test_rl_frames.py",
     "test_recon.py", "test_ppo.py", "test_rearrange.py", "test_sequential_learners.py", "test_learners.py",
-    "test_contrastive.py", "test_ppo_stability.py", "test_spair.py", "test_extending.py",
+    "test_contrastive.py", "test_ppo_stability.py", "test_spair.py", "test_extending.py", "test_packaging.py",
 )
 
 
