@@ -93,6 +93,7 @@ def test_the_docs_table_is_the_times_file() -> None:
     (dict(add_learners=["no_such_learner"]), "not a registered learner"),
     (dict(add_learners=["vae_rpl"]), "already in the paper's runs"),
     (dict(max_minutes=-1), "--max-minutes"),
+    (dict(shard="1/2", overwrite=True), "every shard shares"),
 ])
 def test_bad_input_is_one_clear_error_and_changes_nothing(tmp_path, kw, says) -> None:
     out = tmp_path / "plan"

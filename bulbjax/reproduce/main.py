@@ -115,6 +115,9 @@ def reproduce(figures: str | Sequence[str] = "all", scale: str = "paper", out: s
     `add_learners`: learner specs run beside the paper's learners in every figure."""
     figs = parse_figures(figures)
     share = parse_shard(shard)
+    if share is not None and overwrite:
+        raise ValueError("--overwrite deletes the plan's folder, which every shard shares: start afresh by "
+                         "deleting it once (or with --overwrite on one host, without --shard)")
     if max_minutes < 0:
         raise ValueError(f"--max-minutes must be >= 0 (0: no limit), got {max_minutes}")
     names = learner_names(add_learners)
