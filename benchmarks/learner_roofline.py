@@ -22,7 +22,6 @@ CPU smoke run: python benchmarks/learner_roofline.py --learners vae,pred --batch
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import datetime as dt
 import json
 import os
@@ -38,7 +37,7 @@ sys.path.insert(0, HERE)
 import jax  # noqa: E402
 import numpy as np  # noqa: E402
 
-from bulbjax.learners import LearnerConfig, is_sequential, make_learner  # noqa: E402
+from bulbjax.learners import LearnerConfig, make_learner  # noqa: E402
 
 # dense bf16 tensor-core peak (TFLOP/s) and memory bandwidth (TB/s) from the vendors' datasheets
 PEAKS: dict[str, tuple[float, float]] = {

@@ -1,8 +1,9 @@
 """The paper's experiment plan as data: which figures run which presets, with how many seeds and
-epochs, cut into jobs; which jobs a host of a sharded plan takes; how long they should take.
+epochs, cut into jobs; which jobs a host of a sharded plan takes (`estimate` says how long).
 
 A *job* is one `bulbjax run` of one seed of a preset (`--seeds 1 --seed K`: seed K of the figure
-is the run's base seed K), or, for Fig. 4, one `bulbjax recon` of a Fig. 2 run's last checkpoint.
+is the run's base seed K; the quick scale runs a preset's seeds as one job), or, for Fig. 4, one
+`bulbjax recon` of a Fig. 2 run's last checkpoint.
 The cut does not depend on the machine: a plan run on 1, 4 or 8 GPUs, or sharded over hosts,
 runs the same jobs with the same seeds, so its numbers are the same (`--merge-seeds` pools the
 seeds of a figure's jobs afterwards, `bulbjax.reproduce.results`). One seed per job is what keeps
