@@ -238,3 +238,17 @@ def test_an_added_learner_joins_every_run_job(tmp_path, monkeypatch) -> None:
     with pytest.raises(ValueError, match="cannot import|No module"):
         reproduce("fig2-invpend", "paper", str(tmp_path / "o2"), dry_run=True, add_learners=["no_mod_xyz:Mine"],
                   log=said.append)
+
+
+def test_the_docs_give_the_python_signature() -> None:
+    """docs/reproduce.md's `reproduce(...)` line is the function's signature (names and defaults)."""
+    import inspect
+
+    with open(os.path.join(ROOT, "docs", "reproduce.md"), encoding="utf-8") as f:
+        text = f.read()
+    doc = re.search(r"```python\nreproduce\((.*?)\)\n```", text, re.S).group(1)
+    documented = [p.strip() for p in doc.replace("\n", " ").split(",") if p.strip()]
+    actual = [f"{n}={p.default!r}" if not callable(p.default) else f"{n}={p.default.__name__}"
+              for n, p in inspect.signature(reproduce).parameters.items()]
+    actual = [a.replace("'", '"') for a in actual]
+    assert documented == actual
