@@ -78,6 +78,13 @@ class Devices:
         if self.sharded or warp_devices(self.local_mesh_devices()) != warp_devices():
             self._per_device_renderer()  # (also one GPU that is not JAX's default)
         self._rep = NamedSharding(self.mesh, P())
+        # The env's step and reset as jitted functions of their own, called inside the run's
+        # programs: JAX traces and lowers a nested jit once per argument shapes and reuses it at
+        # every other call site (XLA inlines it again), where the bare functions were traced and
+        # lowered at each of an epoch's 6 step and init's 5 reset sites: MJX-Warp's physics,
+        # ~45% of tracing init and the epoch (profiled on the CPU, fig2-invpend). Not the render
+        # call: `_render_local` swaps the renderer while tracing.
+        self._step, self._reset_keys = jax.jit(self.env.step), jax.jit(self.env.reset_keys)
 
     # ------------------------------------------------------------------ rendering per device
     def _per_device_renderer(self) -> None:
@@ -170,13 +177,13 @@ class Devices:
         keys as one device would."""
         keys = self.group.world_keys(key)
         if not self.sharded:
-            return self.env.reset_keys(keys)
+            return self._reset_keys(keys)
         w = P((SEED_AXIS, WORLD_AXIS))
-        return self.on_worlds(self.env.reset_keys, (w,), w)(keys)
+        return self.on_worlds(self._reset_keys, (w,), w)(keys)
 
     def env_step(self, es: EnvState, action: jax.Array) -> EnvState:
         w = P((SEED_AXIS, WORLD_AXIS))
-        return self.on_worlds(self.env.step, (w, w), w)(es, action)
+        return self.on_worlds(self._step, (w, w), w)(es, action)
 
     def render_sequence(self, render_inputs: Any) -> jax.Array:
         """Frames `[K, S*N, H, W, 3]` of stored steps `[K, S*N]`."""
