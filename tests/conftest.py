@@ -100,6 +100,14 @@ def pytest_unconfigure(config) -> None:
 #     pass after chunked resets, which run only with the pool off or fixed draws; the pool case stays), ~110 s
 #   test_plugins.py::test_cli_run_resume_report_fit (a learner of one's own through `bulbjax run`, a
 #     `--resume`, `report` and `fit` in fresh processes, each compiling), ~430 s on a shared 2-core machine
+#   test_distributed.py::test_launcher_run_ends_without_error_lines_and_a_refused_folder_is_one_line
+#     (two processes through the launcher compile a run; their consoles checked), ~3-4 min
+#   test_rl_frames.py::test_latents_of_the_last_two_frames[stdim] (ST-DIM's per-frame features stacked
+#     for PPO, step by step; the vae_rpl case stays, and test_contrastive runs an epoch with PPO on
+#     ST-DIM's latent), ~110-120 s
+#   test_ppo.py::test_pixel_ppo_learns_a_visual_bandit[2] (the bandit learnt with pixel shifts; shift 0
+#     stays, and test_pixel_shift_moves_the_update_and_only_for_frames checks the shift's effect), ~90 s
+# (2026-11-28: make test with issue 57-59's tests took 52.6 min while the machine was shared)
 # (durations of the 2-worker suite, 2026-11-26; without them `make test` took 64 min, `bash .ci/run`
 # on a fresh clone 65.6 min with its venv, against 88 min for the whole suite before; 2026-11-27, with
 # test_lean_step, 73 min while other jobs shared the 2 cores). Each feature

@@ -185,7 +185,8 @@ def _bandit_frames(key: jax.Array, n: int) -> tuple[jax.Array, jax.Array]:
     return jnp.repeat(img[..., None], 3, -1), side
 
 
-@pytest.mark.parametrize("shift", [0, 2])
+# shift 2 in the slow tier: the shift's effect on an update is test_pixel_shift_moves_the_update_and_only_for_frames
+@pytest.mark.parametrize("shift", [0, pytest.param(2, marks=pytest.mark.slow)])
 def test_pixel_ppo_learns_a_visual_bandit(shift: int):
     """PPO from pixels (`frame_shape`): the conv torso and the policy learn, from the PPO loss
     alone, which action a frame rewards (the square's side); a state-free task only the pixels

@@ -45,7 +45,8 @@ def test_cli_flag_reaches_the_config(capsys) -> None:
     assert "stacks frames" in capsys.readouterr().err
 
 
-@pytest.mark.parametrize("name", ["vae_rpl", "stdim"])
+# stdim in the slow tier: make test runs ST-DIM's latent into PPO in test_contrastive's epoch
+@pytest.mark.parametrize("name", ["vae_rpl", pytest.param("stdim", marks=pytest.mark.slow)])
 def test_latents_of_the_last_two_frames(name: str) -> None:
     """A frame learner's latents (`encode`), or ST-DIM's, which trains on windows but encodes each
     frame alone (`frame_features`), of the previous and the current frame, step by step."""
