@@ -8,8 +8,6 @@ Nothing here compiles a program."""
 from __future__ import annotations
 
 import argparse
-import dataclasses
-import json
 import os
 from unittest import mock
 
@@ -101,21 +99,11 @@ def test_envs_prints_no_solved_return_where_there_is_none(capsys):
 
 def _run_dir(path: str) -> str:
     """A run folder as `bulbjax run` leaves it (config.json, metrics.jsonl), synthetic records."""
-    from bulbjax.experiment import records
     from bulbjax.experiment.config import ExperimentConfig
+    from run_folders import write_synthetic_run
 
-    cfg = ExperimentConfig(env="InvertedPendulum", learners=("vae", "vae_rpl"), seeds=2, epochs=2)
-    os.makedirs(path)
-    with open(os.path.join(path, "config.json"), "w") as f:
-        json.dump({"experiment": dataclasses.asdict(cfg), "run": {"seed": 0, "probe_every": 1}}, f)
-    stream = {"overall": {"mae_norm": 0.5, "baseline_norm": 1.4},
-              "groups": {"position": {"mae_norm": 0.4, "baseline_norm": 1.5},
-                         "velocity": {"mae_norm": 0.6, "baseline_norm": 1.2}}}
-    recs = [{"epoch": e, "seed": s, "rl_return": 10.0 * (e + 1),
-             "probes": {n: {"curr": stream, "rand": stream} for n in cfg.learners}}
-            for e in range(2) for s in range(2)]
-    records.write_jsonl(os.path.join(path, "metrics.jsonl"), recs)
-    return path
+    return write_synthetic_run(path, ExperimentConfig(env="InvertedPendulum", learners=("vae", "vae_rpl"),
+                                                      seeds=2, epochs=2))
 
 
 def test_report_out_writes_elsewhere_and_leaves_the_run_alone(tmp_path, capsys):

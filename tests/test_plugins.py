@@ -205,21 +205,11 @@ def test_installed_package_entry_point(plugin_dir):
 
 def _synthetic_run(path, learners: tuple[str, ...], modules: tuple[str, ...]) -> None:
     """A run folder as `bulbjax run` leaves it (config.json naming the specs, metrics.jsonl)."""
-    from bulbjax.experiment import records
     from bulbjax.experiment.config import ExperimentConfig
+    from run_folders import write_synthetic_run
 
-    cfg = ExperimentConfig(env="CartPole", learners=learners, learner_modules=modules, seeds=2,
-                           epochs=2)
-    os.makedirs(path)
-    with open(os.path.join(path, "config.json"), "w") as f:
-        json.dump({"experiment": dataclasses.asdict(cfg), "run": {"seed": 0, "probe_every": 1}}, f)
-    stream = {"overall": {"mae_norm": 0.5, "baseline_norm": 1.4},
-              "groups": {"position": {"mae_norm": 0.4, "baseline_norm": 1.5},
-                         "velocity": {"mae_norm": 0.6, "baseline_norm": 1.2}}}
-    probes = {n: {"curr": stream, "rand": stream} for n in learners}
-    records.write_jsonl(os.path.join(path, "metrics.jsonl"),
-                        [{"epoch": e, "seed": s, "rl_return": 10.0, "probes": probes}
-                         for e in range(2) for s in range(2)])
+    write_synthetic_run(str(path), ExperimentConfig(env="CartPole", learners=learners,
+                                                    learner_modules=modules, seeds=2, epochs=2))
 
 
 def _bulbjax(args: list[str], cwd: str, pythonpath: list[str]) -> subprocess.CompletedProcess:
