@@ -185,6 +185,23 @@ class Devices:
         w = P((SEED_AXIS, WORLD_AXIS))
         return self.on_worlds(self._step, (w, w), w)(es, action)
 
+    def warm_physics(self, key: jax.Array) -> None:
+        """Run the env's reset, one step and one frame of every world in a small program of their
+        own, and wait for it: MuJoCo Warp builds (or loads from its kernel cache) the kernels of
+        the scene at their first launch, so a run that calls this in a background thread while
+        XLA compiles init and the epoch finds them built when init runs (issue 56: on a fresh
+        machine the build was ~45 s of running init on an H100). Uses the same jitted step and
+        reset as the run's programs, traced after them, so their compile-cache keys are not moved."""
+        w = self.S * self.N
+        act = (jnp.zeros((w,), jnp.int32) if self.env.discrete
+               else jnp.zeros((w, self.env.action_size), jnp.float32))
+
+        def one_step(k: jax.Array) -> jax.Array:
+            es = self.env_step(self.env_reset(k), act)
+            return self.render_sequence(jax.tree.map(lambda x: x[None], es.render_input))
+
+        jax.block_until_ready(jax.jit(one_step)(self.put_key(key)))
+
     def render_sequence(self, render_inputs: Any) -> jax.Array:
         """Frames `[K, S*N, H, W, 3]` of stored steps `[K, S*N]`."""
         if not self.sharded:

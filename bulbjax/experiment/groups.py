@@ -27,7 +27,8 @@ from __future__ import annotations
 
 import dataclasses
 import functools
-from concurrent.futures import ThreadPoolExecutor
+import os
+from concurrent.futures import Future, ThreadPoolExecutor
 from typing import Any, Callable, Sequence
 
 import jax
@@ -38,7 +39,7 @@ from bulbjax import distributed
 from bulbjax.eval import probe
 from bulbjax.experiment.config import ExperimentConfig
 from bulbjax.experiment.loop import Experiment
-from bulbjax.experiment.programs import Programs
+from bulbjax.experiment.programs import Programs, in_thread
 from bulbjax.experiment.state import RunState
 
 FORMS = ("auto", "groups", "sharded", "single")
@@ -144,6 +145,21 @@ class SeedGroups:
         for p in self._programs:
             p.prepare(*which)
         return self
+
+    def warm_physics(self, key: jax.Array) -> Future | None:
+        """Every local group's `Devices.warm_physics` in a background thread (the groups one after
+        another: the first builds MuJoCo Warp's kernels, the others find them loaded), started
+        once the run's programs are traced and compiling; the run waits for it before init runs.
+        None (nothing started) with `BULBJAX_WARM_PHYSICS=0`, the measurement's "before"."""
+        if os.environ.get("BULBJAX_WARM_PHYSICS", "1").strip().lower() in ("0", "off", "false", "no"):
+            return None
+        exps = list(self.exps)
+
+        def warm() -> None:
+            for e in exps:
+                e.devices.warm_physics(key)
+
+        return in_thread(warm, name="bulbjax-warm-physics")
 
     def settle(self) -> None:
         """Wait for every group's compiles still running (`Programs.settle`)."""

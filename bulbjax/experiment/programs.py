@@ -245,7 +245,7 @@ class Programs:
         for w in which:
             for n in self.members(w):
                 if n not in self._compiled:
-                    self._compiled[n] = _in_thread(functools.partial(self._compile, n, self.lowered(n)))
+                    self._compiled[n] = in_thread(functools.partial(self._compile, n, self.lowered(n)))
         return self
 
     def _compile(self, name: str, lowered: Any) -> Any:
@@ -302,7 +302,7 @@ def without_probes(metrics: dict[str, Any]) -> dict[str, Any]:
     return {k: v for k, v in metrics.items() if k != "probes"}
 
 
-def _in_thread(fn: Callable[[], Any]) -> Future:
+def in_thread(fn: Callable[[], Any], name: str = "bulbjax-compile") -> Future:
     """`fn()` in a daemon thread (an XLA compile releases the GIL), its result as a Future. Daemon:
     a process that fails meanwhile exits without waiting for a compile it no longer needs."""
     fut: Future = Future()
@@ -313,5 +313,5 @@ def _in_thread(fn: Callable[[], Any]) -> Future:
         except BaseException as e:  # re-raised by fut.result() in the caller's thread
             fut.set_exception(e)
 
-    threading.Thread(target=run, daemon=True, name="bulbjax-compile").start()
+    threading.Thread(target=run, daemon=True, name=name).start()
     return fut

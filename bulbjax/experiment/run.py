@@ -23,6 +23,7 @@ import json
 import os
 import signal
 import time
+from concurrent.futures import Future
 from dataclasses import dataclass
 from typing import Any, Callable, Sequence
 
@@ -263,12 +264,15 @@ def run(cfg: ExperimentConfig, opts: RunOptions, run_dir: str, *, resume: bool =
         # compiles (or compile-cache loads) in background threads: init's and the epoch's overlap,
         # and a resume's restore overlaps the epoch's
         programs.prepare(*(("epoch",) if resume else ("init", "epoch")))
+    # MuJoCo Warp's kernels built (or loaded) beside the compiles, so init finds them ready
+    warming = groups.warm_physics(jax.random.PRNGKey(opts.seed))
     stages.line("compiling " + ("the epoch" if resume else "init and the epoch")
                 + " in the background (or loading them from the compile cache)")
     if compile_only:
         with stages("compiling init and the epoch"):
             programs.compiled("init")
             programs.compiled("epoch")
+        _physics_ready(warming, stages)
         log("compiled init and the epoch into the compile cache (--compile-only: no epoch ran)")
         distributed.barrier("bulbjax-run-end")
         return RunResult(epochs_done=0, stopped="compile-only", records=[], checkpoint=None)
@@ -285,6 +289,7 @@ def run(cfg: ExperimentConfig, opts: RunOptions, run_dir: str, *, resume: bool =
     else:
         with stages("compiling init"):
             programs.compiled("init")
+        _physics_ready(warming, stages)
         # several processes: init gathers the reference states of all, so it waits for the slowest
         with stages("running init" + (" (with the other processes)" if groups.processes > 1 else "")):
             rs = programs.init(jax.random.PRNGKey(opts.seed))
@@ -296,6 +301,7 @@ def run(cfg: ExperimentConfig, opts: RunOptions, run_dir: str, *, resume: bool =
     if start < cfg.epochs:
         with stages("compiling the epoch"):
             programs.compiled("epoch")
+    _physics_ready(warming, stages)
     t_init = time.time() - t0
     tb = _TensorBoard(run_dir, purge_step=start if resume else None) if opts.tensorboard and writer else None
     figs, drawn = None, None
@@ -390,6 +396,22 @@ def run(cfg: ExperimentConfig, opts: RunOptions, run_dir: str, *, resume: bool =
     # shutdown barrier first and time out there on a slow report)
     distributed.barrier("bulbjax-run-end")
     return RunResult(epochs_done=epoch, stopped=stopped, records=records, checkpoint=saved)
+
+
+def _physics_ready(warming: Future | None, stages: StageLog) -> None:
+    """Wait for `SeedGroups.warm_physics` (a stage line when it is still running). Its failure is
+    no run's failure: one line says so, and init builds the kernels at their first launch."""
+    if warming is None:
+        return
+    try:
+        if warming.done():
+            warming.result()
+        else:
+            with stages("building MuJoCo Warp's kernels (beside the compiles)"):
+                warming.result()
+    except Exception as err:  # noqa: BLE001
+        stages.line(f"warming MuJoCo Warp's kernels failed ({type(err).__name__}: {err}); "
+                    "init builds them at their first launch")
 
 
 def _save(ckpt: Checkpointer, run_dir: str, epoch: int, rs: Any, key: Any) -> None:
