@@ -47,8 +47,10 @@ def write_from_every_process() -> bool:
     while process 0 waited for them at the first collective (issue 56: the silent minute before
     a resumed two-GPU epoch). Entries of programs shared by all processes (the small cross-process
     collectives) compile faster than the cache's threshold and are not written. Replaces
-    `jax._src.compiler._cache_write` by a function that does its checks and write for any process;
-    returns False, changing nothing, where this JAX's function is not the one expected."""
+    `jax._src.compiler._cache_write` by a function that does its checks and write for any process.
+    JAX's function took `host_callbacks` last up to 0.10 and not in 0.11 (seen on a GPU machine
+    with 0.11.2, where the check below refused it and process 1 recompiled at each rerun: 58 s);
+    both forms are taken. Any other form changes nothing: a warning says so, returns False."""
     import inspect
     import warnings
 
@@ -56,20 +58,27 @@ def write_from_every_process() -> bool:
     from jax._src import distributed as jax_distributed
 
     real = getattr(compiler, "_cache_write", None)
-    if real is None or getattr(real, "_bulbjax_every_process", False):
-        return real is not None
-    expected = ["cache_key", "compile_time_secs", "module_name", "backend", "executable", "host_callbacks"]
-    if list(inspect.signature(real).parameters) != expected:
+    if real is not None and getattr(real, "_bulbjax_every_process", False):
+        return True
+    base = ["cache_key", "compile_time_secs", "module_name", "backend", "executable"]
+    params = list(inspect.signature(real).parameters) if real is not None else None
+    put = getattr(compilation_cache, "put_executable_and_time", None)
+    put_params = list(inspect.signature(put).parameters)[:5] if put is not None else None
+    if params not in (base, base + ["host_callbacks"]) or put_params != [
+            "cache_key", "module_name", "executable", "backend", "compile_time"]:
+        warnings.warn("this JAX's compile-cache writer is not one bulbjax knows: only process 0 writes "
+                      "compile-cache entries, so processes 1.. compile their programs again on every "
+                      "rerun and resume of a multi-process run", stacklevel=2)
         return False
 
-    def cache_write(cache_key, compile_time_secs, module_name, backend, executable, host_callbacks):
+    def cache_write(cache_key, compile_time_secs, module_name, backend, executable, *rest):
         if jax_distributed.global_state.process_id == 0:
-            return real(cache_key, compile_time_secs, module_name, backend, executable, host_callbacks)
+            return real(cache_key, compile_time_secs, module_name, backend, executable, *rest)
+        host_callbacks = rest[0] if rest else ()
         if host_callbacks or compile_time_secs < config.persistent_cache_min_compile_time_secs.value:
             return None
         try:
-            compilation_cache.put_executable_and_time(cache_key, module_name, executable, backend,
-                                                      int(compile_time_secs))
+            put(cache_key, module_name, executable, backend, int(compile_time_secs))
         except Exception as ex:  # noqa: BLE001  (as JAX's own: a cache that cannot be written is no error)
             warnings.warn(f"Error writing persistent compilation cache entry for '{module_name}': "
                           f"{type(ex).__name__}: {ex}")

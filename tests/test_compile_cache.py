@@ -76,3 +76,43 @@ def test_stable_warp_call_ids_make_retraces_lower_to_the_same_program() -> None:
     x, y = (jax.jit(lambda s, a: env.step(s, a))(s, a) for _ in range(2))
     np.testing.assert_array_equal(np.asarray(x.pixels), np.asarray(y.pixels))
     np.testing.assert_array_equal(np.asarray(x.lowdim), np.asarray(y.lowdim))
+
+
+EVERY_PROCESS = """
+import inspect, os, sys
+import jax
+from jax._src import compilation_cache, compiler
+from jax._src import distributed as jd
+from bulbjax import compile_cache
+compile_cache.enable(sys.argv[1], 0.0)
+form = sys.argv[2]
+if form == "without_host_callbacks":  # JAX 0.11's signature: host_callbacks gone
+    real = compiler._cache_write
+    def _cache_write(cache_key, compile_time_secs, module_name, backend, executable):
+        return real(cache_key, compile_time_secs, module_name, backend, executable, ())
+    compiler._cache_write = _cache_write
+elif form == "unknown":
+    compiler._cache_write = lambda key, t, name, backend, executable, callbacks, extra=None: None
+print("PATCHED", compile_cache.write_from_every_process())
+jd.global_state.process_id = 1  # as process 1 of a run: JAX alone would write nothing
+jax.jit(lambda x: (x @ x.T).sum())(jax.numpy.ones((64, 64))).block_until_ready()
+print("ENTRIES", len(os.listdir(sys.argv[1])))
+"""
+
+
+def test_every_process_writes_its_cache_entries_under_both_jax_signatures(tmp_path) -> None:
+    """Process 1 of a run writes its compiled programs to the cache with JAX's writer taking
+    host_callbacks (JAX <= 0.10) and without (0.11: on a GPU machine the old check refused it and
+    process 1 recompiled at every rerun, 58 s); an unknown writer is left alone with a warning."""
+    for form in ("as_installed", "without_host_callbacks", "unknown"):
+        cache = tmp_path / form
+        out = subprocess.run([sys.executable, "-c", EVERY_PROCESS, str(cache), form], capture_output=True,
+                             text=True, timeout=300)
+        assert out.returncode == 0, out.stderr[-2000:]
+        patched = "PATCHED True" in out.stdout
+        entries = int(out.stdout.split("ENTRIES")[1].split()[0])
+        if form == "unknown":
+            assert not patched and entries == 0
+            assert "processes 1.. compile their programs again" in out.stderr
+        else:
+            assert patched and entries > 0, (form, out.stdout, out.stderr[-1000:])

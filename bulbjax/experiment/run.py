@@ -264,8 +264,11 @@ def run(cfg: ExperimentConfig, opts: RunOptions, run_dir: str, *, resume: bool =
         # compiles (or compile-cache loads) in background threads: init's and the epoch's overlap,
         # and a resume's restore overlaps the epoch's
         programs.prepare(*(("epoch",) if resume else ("init", "epoch")))
-    # MuJoCo Warp's kernels built (or loaded) beside the compiles, so init finds them ready
-    warming = groups.warm_physics(jax.random.PRNGKey(opts.seed))
+    # MuJoCo Warp's kernels built (or loaded) beside the compiles, so init finds them ready. Not
+    # on a resume: the one resume that ran it beside the checkpoint's restore and a compile
+    # ended in a SIGSEGV of process 1 (two H200s; the same resume without it ran), and a resume
+    # finds the kernels in Warp's cache of the machine that ran the stretch before
+    warming = None if resume else groups.warm_physics(jax.random.PRNGKey(opts.seed))
     stages.line("compiling " + ("the epoch" if resume else "init and the epoch")
                 + " in the background (or loading them from the compile cache)")
     if compile_only:
