@@ -63,8 +63,26 @@ def _merged(folder: str) -> bool:
         return "merged_from" in json.load(f)
 
 
+def protocol_tables() -> list[str]:
+    """Folders of `bulbjax report --probe-protocol` tables: drawn from the runs they name."""
+    return [d for d in report_folders() if _protocol_sources(d) is not None]
+
+
+def _protocol_sources(folder: str) -> tuple[list[str], list[str]] | None:
+    """The runs and fp32 runs a probe-protocol table names (`run `X``, `fp32 run `Y``), or None
+    for any other report folder."""
+    import re
+
+    with open(os.path.join(ROOT, folder, "table.md")) as f:
+        text = f.read()
+    if not text.startswith("# Probe protocol"):
+        return None
+    return re.findall(r"^run `([^`]+)`", text, re.M), re.findall(r"fp32 run `([^`]+)`", text)
+
+
 def in_tree() -> list[str]:
-    return [d for d in report_folders() if d not in IN_HISTORY and d not in NEVER_COMMITTED]
+    return [d for d in report_folders()
+            if d not in IN_HISTORY and d not in NEVER_COMMITTED and d not in protocol_tables()]
 
 
 def regenerate(folder: str, out: str) -> str:
@@ -119,6 +137,9 @@ def test_every_report_folder_is_covered():
         full = os.path.join(ROOT, d)
         if d in IN_HISTORY or d in NEVER_COMMITTED:
             assert not _has_metrics(full), f"{d} has its metrics again: remove it from the lists"
+        elif _protocol_sources(d) is not None:
+            runs, fp32 = _protocol_sources(d)
+            assert runs and all(_has_metrics(os.path.join(ROOT, r)) for r in runs + fp32), d
         elif _merged(full):
             assert all(_has_metrics(h) for h in report.merge_sources(full)), d
         else:
@@ -131,6 +152,20 @@ def test_every_report_folder_is_covered():
 def test_committed_reports_regenerate(folder, tmp_path, monkeypatch):
     monkeypatch.chdir(ROOT)  # merged folders name their halves relative to the repository
     check(folder, str(tmp_path / "out"))
+
+
+@pytest.mark.parametrize("folder", protocol_tables())
+def test_probe_protocol_tables_regenerate(folder, monkeypatch):
+    """A committed `bulbjax report --probe-protocol` table, drawn again from the runs it names
+    (issue 59: docs/results/probe_protocol), is the committed file."""
+    from bulbjax.experiment.protocol import probe_protocol_table
+
+    monkeypatch.chdir(ROOT)
+    runs, fp32 = _protocol_sources(folder)
+    with open(os.path.join(folder, "table.md")) as f:
+        committed = f.read()
+    diff = differences(committed, probe_protocol_table(runs, fp32), footer=False)
+    assert not diff, f"{folder}/table.md does not regenerate:\n" + "\n".join(diff)
 
 
 @pytest.mark.skipif(os.environ.get("BULBJAX_CHECK_HISTORY") != "1",

@@ -46,13 +46,21 @@ class CheckpointWriteError(Exception):
         self.epoch = epoch
 
 
-def _host_copy(x: Any) -> np.ndarray:
-    """`x` on the host, in memory of its own: a CPU device's array fetched to numpy may share the
-    device buffer, which the next epoch (its state donated) overwrites while a background write
-    still reads it; a GPU's comes back in fresh host memory."""
-    host = np.asarray(jax.device_get(x))
-    on_cpu = isinstance(x, jax.Array) and any(d.platform == "cpu" for d in x.devices())
-    return host.copy() if on_cpu or not isinstance(x, jax.Array) else host
+def _host_copies(xs: list[Any]) -> list[np.ndarray]:
+    """`xs` on the host, each in memory of its own, fetched by one `jax.device_get` of the list:
+    it starts every device-to-host copy before waiting for the first, where a fetch per array
+    waited for each in turn (a run state is ~1,000 arrays; a checkpoint held the loop for 1.4-3.3
+    s on two H200s, fig2-invpend, 3 seeds per GPU). A CPU device's array fetched to numpy may
+    share the device buffer, which the next epoch (its state donated) overwrites while a
+    background write still reads it: those are copied; a GPU's come back in fresh host memory."""
+    fetched = jax.device_get(list(xs))
+
+    def own(x: Any, host: Any) -> np.ndarray:
+        host = np.asarray(host)
+        on_cpu = isinstance(x, jax.Array) and any(d.platform == "cpu" for d in x.devices())
+        return host.copy() if on_cpu or not isinstance(x, jax.Array) else host
+
+    return [own(x, h) for x, h in zip(xs, fetched)]
 
 
 def _paths(tree: Any) -> list[str]:
@@ -105,7 +113,7 @@ class Checkpointer:
         leaves = jax.tree.leaves(state)
         flat = {f"{i:05d}": x for i, x in enumerate(leaves) if np.size(x)}
         if self.host_arrays:  # host copies (on the CPU a fetched array may share the donated buffer)
-            flat = {k: _host_copy(x) for k, x in flat.items()}
+            flat = dict(zip(flat, _host_copies(list(flat.values()))))
         meta = {"format": _FORMAT, "epoch": int(epoch), "paths": _paths(state),
                 "shapes": [list(np.shape(x)) for x in leaves],
                 "dtypes": [str(x.dtype) for x in leaves],

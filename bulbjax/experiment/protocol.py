@@ -56,6 +56,8 @@ def domain_table(run_dir: str, fp32_dir: str | None = None, last: int = 3) -> st
         seeds32 = len({r["seed"] for r in recs32})
         note += (f"; fp32 run `{fp32_dir}` ({_dtype(cfg32)} learners, {seeds32} seeds, "
                  f"epochs {', '.join(map(str, epochs32))})")
+    else:
+        note += "; no fp32 run of this domain given (--fp32): no fp32 column"
     if len(sets) == 1:
         note += "; the run carries no probe variant (made without --probe-variants)"
     return f"## {cfg.env}\n\n{note}.\n\n" + findings.variants_markdown(sets, epochs, seeds)
@@ -79,8 +81,8 @@ def probe_protocol_table(runs: Sequence[str], fp32: Sequence[str] = (), out_dir:
     text = ("# Probe protocol: the Fig. 2 claims under each variant of the probe\n\n"
             "Is a verdict the latent's or the probe's? Each claim checked with the present probe "
             "and with each variant computed in the same run (docs/probes.md, \"Variants of the "
-            "protocol\"), and with the present probe of a second run whose learners computed in "
-            "fp32.\n\n" + "\n\n".join(sections) + "\n")
+            "protocol\")" + (", and with the present probe of a second run whose learners "
+                               "computed in fp32" if fp32 else "") + ".\n\n" + "\n\n".join(sections) + "\n")
     if out_dir is not None:
         os.makedirs(out_dir, exist_ok=True)
         with open(os.path.join(out_dir, "table.md"), "w") as f:
