@@ -14,6 +14,7 @@ import time
 
 import pytest
 
+from bulbjax.experiment.config import ExperimentConfig
 from bulbjax.reproduce import estimate, plan
 from bulbjax.reproduce.estimate import Timing, simulate
 from bulbjax.reproduce.main import reproduce
@@ -252,3 +253,32 @@ def test_the_docs_give_the_python_signature() -> None:
               for n, p in inspect.signature(reproduce).parameters.items()]
     actual = [a.replace("'", '"') for a in actual]
     assert documented == actual
+
+
+def test_fig2_runs_carry_the_probe_variants_and_the_page_their_table(tmp_path):
+    """Paper and quick Fig. 2 jobs run with the probe protocol's variants (issue 59's question
+    answered by the reproduction's own runs); the results page writes their table across domains
+    from the merged runs that carry them (here the committed InvertedPendulum run), and nothing
+    for runs without them."""
+    import shutil
+
+    from run_folders import write_synthetic_run
+
+    from bulbjax.experiment.protocol import probe_protocol_table
+    from bulbjax.reproduce import results
+
+    for scale in ("paper", "quick"):
+        fig2 = [j for j in plan_jobs("fig2", scale) if j.kind == "run"]
+        assert fig2 and all("--probe-variants" in j.flags for j in fig2)
+    assert not any("--probe-variants" in j.flags for j in plan_jobs("fig3,fig5", "paper") if j.kind == "run")
+    run = os.path.join(ROOT, "docs", "results", "fig2_invpend_variants_2xh200")
+    merged = tmp_path / "out" / "fig2" / "fig2-invpend"
+    shutil.copytree(run, merged)
+    lines = results._protocol_section(str(tmp_path / "out"), [str(merged), str(tmp_path / "out" / "fig2" / "unfinished")])
+    table = tmp_path / "out" / results.PROTOCOL_DIR / "table.md"
+    assert "probe_protocol/table.md" in "\n".join(lines) and table.exists()
+    assert table.read_text() == probe_protocol_table([str(merged)])
+    assert "| replay fixes VAE_v0 on π_rand" in table.read_text()
+    other = tmp_path / "plain"
+    write_synthetic_run(str(other), ExperimentConfig(env="CartPole", learners=("vae", "vae_rpl"), seeds=2, epochs=3))
+    assert results._protocol_section(str(tmp_path / "out2"), [str(other)]) == []

@@ -57,9 +57,15 @@ TITLES = {
 }
 
 
+# Fig. 2's runs at the paper and quick scales compute the probe protocol's variants beside the
+# present probe (issue 59: one run answers whether a verdict is the latent's or the probe's; ~3-4%
+# of a run on two H200s, docs/probes.md); the results page adds their table across domains
+VARIANTS = ("--probe-variants", "common,window,raw")
+
+
 def figure_specs(scale: str) -> dict[str, FigureSpec]:
     """The figures at `scale`: "paper" (the paper's settings: Fig. 2 4 domains x 6 seeds x 1,000
-    epochs, Figs. 3 and 5 3 seeds x 1,000; bf16, probes every 10th epoch), "quick" (every figure
+    epochs with the probe variants, Figs. 3 and 5 3 seeds x 1,000; bf16, probes every 10th epoch), "quick" (every figure
     on one GPU in about a quarter of an hour: 2 seeds, short runs) or "tiny" (the CPU-sized
     `--small` config, 2 seeds x 2 epochs, two learners: what the tests run). Fig. 4 has no runs
     of its own: it is drawn from Fig. 2's seed-0 runs (`plan_jobs`)."""
@@ -67,7 +73,7 @@ def figure_specs(scale: str) -> dict[str, FigureSpec]:
         raise ValueError(f"unknown --scale {scale!r}; accepted: {', '.join(SCALES)}")
     if scale == "paper":
         return {
-            "fig2": FigureSpec("fig2", TITLES["fig2"], _FIG2, 6, 1000, flags=("--bf16",)),
+            "fig2": FigureSpec("fig2", TITLES["fig2"], _FIG2, 6, 1000, flags=("--bf16", *VARIANTS)),
             "fig3": FigureSpec("fig3", TITLES["fig3"], ("fig3-rearrange-geom",), 3, 1000, recon_every=250,
                                flags=("--bf16",)),
             "fig5": FigureSpec("fig5", TITLES["fig5"], ("fig5-rearrange-ycb",), 3, 1000, recon_every=250,
@@ -76,7 +82,7 @@ def figure_specs(scale: str) -> dict[str, FigureSpec]:
     if scale == "quick":
         return {
             "fig2": FigureSpec("fig2", TITLES["fig2"], _FIG2, 2, 60, probe_every=10, seeds_per_job=2,
-                               epochs_of=(("fig2-halfcheetah", 20), ("fig2-ant", 20)), flags=("--bf16",)),
+                               epochs_of=(("fig2-halfcheetah", 20), ("fig2-ant", 20)), flags=("--bf16", *VARIANTS)),
             "fig3": FigureSpec("fig3", TITLES["fig3"], ("fig3-rearrange-geom",), 2, 40, probe_every=10,
                                recon_every=40, seeds_per_job=2, flags=("--bf16",)),
             "fig5": FigureSpec("fig5", TITLES["fig5"], ("fig5-rearrange-ycb",), 2, 40, probe_every=10,

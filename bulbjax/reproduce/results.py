@@ -22,6 +22,7 @@ from bulbjax.reproduce.estimate import hms
 from bulbjax.reproduce.plan import PLAN_FILE, TITLES, Job, job_of, read_plan
 
 PAGE = "results.md"
+PROTOCOL_DIR = "probe_protocol"  # the Fig. 2 claims under the probe variants, across domains
 
 
 def plan_of(out: str) -> tuple[dict, list[Job]]:
@@ -116,6 +117,8 @@ def write(out: str, summary: dict[str, Any] | None = None, out_name: str | None 
         lines += [f"## {TITLES[fig]}", ""]
         for preset, seeds in mine.items():
             lines += _preset_section(out, fig, preset, seeds)
+        if fig == "fig2":
+            lines += _protocol_section(out, [merged_dir(out, fig, p) for p in mine])
         for j in recon:
             pngs = sorted(glob.glob(os.path.join(glob.escape(J.job_dir(out, j)), "recon_*.png")))
             if pngs:
@@ -147,6 +150,25 @@ def _preset_section(out: str, fig: str, preset: str, seeds: Sequence[Job]) -> li
         if pngs:
             lines += [f"Seed 0's {label}, last drawn: ![{label}]({os.path.relpath(pngs[-1], out)})", ""]
     return lines
+
+
+def _protocol_section(out: str, dirs: Sequence[str]) -> list[str]:
+    """The Fig. 2 claims under each probe variant, over the merged runs that carry the variants
+    (`bulbjax report --probe-protocol`), into OUT/probe_protocol/table.md; nothing without them."""
+    from bulbjax.experiment.config import read_run_config
+    from bulbjax.experiment.protocol import probe_protocol_table
+
+    runs = [d for d in dirs if os.path.exists(os.path.join(d, "config.json"))
+            and read_run_config(d)[0].probe_variants]
+    if not runs:
+        return []
+    dest = os.path.join(out, PROTOCOL_DIR)
+    probe_protocol_table(runs, out_dir=dest)
+    rel = os.path.relpath(os.path.join(dest, "table.md"), out)
+    return ["### The Fig. 2 claims under the probe protocol's variants", "",
+            f"Is a verdict the latent's or the probe's? Every claim of every domain above with the "
+            f"present probe, a common probe set, the sequential learners' whole window and raw MAE: "
+            f"[{rel}]({rel}) (docs/probes.md, \"Variants of the protocol\").", ""]
 
 
 def _summary_line(s: dict[str, Any]) -> str:
