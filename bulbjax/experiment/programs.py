@@ -4,6 +4,7 @@ only called (`Programs`); an epoch as one program or as several (`Stages`)."""
 from __future__ import annotations
 
 import functools
+import os
 import threading
 import time
 from concurrent.futures import Future
@@ -202,6 +203,7 @@ class Programs:
                 self._traced["epoch"] = exp.epoch.trace(rs, key, probe=next(iter(self.probes)))
         self._lowered: dict[str, Any] = {}
         self._compiled: dict[str, Future] = {}
+        self._chain: Future | None = None  # the compile started last (`prepare`)
         self._t0 = time.perf_counter()
         # per program: (start, end) of its compile (or cache load), seconds after the programs were
         # traced (lowering, then compiling, begins then: `prepare`)
@@ -241,14 +243,19 @@ class Programs:
 
     def prepare(self, *which: str) -> "Programs":
         """Start compiling the named programs (or groups): each is lowered here, in trace order,
-        then compiled in a background thread of its own."""
+        then compiled in a background thread of its own, side by side; with
+        `BULBJAX_COMPILE_ORDER=sequential` each compile waits for the one started before it."""
         for w in which:
             for n in self.members(w):
                 if n not in self._compiled:
-                    self._compiled[n] = in_thread(functools.partial(self._compile, n, self.lowered(n)))
+                    after = self._chain if compile_order() == "sequential" else None
+                    self._compiled[n] = in_thread(functools.partial(self._compile, n, self.lowered(n), after))
+                    self._chain = self._compiled[n]
         return self
 
-    def _compile(self, name: str, lowered: Any) -> Any:
+    def _compile(self, name: str, lowered: Any, after: Future | None = None) -> Any:
+        if after is not None:
+            after.exception()  # waits; its error is raised where its own result is asked for
         t = time.perf_counter() - self._t0
         out = lowered.compile()
         self.compile_spans[name] = (t, time.perf_counter() - self._t0)
@@ -300,6 +307,22 @@ def without_probes(metrics: dict[str, Any]) -> dict[str, Any]:
     """An `epoch_flag` epoch's metrics as a non-probing epoch has them: no `probes` (its NaN/0
     placeholders dropped)."""
     return {k: v for k, v in metrics.items() if k != "probes"}
+
+
+COMPILE_ORDERS = ("side-by-side", "sequential")
+
+
+def compile_order() -> str:
+    """`BULBJAX_COMPILE_ORDER`: "side-by-side" (the default: every program in its own thread at
+    once) or "sequential" (one after another, in trace order: init, then the epoch). On a GPU
+    XLA autotunes the convolutions of programs compiled side by side 2.5-2.9x more slowly, and a
+    program compiled after another finds the kernels they share in XLA's per-fusion autotune
+    cache (JAX keeps it beside the compile cache), so sequential may start a cold run sooner
+    (issue 56; to be measured on a GPU: docs/performance.md, "Start-up")."""
+    order = os.environ.get("BULBJAX_COMPILE_ORDER", "side-by-side").strip().lower()
+    if order not in COMPILE_ORDERS:
+        raise ValueError(f"BULBJAX_COMPILE_ORDER={order!r}: use one of {', '.join(COMPILE_ORDERS)}")
+    return order
 
 
 def in_thread(fn: Callable[[], Any], name: str = "bulbjax-compile") -> Future:
