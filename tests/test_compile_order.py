@@ -67,3 +67,22 @@ def test_an_unknown_order_is_one_clear_error(monkeypatch):
     monkeypatch.setenv("BULBJAX_COMPILE_ORDER", "parallel")
     with pytest.raises(ValueError, match="side-by-side, sequential"):
         _programs([]).prepare("init")
+
+
+def test_a_failed_physics_warm_up_is_one_line_and_not_the_runs_failure():
+    """`run`'s wait for the physics warm-up (`SeedGroups.warm_physics`): a warm-up that failed is
+    said once, in one line, and the run goes on (init builds the kernels itself)."""
+    from concurrent.futures import Future
+
+    from bulbjax.experiment.console import StageLog
+    from bulbjax.experiment.run import _physics_ready
+
+    lines: list[str] = []
+    stages = StageLog(lines.append)
+    failed: Future = Future()
+    failed.set_exception(RuntimeError("no CUDA context"))
+    assert _physics_ready(failed, stages) is None and _physics_ready(None, stages) is None
+    assert len(lines) == 1 and "warming MuJoCo Warp's kernels failed (RuntimeError: no CUDA context)" in lines[0]
+    done: Future = Future()
+    done.set_result(None)
+    assert _physics_ready(done, stages) is None and len(lines) == 1

@@ -275,7 +275,7 @@ def run(cfg: ExperimentConfig, opts: RunOptions, run_dir: str, *, resume: bool =
         with stages("compiling init and the epoch"):
             programs.compiled("init")
             programs.compiled("epoch")
-        _physics_ready(warming, stages)
+        warming = _physics_ready(warming, stages)
         log("compiled init and the epoch into the compile cache (--compile-only: no epoch ran)")
         distributed.barrier("bulbjax-run-end")
         return RunResult(epochs_done=0, stopped="compile-only", records=[], checkpoint=None)
@@ -292,7 +292,7 @@ def run(cfg: ExperimentConfig, opts: RunOptions, run_dir: str, *, resume: bool =
     else:
         with stages("compiling init"):
             programs.compiled("init")
-        _physics_ready(warming, stages)
+        warming = _physics_ready(warming, stages)
         # several processes: init gathers the reference states of all, so it waits for the slowest
         with stages("running init" + (" (with the other processes)" if groups.processes > 1 else "")):
             rs = programs.init(jax.random.PRNGKey(opts.seed))
@@ -304,7 +304,7 @@ def run(cfg: ExperimentConfig, opts: RunOptions, run_dir: str, *, resume: bool =
     if start < cfg.epochs:
         with stages("compiling the epoch"):
             programs.compiled("epoch")
-    _physics_ready(warming, stages)
+    warming = _physics_ready(warming, stages)
     t_init = time.time() - t0
     tb = _TensorBoard(run_dir, purge_step=start if resume else None) if opts.tensorboard and writer else None
     figs, drawn = None, None
@@ -403,9 +403,10 @@ def run(cfg: ExperimentConfig, opts: RunOptions, run_dir: str, *, resume: bool =
 
 def _physics_ready(warming: Future | None, stages: StageLog) -> None:
     """Wait for `SeedGroups.warm_physics` (a stage line when it is still running). Its failure is
-    no run's failure: one line says so, and init builds the kernels at their first launch."""
+    no run's failure: one line says so, and init builds the kernels at their first launch.
+    Returns None, for the caller's `warming` (so that it is waited for, and said, once)."""
     if warming is None:
-        return
+        return None
     try:
         if warming.done():
             warming.result()
