@@ -85,6 +85,7 @@ class Devices:
         # ~45% of tracing init and the epoch (profiled on the CPU, fig2-invpend). Not the render
         # call: `_render_local` swaps the renderer while tracing.
         self._step, self._reset_keys = jax.jit(self.env.step), jax.jit(self.env.reset_keys)
+        self._physics_warm = False  # `warm_physics` ran: the kernels are loaded in this process
 
     # ------------------------------------------------------------------ rendering per device
     def _per_device_renderer(self) -> None:
@@ -192,6 +193,8 @@ class Devices:
         XLA compiles init and the epoch finds them built when init runs (issue 56: on a fresh
         machine the build was ~45 s of running init on an H100). Uses the same jitted step and
         reset as the run's programs, traced after them, so their compile-cache keys are not moved."""
+        if self._physics_warm:  # a later run of the same experiment in this process (tests)
+            return
         w = self.S * self.N
         act = (jnp.zeros((w,), jnp.int32) if self.env.discrete
                else jnp.zeros((w, self.env.action_size), jnp.float32))
@@ -201,6 +204,7 @@ class Devices:
             return self.render_sequence(jax.tree.map(lambda x: x[None], es.render_input))
 
         jax.block_until_ready(jax.jit(one_step)(self.put_key(key)))
+        self._physics_warm = True
 
     def render_sequence(self, render_inputs: Any) -> jax.Array:
         """Frames `[K, S*N, H, W, 3]` of stored steps `[K, S*N]`."""
