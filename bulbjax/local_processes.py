@@ -185,9 +185,11 @@ def run_per_gpu(argv: Sequence[str], gpus: Sequence[str], out_dir: str, poll_s: 
         if failed != 0:
             print(f"bulbjax: error: process {failed} of {n} (GPU {gpus[failed]}) failed: "
                   f"{failure_reason(list(tails[failed]), rc)}{stopped} (its log: {logfile})", file=console, flush=True)
-        elif rc != 2 or killed:  # 2 alone: its own one-line error is on the console already
+        elif rc != 2:
             print(f"bulbjax: error: process 0 of {n} (GPU {gpus[0]}) failed ({failure_reason([], rc)}; its "
                   f"output is above){stopped} (its log: {logfile})", file=console, flush=True)
+        elif killed:  # 2: its own one-line error is on the console already; say only what followed
+            print(f"bulbjax: {stopped[2:]} after process 0's error above", file=console, flush=True)
         return rc
     finally:
         for p in procs:
