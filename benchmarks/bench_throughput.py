@@ -27,6 +27,7 @@ import datetime as dt
 import gc
 import glob
 import importlib.metadata
+import itertools
 import json
 import os
 import platform
@@ -81,6 +82,9 @@ class BenchSettings:
     rnn_unroll: int = 1  # sequential learners' LSTM steps per scan iteration (LearnerConfig.rnn_unroll)
     # named LearnerConfig overrides timed side by side (`--variants`), e.g. (("pad8", (("channel_pad", 8),)),)
     variants: tuple[tuple[str, tuple[tuple[str, Any], ...]], ...] = (("default", ()),)
+    # named sets of XLA compile options timed side by side (`--xla-variants`), e.g.
+    # (("conv_fusion", (("xla_gpu_experimental_enable_conv_fusion", True),)),): same program, other compiler
+    xla_variants: tuple[tuple[str, tuple[tuple[str, Any], ...]], ...] = (("xla_default", ()),)
     parts: tuple[str, ...] = PARTS
     torch_compile: bool = True
     torch_channels_last: bool = False
@@ -128,7 +132,8 @@ def timed(fn: Callable[[], Any]) -> tuple[Any, float]:
 def versions() -> dict[str, str | None]:
     """Installed versions of the packages that matter for the figures."""
     out: dict[str, str | None] = {"python": platform.python_version()}
-    for pkg in ("jax", "jaxlib", "jax-cuda12-plugin", "jax-cuda12-pjrt", "flax", "optax", "numpy",
+    for pkg in ("jax", "jaxlib", "jax-cuda12-plugin", "jax-cuda12-pjrt", "jax-cuda13-plugin", "jax-cuda13-pjrt",
+                "flax", "optax", "numpy",
                 "mujoco", "mujoco-mjx", "mujoco-warp", "warp-lang", "torch"):
         try:
             out[pkg] = importlib.metadata.version(pkg)
@@ -286,11 +291,24 @@ def parse_variant(text: str) -> tuple[str, tuple[tuple[str, Any], ...]]:
     return name, tuple(parse_learner_options(items).items())
 
 
+def parse_xla_variant(text: str) -> tuple[str, tuple[tuple[str, Any], ...]]:
+    """`NAME[=KEY:VALUE;...]` -> (NAME, ((KEY, VALUE), ...)), each KEY an XLA debug option, VALUE
+    read as `bulbjax run --xla-option` reads it (true/false, numbers, else a string)."""
+    from bulbjax.experiment.resolve import parse_compiler_options
+
+    name, _, rest = text.partition("=")
+    if not name:
+        raise ValueError(f"XLA variant {text!r} has no name")
+    return name, tuple(parse_compiler_options([kv.replace(":", "=", 1) for kv in rest.split(";") if kv]).items())
+
+
 def bench_vae(dtype: str, s: BenchSettings, name: str = "vae", impl: str = "transpose",
-              precision: str = "default", overrides: tuple[tuple[str, Any], ...] = ()) -> dict[str, Any]:
+              precision: str = "default", overrides: tuple[tuple[str, Any], ...] = (),
+              xla_options: tuple[tuple[str, Any], ...] = ()) -> dict[str, Any]:
     """Updates per second of learner `name` at `s.vae_batch` frames, compute dtype `dtype`,
     decoder form `impl`, matmul/conv precision `precision` (JAX's default_matmul_precision),
-    `LearnerConfig` fields `overrides` (a `--variants` entry)."""
+    `LearnerConfig` fields `overrides` (a `--variants` entry), XLA compile options `xla_options`
+    (an `--xla-variants` entry)."""
     learner = make_learner(name, latent_dim=s.latent_dim, action_dim=1,
                            config=LearnerConfig(batch_size=s.vae_batch, compute_dtype=dtype,
                                                 deconv_impl=impl, rnn_unroll=s.rnn_unroll,
@@ -305,7 +323,7 @@ def bench_vae(dtype: str, s: BenchSettings, name: str = "vae", impl: str = "tran
     update = jax.jit(learner.update, donate_argnums=0)
     t0 = time.perf_counter()
     with jax.default_matmul_precision(None if precision == "default" else precision):
-        compiled = update.lower(state, frames, keys[0]).compile()
+        compiled = update.lower(state, frames, keys[0]).compile(compiler_options=dict(xla_options) or None)
     compile_s = time.perf_counter() - t0
     t0 = time.perf_counter()
     for k in keys[: s.vae_warmup]:
@@ -366,12 +384,13 @@ def run_learner(s: BenchSettings, w: ResultWriter) -> None:
         for impl in impls:
             for dtype in s.dtypes:
                 for prec in (s.precisions if dtype == "float32" else ("default",)):
-                    for variant, overrides in s.variants:
+                    for (variant, overrides), (xname, xopts) in itertools.product(s.variants, s.xla_variants):
                         log(f"learner {name} {dtype} {impl} precision={prec} variant={variant} "
-                            f"batch={s.vae_batch} ...")
-                        tag = {"variant": variant, "overrides": dict(overrides)}
+                            f"xla={xname} batch={s.vae_batch} ...")
+                        tag = {"variant": variant, "overrides": dict(overrides), "xla_variant": xname,
+                               "xla_options": dict(xopts)}
                         try:
-                            r = {**bench_vae(dtype, s, name, impl, prec, overrides), **tag}
+                            r = {**bench_vae(dtype, s, name, impl, prec, overrides, xopts), **tag}
                             log(f"  {r['updates_per_s']:.2f} updates/s; compile {r['compile_s']:.1f} s")
                         except Exception as e:  # noqa: BLE001
                             log(f"  FAILED: {type(e).__name__}: {e}")
@@ -406,6 +425,9 @@ def parse_args(argv: list[str] | None = None) -> BenchSettings:
     p.add_argument("--variants", default=",".join(v for v, _ in d.variants),
                    help="learner configs timed side by side, comma-separated NAME[=KEY:VALUE;...] with KEY a "
                         "LearnerConfig field, e.g. default,pad8=channel_pad:8,split=bias_grad:split")
+    p.add_argument("--xla-variants", default=",".join(v for v, _ in d.xla_variants),
+                   help="XLA compile-option sets timed side by side, comma-separated NAME[=KEY:VALUE;...], "
+                        "e.g. xla_default,cf=xla_gpu_experimental_enable_conv_fusion:true")
     p.add_argument("--precisions", default=",".join(d.precisions),
                    help="fp32 matmul/conv precisions: default, tensorfloat32, highest")
     p.add_argument("--parts", default=",".join(d.parts), help=f"subset of {','.join(PARTS)}")
@@ -428,6 +450,7 @@ def parse_args(argv: list[str] | None = None) -> BenchSettings:
         vae_warmup=a.vae_warmup, latent_dim=a.latent_dim, dtypes=split(a.dtypes), parts=split(a.parts),
         learners=split(a.learners), deconv_impls=split(a.deconv_impls), precisions=split(a.precisions),
         rnn_unroll=a.rnn_unroll, variants=tuple(parse_variant(v) for v in split(a.variants)),
+        xla_variants=tuple(parse_xla_variant(v) for v in split(a.xla_variants)),
         torch_compile=not a.no_torch_compile, torch_channels_last=a.torch_channels_last,
         torch_forms=a.torch_forms,
         torch_timeout_s=a.torch_timeout, seed=a.seed, out_dir=a.out_dir,
