@@ -14,6 +14,14 @@ import os
 OFF_VALUES = ("", "0", "off", "false", "no")
 
 
+def env_on(name: str, default: bool = True) -> bool:
+    """Whether the project's on/off variable `name` is on: unset -> `default`, any of `OFF_VALUES`
+    (the empty string too, as `BULBJAX_COMPILE_CACHE=` turns the cache off) -> False, else True.
+    One reading for every such variable, so `0`, `off` and an empty value mean the same everywhere."""
+    env = os.environ.get(name)
+    return default if env is None else env.strip().lower() not in OFF_VALUES
+
+
 def cache_dir() -> str | None:
     """The directory the cache would use, or None when `$BULBJAX_COMPILE_CACHE` turns it off."""
     env = os.environ.get("BULBJAX_COMPILE_CACHE")

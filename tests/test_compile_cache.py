@@ -7,6 +7,8 @@ import os
 import subprocess
 import sys
 
+import pytest
+
 from bulbjax import compile_cache
 
 SCRIPT = """
@@ -116,3 +118,15 @@ def test_every_process_writes_its_cache_entries_under_both_jax_signatures(tmp_pa
             assert "processes 1.. compile their programs again" in out.stderr
         else:
             assert patched and entries > 0, (form, out.stdout, out.stderr[-1000:])
+
+
+@pytest.mark.parametrize("value, on", [(None, True), ("1", True), ("yes", True), ("0", False), ("off", False),
+                                       (" False ", False), ("no", False), ("", False)])
+def test_on_off_variables_read_one_way(monkeypatch: pytest.MonkeyPatch, value: str | None, on: bool) -> None:
+    """Every on/off variable (BULBJAX_WARM_PHYSICS, the cache's off words) reads the same words."""
+    if value is None:
+        monkeypatch.delenv("BULBJAX_WARM_PHYSICS", raising=False)
+    else:
+        monkeypatch.setenv("BULBJAX_WARM_PHYSICS", value)
+    assert compile_cache.env_on("BULBJAX_WARM_PHYSICS") is on
+    assert compile_cache.env_on("BULBJAX_WARM_PHYSICS", default=False) is (False if value is None else on)

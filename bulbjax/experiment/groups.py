@@ -27,7 +27,6 @@ from __future__ import annotations
 
 import dataclasses
 import functools
-import os
 from concurrent.futures import Future, ThreadPoolExecutor
 from typing import Any, Callable, Sequence
 
@@ -35,7 +34,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from bulbjax import distributed
+from bulbjax import compile_cache, distributed
 from bulbjax.eval import probe
 from bulbjax.experiment.config import ExperimentConfig
 from bulbjax.experiment.loop import Experiment
@@ -151,7 +150,7 @@ class SeedGroups:
         another: the first builds MuJoCo Warp's kernels, the others find them loaded), started
         once the run's programs are traced and compiling; the run waits for it before init runs.
         None (nothing started) with `BULBJAX_WARM_PHYSICS=0`, the measurement's "before"."""
-        if os.environ.get("BULBJAX_WARM_PHYSICS", "1").strip().lower() in ("0", "off", "false", "no"):
+        if not compile_cache.env_on("BULBJAX_WARM_PHYSICS"):
             return None
         exps = list(self.exps)
 
