@@ -72,7 +72,7 @@ class Settings:
 
 def bench_pybullet(name: str, s: Settings) -> dict[str, Any]:
     """Frames/s of `s.procs` PyBullet Rearrange processes stepping and rendering together."""
-    from pybullet_compat.rearrange_env import rearrange_domain, rearrange_objects
+    from pybullet_compat.rearrange_scene import rearrange_domain, rearrange_objects
 
     spec = rearrange_domain(name)
     versions = s.pybullet_versions()
@@ -84,7 +84,7 @@ def bench_pybullet(name: str, s: Settings) -> dict[str, Any]:
 def bench_bulbjax(name: str, worlds: int, s: Settings, reset_chunk: int | None = None,
                   reset_pool: int | None = None) -> dict[str, Any]:
     """Frames/s of one bulbjax Rearrange env of `worlds` worlds, `s.steps` rendered steps per jitted scan."""
-    from pybullet_compat.rearrange_env import rearrange_domain
+    from pybullet_compat.rearrange_scene import rearrange_domain
 
     return time_bulbjax(name, worlds, rearrange_domain(name).action_size, s.steps, s.repeats, s.resolution, s.seed,
                         meta={"version": s.mjx_version, "reset_chunk": reset_chunk, "reset_pool": reset_pool},
@@ -133,7 +133,7 @@ def parse_args(argv: list[str] | None = None) -> Settings:
 def main(argv: list[str] | None = None) -> str:
     s = parse_args(argv)
 
-    from pybullet_compat.rearrange_env import rearrange_domain
+    from pybullet_compat.rearrange_scene import rearrange_domain
 
     for name in s.envs:
         rearrange_domain(name)  # an unknown name lists the valid ones

@@ -26,6 +26,7 @@ from typing import Any
 import numpy as np
 
 from pybullet_compat import rearrange_env as pbr
+from pybullet_compat import rearrange_scene as pbs
 
 
 @dataclass(frozen=True)
@@ -90,8 +91,8 @@ def mirror_resets(cfg: SettleConfig, draws: dict[str, np.ndarray] | None) -> dic
     ee = raw[:, -3:]
     pos, quat = per[..., :3], per[..., 3:7]
     max_z = np.asarray(env._max_object_z)[cfg.version]
-    outside = ((pos < pbr.OBJ_XYZ_MIN) | (pos > pbr.OBJ_XYZ_MAX)).any(axis=(1, 2))
-    term = outside | (ee[:, 2] > pbr.EE_ABOVE_OBJECTS + max_z) | (np.abs(ee[:, :2]) > pbr.EE_XY_MAX).any(1)
+    outside = ((pos < pbs.OBJ_XYZ_MIN) | (pos > pbs.OBJ_XYZ_MAX)).any(axis=(1, 2))
+    term = outside | (ee[:, 2] > pbs.EE_ABOVE_OBJECTS + max_z) | (np.abs(ee[:, :2]) > pbs.EE_XY_MAX).any(1)
     return {"pos": pos, "quat": quat, "speed": np.linalg.norm(per[..., 7:10], axis=-1), "ee": ee,
             "terminated": term | ~np.isfinite(raw).all(1), "robot_q": raw[:, :j]}
 
@@ -128,7 +129,7 @@ def compare(cfg: SettleConfig) -> dict[str, Any]:
     mj = mirror_resets(cfg, pb)
     own = mirror_resets(cfg, None)
     drop = pb["obj_pos"][..., :2]
-    names = pbr.OBJECT_LISTS[pbr.rearrange_domain(cfg.name).variant][cfg.version % pbr.NUM_LISTS]
+    names = pbs.OBJECT_LISTS[pbs.rearrange_domain(cfg.name).variant][cfg.version % pbs.NUM_LISTS]
     report = {"config": asdict(cfg), "objects": list(names), "half_z": pb["half_z"].tolist(),
               "pybullet": summarise(pb, pb["half_z"], drop, pb["robot_qpos"]),
               "mjx_same_draws": summarise(mj, pb["half_z"], drop, pb["robot_qpos"]),

@@ -9,7 +9,7 @@ the motors of the controlled joints (0 and 2) disabled, torque control, and afte
 `stepSimulation` a joint beyond (31/32, 26/32) pi put back on that limit with its velocity
 reversed. No objects: this measures the arm alone.
 
-The reacher's base is welded (`rearrange_env.load_reacher`, shared with the full PyBullet env):
+The reacher's base is welded (`rearrange_scene.load_reacher`, shared with the full PyBullet env):
 `loadMJCF` makes the MJCF's root body a free body, and before this the 0.06 kg base was thrown
 about by the arm's reaction torques (1-4 m in 0.1 s) and the joints ran into PyBullet's 100 rad/s
 cap within a step. The report checks the weld (`pybullet_base_drift_m`, 0).
@@ -64,7 +64,7 @@ class ReacherBullet:
         import pybullet_data
         from pybullet_utils import bullet_client
 
-        from pybullet_compat.rearrange_env import load_reacher
+        from pybullet_compat.rearrange_scene import load_reacher
 
         self.p = pybullet
         self.sim = bullet_client.BulletClient(connection_mode=pybullet.DIRECT)
@@ -159,7 +159,7 @@ def pybullet_dynamics_trajectories(starts: np.ndarray, actions: np.ndarray) -> n
     dynamics -- not the two engines -- are what separates PyBullet from bulbjax's arm."""
     import mujoco
 
-    from pybullet_compat.rearrange_env import reacher_mjcf_path
+    from pybullet_compat.rearrange_scene import reacher_mjcf_path
 
     sim = ReacherBullet()
     model = mujoco.MjModel.from_xml_path(reacher_mjcf_path())

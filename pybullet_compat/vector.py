@@ -22,7 +22,8 @@ import numpy as np
 
 from pybullet_compat.envs import DOMAINS, BulletPixelEnv, domain
 from pybullet_compat.incline import INCLINE_DOMAINS, InclineBulletEnv, incline_domain
-from pybullet_compat.rearrange_env import REARRANGE_DOMAINS, RearrangeBulletEnv, rearrange_domain
+from pybullet_compat.rearrange_env import RearrangeBulletEnv
+from pybullet_compat.rearrange_scene import REARRANGE_DOMAINS, rearrange_domain
 
 
 def any_domain(name: str) -> Any:

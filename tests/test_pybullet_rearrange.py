@@ -12,6 +12,7 @@ import pytest
 pytest.importorskip("pybullet", reason="needs the pybullet extra: pip install -e '.[pybullet]'")
 
 from pybullet_compat import rearrange_env as pbr  # noqa: E402
+from pybullet_compat import rearrange_scene as pbs  # noqa: E402
 
 YCB_DIR = os.path.normpath(os.path.join(os.path.dirname(__file__), "..", "..", "shared", "ycb"))
 GEOM_ENVS = ("ReacherRearrangeGeom", "FrankaRearrangeGeom")
@@ -33,21 +34,21 @@ def test_same_facts_as_the_mirror():
                  "OBJECT_LISTS", "GEOM_COLOURS", "PROP_NAMES", "SHAPE_SPHERE", "SHAPE_CYLINDER", "SHAPE_BOX",
                  "SHAPE_MESH", "CYLINDER_DEFAULT_DIMS", "YCB_DYNAMICS", "FRANKA_BASE", "FRANKA_REST",
                  "FRANKA_EFFORTS", "EE_POS_MIN", "EE_POS_MAX"):
-        assert getattr(pbr, name) == getattr(mj, name), name
+        assert getattr(pbs, name) == getattr(mj, name), name
     for name in ("OBJ_XYZ_MIN", "OBJ_XYZ_MAX", "TARGETS", "TABLE_RGB", "PROP_MIN", "PROP_MAX", "REACHER_LIMITS"):
-        np.testing.assert_array_equal(getattr(pbr, name), getattr(mj, name), err_msg=name)
+        np.testing.assert_array_equal(getattr(pbs, name), getattr(mj, name), err_msg=name)
     for kind, g in mj.GEOM_INFO.items():
-        assert pbr.GEOM_INFO[kind] == (g.z, g.mass, g.dims, g.shape, g.dynamics), kind
-    assert pbr.REACHER_TORQUE == mj.ReacherRearrange.max_torque
-    for cam, mcam in ((pbr.REACHER_CAMERA, mj.REACHER_CAMERA), (pbr.FRANKA_CAMERA, mj.FRANKA_CAMERA)):
-        assert (cam["distance"], cam["yaw"], cam["pitch"], pbr.FOV) == (mcam.distance, mcam.yaw, mcam.pitch, mcam.fovy)
-    assert pbr.FRANKA_CAMERA["target"] == mj.FRANKA_CAMERA.target_offset
+        assert pbs.GEOM_INFO[kind] == (g.z, g.mass, g.dims, g.shape, g.dynamics), kind
+    assert pbs.REACHER_TORQUE == mj.ReacherRearrange.max_torque
+    for cam, mcam in ((pbs.REACHER_CAMERA, mj.REACHER_CAMERA), (pbs.FRANKA_CAMERA, mj.FRANKA_CAMERA)):
+        assert (cam["distance"], cam["yaw"], cam["pitch"], pbs.FOV) == (mcam.distance, mcam.yaw, mcam.pitch, mcam.fovy)
+    assert pbs.FRANKA_CAMERA["target"] == mj.FRANKA_CAMERA.target_offset
     for cls in mj.REARRANGE_CLASSES:
-        spec = pbr.rearrange_domain(cls.name)
+        spec = pbs.rearrange_domain(cls.name)
         assert spec.state_names == tuple(e.name for e in cls.state_spec), cls.name
         assert spec.action_size == cls.action_size
         n_obj = len(mj.OBJECT_LISTS[cls.variant][0])
-        assert pbr.raw_names(spec.action_size, n_obj) == tuple(
+        assert pbs.raw_names(spec.action_size, n_obj) == tuple(
             e.name for e in mj.rearrange_raw_state_spec(len(cls.joint_names), n_obj))
 
 
@@ -74,7 +75,7 @@ def test_zero_torque_step_and_reward(env):
     env.reset(seed=1)
     r = env.step(np.zeros(env.spec.action_size))
     assert r.frame.shape == (64, 64, 3) and np.isfinite(r.state).all()
-    assert 0.0 <= r.reward <= 1.0 / pbr.EPISODE_STEPS and r.info["episode_length"] == 1
+    assert 0.0 <= r.reward <= 1.0 / pbs.EPISODE_STEPS and r.info["episode_length"] == 1
     raw = env.raw_state()
     assert raw.shape == (len(env.raw_names),) and np.isfinite(raw).all()
     with pytest.raises(ValueError, match="actions"):
@@ -95,8 +96,8 @@ def test_same_seed_same_reset_and_fixed_draws(env):
     np.testing.assert_allclose(a, b, rtol=0, atol=1e-4)
     assert np.abs(other - a).max() > 0.1
     n = env.spec.action_size
-    q0 = np.full(n, 0.3) if not env.franka else np.asarray(pbr.FRANKA_REST)
-    env.reset(seed=3, robot_qpos=q0, torques=np.zeros((pbr.RANDOM_TORQUE_STEPS, n)),
+    q0 = np.full(n, 0.3) if not env.franka else np.asarray(pbs.FRANKA_REST)
+    env.reset(seed=3, robot_qpos=q0, torques=np.zeros((pbs.RANDOM_TORQUE_STEPS, n)),
               obj_pos=[[-0.25, y, 0.08] for y in (-0.3, -0.1, 0.1, 0.3)], obj_quat=[1.0, 0.0, 0.0, 0.0])
     if not env.franka:  # zero torque from rest, nothing in reach: the arm stays
         np.testing.assert_allclose(env.joint_states()[0], q0, atol=1e-3)
@@ -116,7 +117,7 @@ def test_versions_differ_by_tray_colour():
         frames[v] = e.reset(seed=0)[0].astype(float)
         e.close()
     # same draws, so the objects sit alike; the tray (near the frame's corner) takes the version's colour
-    for v, rgb in ((0, pbr.TABLE_RGB[0]), (1, pbr.TABLE_RGB[1]), (6, (0, 0, 0))):
+    for v, rgb in ((0, pbs.TABLE_RGB[0]), (1, pbs.TABLE_RGB[1]), (6, (0, 0, 0))):
         corner = frames[v][6:10, 6:10].reshape(-1, 3).mean(0) / 255
         assert np.abs(corner - rgb).max() < 0.2, (v, corner, rgb)
     assert np.abs(frames[0] - frames[1]).mean() > 10 and np.abs(frames[0] - frames[6]).mean() > 10
@@ -128,12 +129,12 @@ def test_bad_input_is_a_clear_error(monkeypatch):
     with pytest.raises(ValueError, match="version"):
         pbr.RearrangeBulletEnv("ReacherRearrangeGeom", version=12)
     with pytest.raises(ValueError, match="needs objects"):
-        pbr.RearrangeBulletEnv("ReacherRearrangeGeom", 5, objects=pbr.rearrange_objects("ReacherRearrangeGeom", 0))
+        pbr.RearrangeBulletEnv("ReacherRearrangeGeom", 5, objects=pbs.rearrange_objects("ReacherRearrangeGeom", 0))
     with pytest.raises(RuntimeError, match="reset"):
         pbr.RearrangeBulletEnv("ReacherRearrangeOneGeom", render=False).step([0.0, 0.0])
     monkeypatch.delenv("BULBJAX_YCB_DIR", raising=False)
     with pytest.raises(FileNotFoundError, match="BULBJAX_YCB_DIR"):
-        pbr.rearrange_objects("ReacherRearrangeOneYcb", 0)
+        pbs.rearrange_objects("ReacherRearrangeOneYcb", 0)
 
 
 def test_ycb_objects_use_the_mirrors_processed_meshes():
@@ -141,7 +142,7 @@ def test_ycb_objects_use_the_mirrors_processed_meshes():
         pytest.skip(f"YCB models not found at {YCB_DIR}")
     from bulbjax.assets import load_ycb_object
 
-    objs = pbr.rearrange_objects("FrankaRearrangeOneYcb", 4, ycb_dir=YCB_DIR)
+    objs = pbs.rearrange_objects("FrankaRearrangeOneYcb", 4, ycb_dir=YCB_DIR)
     asset = load_ycb_object("016_pear", scale=1.0, ycb_dir=YCB_DIR)
     assert objs[0].collision_path == str(asset.collision_path) and objs[0].visual_path == str(asset.visual_path)
     np.testing.assert_allclose(objs[0].com, asset.com)
@@ -158,7 +159,7 @@ def test_process_vector_runs_two_versions():
     assert any_domain("FrankaRearrangeYcb").action_size == 7
     with pytest.raises(ValueError, match="FrankaRearrangeOneYcb"):
         any_domain("Rearrange")
-    objs = [pbr.rearrange_objects("ReacherRearrangeGeom", v) for v in (0, 1)]
+    objs = [pbs.rearrange_objects("ReacherRearrangeGeom", v) for v in (0, 1)]
     venv = ProcessVecEnv("ReacherRearrangeGeom", 2, resolution=32,
                          env_kwargs=[{"version": v, "objects": o} for v, o in zip((0, 1), objs)])
     try:
@@ -184,7 +185,7 @@ def test_settle_study_pybullet_side():
     np.testing.assert_allclose(par.tilt_deg(quats), [0.0, 180.0, 90.0], atol=1e-6)
     r = par.pybullet_resets(par.SettleConfig("ReacherRearrangeGeom", resets=2))
     assert r["robot_qpos"].shape == (2, 2) and r["obj_pos"].shape == (2, 4, 3) and r["obj_quat"].shape == (2, 4, 4)
-    assert r["torques"].shape == (2, pbr.RANDOM_TORQUE_STEPS, 2) and r["pos"].shape == (2, 4, 3)
+    assert r["torques"].shape == (2, pbs.RANDOM_TORQUE_STEPS, 2) and r["pos"].shape == (2, 4, 3)
     s = par.summarise(r, r["half_z"], r["obj_pos"][..., :2], r["robot_qpos"])
     assert len(s["objects"]) == 4 and len(s["robot_travel_rad_mean"]) == 2
 
