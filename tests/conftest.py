@@ -107,7 +107,17 @@ def pytest_unconfigure(config) -> None:
 #     ST-DIM's latent), ~110-120 s
 #   test_ppo.py::test_pixel_ppo_learns_a_visual_bandit[2] (the bandit learnt with pixel shifts; shift 0
 #     stays, and test_pixel_shift_moves_the_update_and_only_for_frames checks the shift's effect), ~90 s
-# (2026-11-28: make test with issue 57-59's tests took 52.6 min while the machine was shared)
+#   test_rl_latent.py's two runs of PPO on what a learner gives it (one frame's latent through the run
+#     loop; the pixel policy's torso), ~105 + ~80 s: test_rl_frames checks the latents of the last two
+#     frames that PPO observes, step by step, and its pixels stacked along the channels;
+#     test_contrastive runs an epoch with PPO on ST-DIM's latent; test_ppo trains a pixel torso
+#   the second case of four equivalences whose first stays (each ~20-60 s, mostly its own compile):
+#     test_chunked_reset's ReacherRearrangeGeom (GeomOnIncline stays), test_sequential_learners'
+#     rnn_unroll for dsa (svae stays), test_per_seed's svae-remat (dsa-remat and svae-saved stay),
+#     test_learners' conv forms for pred (vae stays)
+# (2026-11-28: make test with issue 57-59's tests took 52.6 min while the machine was shared; 41.5 min
+# at 6d83063 alone, 748 tests, before the last group above and test_object_probe's CartPole run
+# folded into test_experiment's test_reports)
 # (durations of the 2-worker suite, 2026-11-26; without them `make test` took 64 min, `bash .ci/run`
 # on a fresh clone 65.6 min with its venv, against 88 min for the whole suite before; 2026-11-27, with
 # test_lean_step, 73 min while other jobs shared the 2 cores). Each feature
@@ -127,7 +137,7 @@ def pytest_unconfigure(config) -> None:
 LONGEST_FIRST = (
     "test_experiment.py", "test_reproduce.py", "test_sharding.py", "test_object_probe.py", "test_incline.py",
     "test_run.py", "test_plugins.py", "test_interop.py",
-    "test_reset_pool.py", "test_chunked_reset.py", "test_rl_latent.py", "test_synthetic.py", "test_rl_sequential.py",
+    "test_reset_pool.py", "test_chunked_reset.py", "test_synthetic.py", "test_rl_sequential.py",
     "test_rl_frames.py",
     "test_recon.py", "test_ppo.py", "test_rearrange.py", "test_sequential_learners.py", "test_learners.py",
     "test_contrastive.py", "test_ppo_stability.py", "test_spair.py", "test_extending.py", "test_packaging.py",

@@ -30,7 +30,7 @@ def _pair(name: str) -> tuple:
     return make(K), make(0)
 
 
-@pytest.fixture(scope="module", params=["GeomOnIncline", "ReacherRearrangeGeom"])
+@pytest.fixture(scope="module", params=["GeomOnIncline", pytest.param("ReacherRearrangeGeom", marks=pytest.mark.slow)])
 def envs(request):
     chunked, full = _pair(request.param)
     assert (chunked.reset_chunk, full.reset_chunk) == (K, 0)

@@ -296,6 +296,17 @@ def test_reports(run, tmp_path):
     tab = report.table(recs, exp.spec)
     assert "| vae_rpl | π_rand |" in tab and "| constant | π_curr |" in tab
     assert "epoch 1;" in tab and "reference spread" in tab
+    # a scene without objects (CartPole) has no object probe: no section in the metrics, the
+    # records, the written table or the figures (the object probe's own run: test_object_probe)
+    from bulbjax.eval.objects import comparison_table
+
+    assert exp.probing.objects is None
+    assert all("objects" not in d for d in m1["probes"]["vae_rpl"].values())
+    assert all("objects" not in r for r in recs)
+    written = report.write_reports(str(tmp_path), recs, exp.config, exp.spec)
+    assert "Objects" not in written and "Objects" not in (tmp_path / "table.md").read_text()
+    assert not (tmp_path / "objects.png").exists()
+    assert comparison_table(recs, exp.spec) == ""
 
 
 def test_ci90_matches_student_t():

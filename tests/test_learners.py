@@ -267,7 +267,7 @@ def test_conv4x4_equals_flax_conv(pad: int, bias_grad: str, blocked: bool) -> No
         np.testing.assert_allclose(np.asarray(h), np.asarray(g), rtol=1e-4, atol=1e-5)
 
 
-@pytest.mark.parametrize("name", ["vae", "pred"])
+@pytest.mark.parametrize("name", ["vae", pytest.param("pred", marks=pytest.mark.slow)])
 def test_conv_forms_do_not_change_the_learner(name: str) -> None:
     """A learner with padded frame channels, two-pass bias gradients and the edge layers over
     pixel blocks starts from the same parameters and takes the same update as with the plain

@@ -8,8 +8,6 @@ from __future__ import annotations
 
 import os
 
-import dataclasses
-
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -166,21 +164,6 @@ def test_spair_boxes_of_latents_match_boxes() -> None:
     c2, p2 = learner.boxes_of_latents(learner.encode(params, frames)[:, None], 32)
     np.testing.assert_allclose(c2[:, 0], centres, rtol=1e-6, atol=1e-5)
     np.testing.assert_allclose(p2[:, 0], pres, rtol=1e-6)
-
-
-def test_cartpole_run_has_no_object_section(tmp_path) -> None:
-    cfg = dataclasses.replace(tiny("CartPole", ("vae_rpl",)), learner_batches=1)
-    exp = Experiment(cfg)
-    assert exp.probing.objects is None
-    _, m = exp.epoch(exp.init(jax.random.PRNGKey(0)), jax.random.PRNGKey(1))
-    m = jax.device_get(m)
-    assert all("objects" not in d for d in m["probes"]["vae_rpl"].values())
-    recs = records.epoch_records(0, m, exp.spec)
-    assert all("objects" not in r for r in recs)
-    tab = report.write_reports(str(tmp_path), recs, cfg, exp.spec)
-    assert "Objects" not in tab and "Objects" not in (tmp_path / "table.md").read_text()
-    assert not (tmp_path / "objects.png").exists()
-    assert comparison_table(recs, exp.spec) == ""
 
 
 def test_reduction_agrees_with_summarise_and_known_answers() -> None:

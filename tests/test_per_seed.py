@@ -103,7 +103,8 @@ def test_per_seed_leaves_no_grouped_convolution(inputs, form: str) -> None:
     assert str(looped).count("custom_vmap") >= 1
 
 
-@pytest.mark.parametrize("name,how", [("svae", "remat"), ("dsa", "remat"), ("svae", "saved")])
+@pytest.mark.parametrize("name,how", [pytest.param("svae", "remat", marks=pytest.mark.slow), ("dsa", "remat"),
+                                      ("svae", "saved")])
 def test_per_seed_frames_gives_the_same_updates(name: str, how: str) -> None:
     """A sequential learner with its frame networks one seed at a time (`per_seed_frames`):
     vmapped over seeds, the same loss and gradients as batched, and no grouped convolution."""

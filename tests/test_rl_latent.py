@@ -17,6 +17,7 @@ from bulbjax.experiment.programs import Programs
 from bulbjax.experiment.state import Rendered
 
 
+@pytest.mark.slow  # the slow tier (tests/conftest.py)
 def test_latent_fed_to_ppo_is_the_learners_encoding(tmp_path) -> None:
     from bulbjax.experiment.run import RunOptions, run
 
@@ -70,6 +71,7 @@ def test_cli_flag_reaches_the_config(capsys) -> None:
     assert "does not train" in capsys.readouterr().err
 
 
+@pytest.mark.slow  # the slow tier (tests/conftest.py)
 def test_pixels_policy_sees_the_frame_and_trains_its_torso() -> None:
     import dataclasses
 

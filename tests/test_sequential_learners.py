@@ -191,7 +191,7 @@ def assert_same_loss_and_grads(ref, other, params, loss_rtol: float) -> None:
         np.testing.assert_allclose(np.asarray(b), np.asarray(a), rtol=1e-3, atol=1e-6)
 
 
-@pytest.mark.parametrize("name", ["svae", "dsa"])
+@pytest.mark.parametrize("name", ["svae", pytest.param("dsa", marks=pytest.mark.slow)])
 def test_rnn_unroll_gives_the_same_function(name: str) -> None:
     """`rnn_unroll` only changes how the LSTM scans are laid out: the same loss, gradients and
     latents from the same parameters (up to float reassociation)."""
