@@ -393,3 +393,21 @@ def test_domain_table_matches_the_classes():
             assert (row[2], row[3], row[4]) == (act, f"{cls.episode_length:,}", solved), (name, row)
             seen.add(name)
     assert seen == set(ENV_NAMES), f"docs/environments.md lacks {sorted(set(ENV_NAMES) - seen)}"
+
+
+def test_slow_tier_count_in_the_docs_is_the_suites() -> None:
+    """README and docs/experiments.md say how many tests `make test` leaves out: the number that
+    carries the `slow` mark (collected, not run)."""
+    import subprocess
+    import sys
+
+    out = subprocess.run([sys.executable, "-m", "pytest", "--collect-only", "-q", "-m", "slow", "-p", "no:cacheprovider",
+                          "-p", "no:xdist", os.path.join(ROOT, "tests")], capture_output=True, text=True, cwd=ROOT,
+                         timeout=300).stdout
+    n = sum("::" in line for line in out.splitlines())
+    assert n > 0, out[-2000:]
+    for page, pattern in (("README.md", r"slow tier of (\d+) tests"), (os.path.join("docs", "experiments.md"),
+                                                                         r"The slow tier is (\d+) tests")):
+        with open(os.path.join(ROOT, page), encoding="utf-8") as f:
+            said = re.search(pattern, f.read())
+        assert said and int(said.group(1)) == n, f"{page} says {said and said.group(1)} slow tests; the suite has {n}"
