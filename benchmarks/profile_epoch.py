@@ -48,7 +48,8 @@ from bulbjax.experiment.records import epoch_records  # noqa: E402
 from bulbjax.experiment.config import ExperimentConfig  # noqa: E402
 from bulbjax.experiment.loop import Experiment  # noqa: E402
 from bulbjax.experiment.programs import Programs, without_probes  # noqa: E402
-from bulbjax.experiment.resolve import parse_compiler_options, resolve  # noqa: E402
+from bulbjax.experiment.resolve import resolve  # noqa: E402
+from bulbjax.xla_options import parse_compiler_options  # noqa: E402
 
 
 def add_config_args(p: argparse.ArgumentParser) -> None:

@@ -150,9 +150,10 @@ def _run_here(args: argparse.Namespace, out: str, local: list, t_start: float, s
     from bulbjax import distributed
     from bulbjax.experiment.config import RunOptions
     from bulbjax.experiment.console import log_to_file
-    from bulbjax.experiment.resolve import parse_compiler_options, resolve, resolve_resume
+    from bulbjax.experiment.resolve import resolve, resolve_resume
     from bulbjax.experiment.run import run
     from bulbjax.experiment.rundir import log_name
+    from bulbjax.xla_options import parse_compiler_options
 
     settings = _settings(args)
     if args.resume:

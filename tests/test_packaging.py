@@ -91,3 +91,40 @@ def test_installed_cli_lists_the_environments(installed, tmp_path):
     assert r.returncode == 0, r.stderr[-4000:]
     names = [line.split()[0] for line in r.stdout.splitlines() if line.strip()]
     assert "CartPole" in names and "ReacherRearrangeGeom" in names, r.stdout
+
+
+WITHOUT_PHYSICS = """
+import sys
+
+class NoPhysics:  # as on a machine with JAX but without MuJoCo and Warp installed
+    def find_spec(self, name, path=None, target=None):
+        if name.split(".")[0] in ("mujoco", "warp", "mujoco_warp"):
+            raise ImportError(f"No module named {name!r}")
+
+sys.meta_path.insert(0, NoPhysics())
+import jax
+import bulbjax
+from bulbjax.learners import LearnerConfig, make_learner
+from bulbjax.eval import probe
+from bulbjax.xla_options import parse_compiler_options
+
+learner = make_learner("vae", latent_dim=4, action_dim=1,
+                       config=LearnerConfig(batch_size=4, conv_features=(8, 8, 8, 8), hidden=16))
+state = learner.init(jax.random.PRNGKey(0), (64, 64, 3))
+assert parse_compiler_options(["xla_cpu_enable_fast_math=false"]) == {"xla_cpu_enable_fast_math": False}
+assert "mujoco" not in sys.modules and "warp" not in sys.modules
+try:
+    bulbjax.make("CartPole")
+except ImportError as e:
+    print("make:", e)
+"""
+
+
+def test_learners_and_probes_import_without_the_physics_packages() -> None:
+    """`import bulbjax` loads no environment: a learner builds and initialises, the probes and the
+    XLA options import, where MuJoCo and Warp cannot be imported (the learner benchmarks run so on
+    a GPU machine without the physics wheels); `bulbjax.make` then says which package is missing."""
+    out = subprocess.run([sys.executable, "-c", WITHOUT_PHYSICS], capture_output=True, text=True, cwd=ROOT,
+                         timeout=300)
+    assert out.returncode == 0, out.stderr[-3000:]
+    assert "make: No module named 'mujoco'" in out.stdout, out.stdout

@@ -316,7 +316,7 @@ def test_source_hash_names_the_code(tmp_path):
 def test_compiler_options_parse_and_reach_the_jits():
     """`--xla-option KEY=VALUE` values are typed; a malformed one says the form; the options
     reach the jitted init and epoch (XLA refuses an unknown key there, so a bogus one fails)."""
-    from bulbjax.experiment.resolve import parse_compiler_options
+    from bulbjax.xla_options import parse_compiler_options
 
     opts = parse_compiler_options(["xla_gpu_enable_command_buffer=FUSION,WHILE",
                                    "xla_gpu_graph_min_graph_size=1", "a=0.5", "b=true"])

@@ -54,30 +54,6 @@ def parse_version(text: int | str) -> int | str:
     return v
 
 
-def parse_compiler_options(items: Sequence[str]) -> dict[str, Any]:
-    """`["KEY=VALUE", ...]` -> XLA compile options for `jax.jit(..., compiler_options=...)`: values
-    that read as ints, floats or true/false become those, the rest stay strings (e.g.
-    `xla_gpu_enable_command_buffer=FUSION,CUBLAS,WHILE`). XLA rejects unknown keys at compile."""
-    out: dict[str, Any] = {}
-    for item in items:
-        key, sep, text = item.partition("=")
-        if not sep or not key.strip():
-            raise ValueError(f"compiler option {item!r} must read KEY=VALUE, e.g. "
-                             "xla_gpu_enable_command_buffer=FUSION,CUBLAS,WHILE")
-        value: Any = text.strip()
-        if value.lower() in ("true", "false"):
-            value = value.lower() == "true"
-        else:
-            for cast in (int, float):
-                try:
-                    value = cast(value)
-                    break
-                except ValueError:
-                    pass
-        out[key.strip()] = value
-    return out
-
-
 # PPO's entropy bonus when it observes a frame learner's latent (unless the user sets ent_coef):
 # measured on InvertedPendulum, VAE_rpl's latent of two frames, 3 seeds, 300 epochs, one H200:
 # 3 of 3 seeds reach 950 with it, 0 of 3 without (docs/results/rl_inputs_frames_h200).
