@@ -26,16 +26,10 @@ import argparse
 import datetime as dt
 import gc
 import glob
-import importlib.metadata
 import itertools
-import json
 import os
-import platform
-import re
 import shlex
-import socket
 import statistics
-import subprocess
 import sys
 import tempfile
 import time
@@ -52,10 +46,12 @@ import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 
 import bulbjax  # noqa: E402
+from bench_record import ResultWriter, device_info, device_slug, git_commit, versions  # noqa: E402  (this folder)
 from throughput_report import fmt_rate, print_summary, ratios, run_torch_reference  # noqa: E402  (this folder)
 from bulbjax.data.sequence import Windows  # noqa: E402
 from bulbjax.learners import (LearnerConfig, check_finite, is_sequential, make_learner,  # noqa: E402
                               parse_learner_options)
+from bulbjax.xla_options import parse_named_options  # noqa: E402
 
 MODES: tuple[str, ...] = ("physics", "rendered")
 PARTS: tuple[str, ...] = ("env", "learner", "torch")
@@ -131,66 +127,6 @@ def timed(fn: Callable[[], Any]) -> tuple[Any, float]:
     t0 = time.perf_counter()
     out = jax.block_until_ready(fn())
     return out, time.perf_counter() - t0
-
-
-def versions() -> dict[str, str | None]:
-    """Installed versions of the packages that matter for the figures."""
-    out: dict[str, str | None] = {"python": platform.python_version()}
-    for pkg in ("jax", "jaxlib", "jax-cuda12-plugin", "jax-cuda12-pjrt", "jax-cuda13-plugin", "jax-cuda13-pjrt",
-                "flax", "optax", "numpy",
-                "mujoco", "mujoco-mjx", "mujoco-warp", "warp-lang", "torch"):
-        try:
-            out[pkg] = importlib.metadata.version(pkg)
-        except importlib.metadata.PackageNotFoundError:
-            out[pkg] = None
-    try:
-        import warp
-
-        out["warp"] = warp.__version__
-    except Exception:  # noqa: BLE001 - informational only
-        out["warp"] = None
-    return out
-
-
-def git_commit() -> str | None:
-    """HEAD of the working tree, if it is a git checkout."""
-    try:
-        return subprocess.run(["git", "rev-parse", "HEAD"], cwd=REPO, capture_output=True, text=True,
-                              timeout=10, check=True).stdout.strip() or None
-    except Exception:  # noqa: BLE001 - no git on the device machine is fine
-        return None
-
-
-def device_info() -> dict[str, Any]:
-    """JAX's first device and the host."""
-    d = jax.devices()[0]
-    return {"platform": d.platform, "device_kind": d.device_kind, "num_devices": jax.device_count(),
-            "host": socket.gethostname(), "cpu_count": os.cpu_count(),
-            "xla_flags": os.environ.get("XLA_FLAGS"), "jax_default_matmul_precision":
-            str(jax.config.jax_default_matmul_precision)}
-
-
-def device_slug(kind: str) -> str:
-    """File-name-safe device name, e.g. 'NVIDIA H100 80GB HBM3' -> 'nvidia_h100_80gb_hbm3'."""
-    return re.sub(r"[^a-z0-9]+", "_", kind.lower()).strip("_") or "unknown"
-
-
-class ResultWriter:
-    """Holds the result dict and rewrites the timestamped and `latest` JSON files on demand."""
-
-    def __init__(self, out_dir: str, slug: str, stamp: str, results: dict[str, Any]):
-        os.makedirs(out_dir, exist_ok=True)
-        self.paths = [os.path.join(out_dir, f"throughput_{slug}_{stamp}.json"),
-                      os.path.join(out_dir, f"throughput_{slug}_latest.json")]
-        self.results = results
-
-    def write(self) -> None:
-        text = json.dumps(self.results, indent=2, default=str)
-        for path in self.paths:
-            tmp = path + ".tmp"
-            with open(tmp, "w") as f:
-                f.write(text + "\n")
-            os.replace(tmp, path)
 
 
 # ----------------------------------------------------------------------------- environments
@@ -296,14 +232,12 @@ def parse_variant(text: str) -> tuple[str, tuple[tuple[str, Any], ...]]:
 
 
 def parse_xla_variant(text: str) -> tuple[str, tuple[tuple[str, Any], ...]]:
-    """`NAME[=KEY:VALUE;...]` -> (NAME, ((KEY, VALUE), ...)), each KEY an XLA debug option, VALUE
-    read as `bulbjax run --xla-option` reads it (true/false, numbers, else a string)."""
-    from bulbjax.xla_options import parse_compiler_options
-
-    name, _, rest = text.partition("=")
+    """`NAME[=KEY:VALUE;...]` -> (NAME, ((KEY, VALUE), ...)) as `parse_named_options` reads it
+    (hashable, for the frozen settings)."""
+    name, options = parse_named_options(text)
     if not name:
         raise ValueError(f"XLA variant {text!r} has no name")
-    return name, tuple(parse_compiler_options([kv.replace(":", "=", 1) for kv in rest.split(";") if kv]).items())
+    return name, tuple(options.items())
 
 
 def bench_vae(dtype: str, s: BenchSettings, name: str = "vae", impl: str = "transpose",

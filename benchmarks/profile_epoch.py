@@ -49,7 +49,7 @@ from bulbjax.experiment.config import ExperimentConfig  # noqa: E402
 from bulbjax.experiment.loop import Experiment  # noqa: E402
 from bulbjax.experiment.programs import Programs, without_probes  # noqa: E402
 from bulbjax.experiment.resolve import resolve  # noqa: E402
-from bulbjax.xla_options import parse_compiler_options  # noqa: E402
+from bulbjax.xla_options import parse_named_options  # noqa: E402
 
 
 def add_config_args(p: argparse.ArgumentParser) -> None:
@@ -310,13 +310,6 @@ def _with_flag(compiled: Callable, flag: jax.Array, probe: bool) -> Callable:
     return call
 
 
-def parse_variant(text: str) -> tuple[str, dict[str, Any]]:
-    """`NAME=KEY:VALUE;KEY:VALUE` (or a bare `NAME`, no options) -> (name, compile options)."""
-    name, _, rest = text.partition("=")
-    items = [kv.replace(":", "=", 1) for kv in rest.split(";") if kv]
-    return name, parse_compiler_options(items)
-
-
 def main(argv: list[str] | None = None) -> dict[str, Any]:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     add_config_args(p)
@@ -374,7 +367,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
             json.dump(res, f, indent=1, default=str)
         os.replace(path + ".tmp", path)
 
-    variants = dict(parse_variant(v) for v in a.variant) or None
+    variants = dict(parse_named_options(v) for v in a.variant) or None
     tags = tuple(t for t in a.tags.split(",") if t)
     if a.trace_from_start:
         os.makedirs(a.trace_from_start, exist_ok=True)

@@ -66,9 +66,15 @@ def ratios(learner_rows: list[dict[str, Any]], torch_info: dict[str, Any], platf
         if ref:
             d["vs_torch_best"] = row["updates_per_s"] / max(ref.values())
         variant = "" if row.get("variant", "default") == "default" else f" {row['variant']}"
-        variant += "" if row.get("xla_variant", "xla_default") == "xla_default" else f" {row['xla_variant']}"
+        variant += xla_tag(row)
         out[f"{row['dtype']} {row.get('deconv_impl', 'transpose')} {row.get('precision', 'default')}{variant}"] = d
     return out
+
+
+def xla_tag(row: dict[str, Any]) -> str:
+    """` NAME` of a row's `--xla-variants` set, empty for the default compile options."""
+    name = row.get("xla_variant", "xla_default")
+    return "" if name == "xla_default" else f" {name}"
 
 
 def fmt_rate(x: float) -> str:
@@ -108,8 +114,7 @@ def print_summary(results: dict[str, Any]) -> None:
         print(f"\nlearner updates/s at {results['settings']['vae_batch']} frames per batch (spair: 64):")
         for r in results["learner"]:
             label = (f"{r.get('learner', 'vae'):8} {r['dtype']:9} {r.get('deconv_impl', 'transpose'):9} "
-                     f"{r.get('precision', 'default'):13} {r.get('variant', 'default'):10}"
-                     + ("" if r.get("xla_variant", "xla_default") == "xla_default" else f" {r['xla_variant']}"))
+                     f"{r.get('precision', 'default'):13} {r.get('variant', 'default'):10}{xla_tag(r)}")
             print(f"  bulbjax {label} " + (f"{r['updates_per_s']:8.2f}  (compile {r['compile_s']:.1f} s)"
                                            if "updates_per_s" in r else f"ERROR {r['error'][:60]}"))
             print_kernels(r.get("kernels"))

@@ -30,3 +30,10 @@ def parse_compiler_options(items: Sequence[str]) -> dict[str, Any]:
                     pass
         out[key.strip()] = value
     return out
+
+
+def parse_named_options(text: str) -> tuple[str, dict[str, Any]]:
+    """`NAME=KEY:VALUE;KEY:VALUE` (or a bare `NAME`, no options) -> (NAME, compile options), the
+    form in which the benchmarks take sets of XLA options to time side by side."""
+    name, _, rest = text.partition("=")
+    return name, parse_compiler_options([kv.replace(":", "=", 1) for kv in rest.split(";") if kv])
