@@ -13,6 +13,16 @@ from typing import Sequence
 from bulbjax.run_command import _settings, leave_failed_run
 from bulbjax.run_command import cmd_run as _cmd_run
 
+# What `bulbjax --help` opens with: for a user, what the tool is and which command does what (the
+# module's docstring above is for whoever reads the code).
+DESCRIPTION = (
+    "bulbjax: the bulb benchmark of unsupervised representation learning for continuous control, "
+    "on batched MuJoCo (MJX, Warp) environments. Does a learned latent hold the true state of a "
+    "robot scene? `run` trains PPO and unsupervised learners side by side and probes their latents; "
+    "`fit` trains learners on one cached random-policy dataset; `report` and `recon` redraw a run's "
+    "figures and tables; `envs` lists the environments and `render` saves frames of one; `reproduce` "
+    "runs the paper's figures. `bulbjax COMMAND --help` gives a command's flags.")
+
 
 def build_config(args: argparse.Namespace):
     """The ExperimentConfig of `bulbjax run`'s flags (`bulbjax.experiment.resolve.resolve`)."""
@@ -204,6 +214,33 @@ def learners_help(names: Sequence[str], defaults: str) -> str:
             "package's `bulbjax.learners` entry point")
 
 
+def _stdout_gone() -> bool:
+    """Whether stdout is a pipe whose reader has gone (`bulbjax envs | head -2` once `head` has
+    its lines): the pipe polls as an error. True where that cannot be asked (no descriptor, no
+    `select.poll`), as Python's docs treat every BrokenPipeError."""
+    import select
+
+    try:
+        poll = select.poll()
+        poll.register(sys.stdout.fileno(), select.POLLOUT)
+        return any(events & select.POLLERR for _, events in poll.poll(0))
+    except (AttributeError, OSError, ValueError):
+        return True
+
+
+def _leave_quietly() -> int:
+    """The command's exit on a closed stdout: no traceback (Python's docs, "Note on SIGPIPE": stdout
+    pointed at devnull, so that the flush at exit has nowhere to fail) and exit status 141
+    (128 + SIGPIPE), what a shell reports for a command a closed pipe ended (`yes | head`)."""
+    try:
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+        os.close(devnull)
+    except (AttributeError, OSError, ValueError):  # a stdout without a descriptor: nothing to flush
+        pass
+    return 141
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     from bulbjax.experiment.config import PRESETS
     from bulbjax.learners import learner_names
@@ -211,7 +248,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     t_main = time.time()  # the end of Python's start-up and imports (`bulbjax run` says how long they took)
 
     presets = ", ".join(PRESETS)
-    p = argparse.ArgumentParser(prog="bulbjax", description=__doc__, formatter_class=HelpFormatter)
+    p = argparse.ArgumentParser(prog="bulbjax", description=DESCRIPTION, formatter_class=HelpFormatter)
     sub = p.add_subparsers(dest="cmd", required=True)
     r = sub.add_parser("run", help="train PPO + unsupervised learners and probe their latents",
                        formatter_class=HelpFormatter)
@@ -399,7 +436,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     d.set_defaults(fn=cmd_render)
     from bulbjax.reproduce.cli import add_parser as add_reproduce
 
-    add_reproduce(sub)
+    add_reproduce(sub, formatter_class=HelpFormatter)
     argv = list(sys.argv[1:] if argv is None else argv)
     args = p.parse_args(argv)
     args.argv, args.t_main = argv, t_main
@@ -407,12 +444,16 @@ def main(argv: Sequence[str] | None = None) -> int:
 
     compile_cache.enable()  # reruns of a configuration load its executables ($BULBJAX_COMPILE_CACHE=off: no cache)
     try:
-        return args.fn(args)
+        code = args.fn(args)
+        sys.stdout.flush()  # a reader gone from stdout shows here, not in Python's flush at exit
+        return code
     except (ValueError, FloatingPointError) as err:
         print(f"bulbjax: error: {err}", file=sys.stderr)
         leave_failed_run(2)
         return 2
-    except (Exception, KeyboardInterrupt):
+    except (Exception, KeyboardInterrupt) as err:
+        if isinstance(err, BrokenPipeError) and _stdout_gone():  # `| head`; another pipe's is an error
+            return _leave_quietly()
         from bulbjax import distributed
 
         if distributed.active():  # its traceback now, then out without JAX's shutdown barrier

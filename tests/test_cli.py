@@ -85,6 +85,37 @@ def test_help_lists_every_preset_and_learner(subparsers):
         assert "MODULE:NAME" in learners.help
 
 
+def test_reproduce_help_states_each_default_once(subparsers):
+    """`bulbjax reproduce --help` uses the other subcommands' formatter (it alone used argparse's
+    ArgumentDefaultsHelpFormatter: `(default all visible) ... (default 1) (default: None)`, and
+    `(default: False)` on switches): every option's help says its default once, switches none;
+    no subcommand shows a default of None or False."""
+    parser = subparsers["reproduce"]
+    assert parser.formatter_class is cli.HelpFormatter
+    twice = []
+    for action in _options(parser):
+        text = _help_of(parser, action)
+        if text.count("default") != (0 if action.default is False else 1):
+            twice.append(f"{action.option_strings[-1]}: {text}")
+    assert not twice, "\n".join(twice)
+    for cmd, sub in subparsers.items():
+        text = " ".join(sub.format_help().split())
+        assert "(default: None)" not in text and "(default: False)" not in text, cmd
+
+
+def test_the_top_level_help_says_what_bulbjax_is(capsys):
+    """`bulbjax --help` opens with what the tool is and what each command does (it opened with the
+    module's internal note, "parsing only: the flags map to `bulbjax.experiment.resolve`")."""
+    with pytest.raises(SystemExit) as caught:
+        cli.main(["--help"])
+    assert caught.value.code == 0
+    opening = capsys.readouterr().out.split("\n\n")[1]
+    assert opening.startswith("bulbjax: the bulb benchmark of unsupervised representation learning")
+    assert "parsing only" not in opening and "bulbjax." not in opening  # no module of the code
+    for cmd in ("run", "fit", "report", "recon", "envs", "render", "reproduce"):
+        assert f"`{cmd}`" in opening, cmd
+
+
 def test_envs_prints_no_solved_return_where_there_is_none(capsys):
     from bulbjax.envs.registry import env_class
 
@@ -117,6 +148,70 @@ def test_report_out_writes_elsewhere_and_leaves_the_run_alone(tmp_path, capsys):
     assert f"table: {os.path.join(out, 'table.md')}" in capsys.readouterr().out
     assert cli.main(["report", run]) == 0  # without --out: into the run folder, as before
     assert {"fig2.png", "table.md", "findings.md"} <= set(os.listdir(run))
+
+
+def _cut(path: str, line: int, keep: int = 40) -> tuple[str, str]:
+    """Cut line `line` (1-based) of `path` to its first `keep` characters (with no newline after it
+    where it is the last, as a run killed while writing it leaves it); returns the cut text and
+    the JSON parser's complaint about it."""
+    import json
+
+    with open(path) as f:
+        lines = f.read().splitlines()
+    lines[line - 1] = lines[line - 1][:keep]
+    with open(path, "w") as f:
+        f.write("\n".join(lines) + ("\n" if line < len(lines) else ""))
+    try:
+        json.loads(lines[line - 1])
+    except json.JSONDecodeError as err:
+        return lines[line - 1], f"{err.msg}, column {err.colno}"
+    raise AssertionError("the cut line still parses")
+
+
+def test_report_names_the_file_and_line_of_a_corrupt_record(tmp_path, capsys):
+    """A line cut in the middle of metrics.jsonl is a one-line error naming the file and the line
+    (it was the JSON parser's `Expecting ',' delimiter: line 1 column 51` alone); nothing is drawn."""
+    run = _run_dir(str(tmp_path / "run"))
+    path = os.path.join(run, "metrics.jsonl")
+    _, why = _cut(path, 2)
+    assert cli.main(["report", run]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err == (f"bulbjax: error: {path}:2: not a whole JSON record ({why}): the file is corrupt; "
+                   "repair or delete that line")
+    assert not os.path.exists(os.path.join(run, "table.md"))
+
+
+def test_report_skips_a_cut_last_line_and_says_so(tmp_path, capsys):
+    """A last line cut short (a run killed while writing it) is skipped with one warning line
+    naming the file and the line (it was skipped silently); the report draws the rest."""
+    run = _run_dir(str(tmp_path / "run"))
+    path = os.path.join(run, "metrics.jsonl")
+    _cut(path, 4)  # 2 epochs x 2 seeds: the last record cut
+    assert cli.main(["report", run]) == 0
+    err = capsys.readouterr().err.strip()
+    assert err == (f"bulbjax: warning: {path}:4: skipped its last line, cut short (a run stopped while "
+                   "writing it); read the 3 whole records before it")
+    with open(os.path.join(run, "table.md")) as f:
+        assert "from 3 records" in f.read()
+
+
+def test_a_closed_stdout_ends_the_command_quietly():
+    """`bulbjax envs | head -2`: the reader is gone before the listing is written; the command
+    ends with no traceback (it ended in a BrokenPipeError's) and the status of a command a closed
+    pipe ended, 141 (128 + SIGPIPE). The pipe's reader is closed before the process starts, so
+    every write fails, whatever the timing."""
+    import subprocess
+    import sys
+
+    read, write = os.pipe()
+    os.close(read)
+    try:
+        r = subprocess.run([sys.executable, "-m", "bulbjax", "envs"], stdout=write,
+                           stderr=subprocess.PIPE, text=True, timeout=120)
+    finally:
+        os.close(write)
+    assert r.returncode == 141, r.stderr
+    assert not any(w in r.stderr for w in ("Traceback", "BrokenPipeError", "Exception ignored")), r.stderr
 
 
 def test_warp_line_is_dropped_and_everything_else_kept(capfd):

@@ -155,6 +155,78 @@ def test_spec_errors_are_one_line(plugin_dir, spec, message):
     assert "\n" not in str(caught.value)
 
 
+# Learners with init, update and encode but short of the rest of the protocol (issue 65 item 2).
+SHORT_SOURCE = textwrap.dedent('''
+    import dataclasses
+    from typing import ClassVar
+
+    from bulbjax.learners import LearnerConfig
+
+
+    @dataclasses.dataclass(frozen=True)
+    class Bare:
+        latent_dim: int
+        config: LearnerConfig = LearnerConfig()
+        sequential: ClassVar[bool] = False
+
+        def init(self, key, frame_shape): ...
+        def update(self, state, frames, key): ...
+        def encode(self, params, frames): ...
+
+
+    @dataclasses.dataclass(frozen=True)
+    class BareWindows(Bare):
+        sequential: ClassVar[bool] = True
+
+        @property
+        def retain_fraction(self):
+            return 0.0
+
+        @property
+        def batch_size(self):
+            return 4
+
+
+    def make_bare(latent_dim, config, action_dim):
+        return Bare(latent_dim, config)
+''')
+
+
+@pytest.mark.parametrize("attr, message", [
+    ("Bare", "Bare is no frame learner: it lacks retain_fraction, batch_size; add them as "
+             "docs/extending.md's 'A new learner' lists (FrameLearner, bulbjax/learners/base.py)"),
+    ("make_bare", "Bare is no frame learner: it lacks retain_fraction, batch_size; add them as "
+                  "docs/extending.md's 'A new learner' lists (FrameLearner, bulbjax/learners/base.py)"),
+    ("BareWindows", "BareWindows is no sequential learner: it lacks action_dim, sequence_length, "
+                    "window_length; add them as docs/extending.md's 'A new learner' lists "
+                    "(SequenceLearner, bulbjax/learners/base.py)"),
+])
+def test_a_learner_short_of_the_protocol_is_refused_in_one_line(plugin_dir, attr, message):
+    """init, update and encode alone pass no longer: every member docs/extending.md lists as
+    required is checked when the spec loads, and nothing stays registered."""
+    (plugin_dir / "short_learners.py").write_text(SHORT_SOURCE)
+    with pytest.raises(ValueError) as caught:
+        plugins.load_learner_spec(f"short_learners:{attr}")
+    assert str(caught.value) == f"learner 'short_learners:{attr}': {message}"
+    assert attr not in registry._REGISTRY and "Bare" not in registry._REGISTRY
+
+
+def test_run_refuses_a_short_learner_before_making_its_folder(plugin_dir, tmp_path, capsys):
+    """`bulbjax run --learners vae_rpl,FILE.py:Bare`: one line, exit status 2, no run folder
+    (it used to trace, fail with a long traceback and leave a folder holding only log.txt)."""
+    from bulbjax import cli
+
+    source = plugin_dir / "short_file.py"
+    source.write_text(SHORT_SOURCE)
+    out = tmp_path / "run"
+    assert cli.main(["run", "--small", "--learners", f"vae_rpl,{source}:Bare", "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err == (f"bulbjax: error: learner '{source}:Bare': Bare is no frame learner: it lacks "
+                   "retain_fraction, batch_size; add them as docs/extending.md's 'A new learner' "
+                   "lists (FrameLearner, bulbjax/learners/base.py)")
+    assert not out.exists()
+
+
 def test_learners_flag_records_the_specs(plugin_dir, monkeypatch, tmp_path):
     """`--learners vae_rpl,MODULE:NAME` -> the registered names, and the specs in the config
     (a file's path absolute); `--rl-input latent:MODULE:NAME` names the learner; the config

@@ -121,6 +121,42 @@ def test_an_out_folder_of_another_plan_or_of_something_else_is_refused(tmp_path)
     assert (other / "notes.txt").exists()
 
 
+def test_a_dry_run_checks_the_ycb_models_as_the_run_does(tmp_path, monkeypatch) -> None:
+    """`--dry-run` of Fig. 5 without $BULBJAX_YCB_DIR is the real run's one-line error (it planned
+    Fig. 5's hours with no models), before anything is written; with the folder it plans."""
+    from bulbjax.assets.ycb import YCB_DIR_ENV
+
+    monkeypatch.delenv(YCB_DIR_ENV, raising=False)
+    out = tmp_path / "plan"
+    with pytest.raises(ValueError) as caught:
+        reproduce("fig5", "tiny", str(out), dry_run=True, log=lambda s: None)
+    assert str(caught.value) == (f"Fig. 5 (fig5-rearrange-ycb) reads the YCB models from ${YCB_DIR_ENV}, "
+                                 "which is not set: set it to the YCB google_16k folder, or leave Fig. 5 "
+                                 "out (--figures fig2,fig3,fig4)")
+    assert not out.exists()
+    monkeypatch.setenv(YCB_DIR_ENV, str(tmp_path))
+    said: list[str] = []
+    reproduce("fig5", "tiny", str(out), dry_run=True, log=said.append)
+    assert "fig5-rearrange-ycb/seed0" in said[0] and not out.exists()
+
+
+def test_a_dry_run_names_the_hours_of_its_slots(tmp_path, monkeypatch) -> None:
+    """The estimate's busy hours are CPU-hours on a host without a GPU (its slots are CPU worker
+    processes; it said GPU-hours), GPU-hours on GPUs."""
+    from bulbjax import local_processes
+    from bulbjax.reproduce import main
+
+    monkeypatch.setattr(local_processes, "visible_gpus", lambda: [])
+    said: list[str] = []
+    reproduce("fig2-cartpole", "tiny", str(tmp_path / "cpu"), dry_run=True, log=said.append)
+    assert re.search(r"\nestimated: [0-9.]+ CPU-hours, ", said[0]) and "GPU-hours" not in said[0], said[0]
+    monkeypatch.setattr(local_processes, "visible_gpus", lambda: ["0", "1"])
+    monkeypatch.setattr(main, "device_kind", lambda gpus: "NVIDIA H100 80GB HBM3")
+    said.clear()
+    reproduce("fig2-cartpole", "tiny", str(tmp_path / "gpu"), dry_run=True, log=said.append)
+    assert re.search(r"\nestimated: [0-9.]+ GPU-hours, .* on 2 slot\(s\)", said[0]), said[0]
+
+
 def test_the_cli_says_a_bad_shard_in_one_line(tmp_path) -> None:
     r = subprocess.run([sys.executable, "-m", "bulbjax", "reproduce", "--shard", "3/2", "--out", str(tmp_path / "o")],
                        capture_output=True, text=True, timeout=120, env=dict(os.environ, JAX_PLATFORMS="cpu"))

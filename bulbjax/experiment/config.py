@@ -319,8 +319,8 @@ class OfflineConfig:
 
     def __post_init__(self) -> None:
         for name in ("updates", "probe_every", "data_worlds", "data_steps", "heldout_steps"):
-            if getattr(self, name) < 1:
-                raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
+            if getattr(self, name) < 1:  # named as `bulbjax fit`'s flag, as RunOptions names run's
+                raise ValueError(f"--{name.replace('_', '-')} must be >= 1, got {getattr(self, name)}")
         lw = max(self.base.window_length, 1)
         if self.data_steps < lw:
             raise ValueError(f"data_steps={self.data_steps} is shorter than a training window ({lw} steps)")

@@ -8,6 +8,7 @@ import gzip
 import json
 import math
 import os
+import sys
 import warnings
 from typing import Any, Sequence
 
@@ -158,21 +159,29 @@ def write_jsonl(path: str, records: Sequence[dict[str, Any]]) -> None:
 
 
 def read_jsonl(path: str, tolerate_partial: bool = False) -> list[dict[str, Any]]:
-    """The records of a JSON-lines file (gzip-compressed if `path` ends in .gz); with
-    `tolerate_partial`, a last line still being written (no newline yet, not valid JSON) is
-    skipped."""
+    """The records of a JSON-lines file (gzip-compressed if `path` ends in .gz). A line that is
+    not JSON is a one-line ValueError naming the file and the line (a corrupt file: the JSON
+    parser's own message names neither), except, with `tolerate_partial`, the last one: what a
+    run stopped while writing it leaves (`write_jsonl` writes whole records, but a killed process
+    can leave part of one), skipped with one warning line on stderr naming the file and the line,
+    so that a report or a resume works on the whole records before it."""
     with (gzip.open(path, "rt") if path.endswith(".gz") else open(path)) as f:
         lines = f.read().split("\n")
+    last = max((i for i, line in enumerate(lines) if line.strip()), default=-1)
     out = []
     for i, line in enumerate(lines):
         if not line.strip():
             continue
         try:
             out.append(json.loads(line))
-        except json.JSONDecodeError:
-            if tolerate_partial and i == len(lines) - 1:
+        except json.JSONDecodeError as err:
+            if tolerate_partial and i == last:
+                print(f"bulbjax: warning: {path}:{i + 1}: skipped its last line, cut short (a run "
+                      f"stopped while writing it); read the {len(out)} whole records before it",
+                      file=sys.stderr, flush=True)
                 break
-            raise
+            raise ValueError(f"{path}:{i + 1}: not a whole JSON record ({err.msg}, column {err.colno}): "
+                             "the file is corrupt; repair or delete that line") from None
     return out
 
 

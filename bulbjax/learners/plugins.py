@@ -20,13 +20,17 @@ A spec, as the Python ecosystem writes an object reference (entry points, `modul
   name then works (`--learners name`), loaded as `name=module:attr` at first use.
 
 `load_learner_spec(spec)` imports and registers once per process (a second call returns the same
-name). A run records the specs of the learners it was given this way in its config
+name), and checks the whole protocol the experiment relies on (`FrameLearner` / `SequenceLearner`,
+the members docs/extending.md lists as required) on a learner built from the factory with sample
+arguments, so that a missing member is one line naming it before any run folder, environment or
+program is made, not a traceback after tracing. A run records the specs of the learners it was given this way in its config
 (`ExperimentConfig.learner_modules`), so that `bulbjax report`, `recon` and `run --resume` load
 them again with no flag; a spec that no longer loads is then a one-line error naming it.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import importlib
 import importlib.metadata
@@ -37,10 +41,15 @@ import re
 import sys
 from typing import Any
 
+from bulbjax.learners.base import LearnerConfig
 from bulbjax.learners.registry import _REGISTRY, Registration, register_learner
 
 ENTRY_POINT_GROUP = "bulbjax.learners"
 _PROTOCOL = ("init", "update", "encode")
+# What the experiment reads of every learner (docs/extending.md's table, `FrameLearner`), and
+# besides of a sequential one (`SequenceLearner`); the methods must be callable.
+FRAME_MEMBERS: tuple[str, ...] = ("latent_dim", "config", "retain_fraction", "batch_size", *_PROTOCOL)
+SEQUENCE_MEMBERS: tuple[str, ...] = (*FRAME_MEMBERS, "action_dim", "sequence_length", "window_length")
 _LOADED: dict[str, str] = {}  # canonical spec -> the name it registered
 _PROVIDER: dict[str, str] = {}  # learner name -> the first spec whose loading registered it
 
@@ -197,12 +206,63 @@ def load_learner_spec(spec: str) -> str:
     before = set(_REGISTRY)
     try:
         got = _load(key)
+        try:
+            check_protocol(key, _REGISTRY[got])
+        except LearnerLoadError:
+            for new in set(_REGISTRY) - before:  # no learner short of the protocol stays registered
+                del _REGISTRY[new]
+            raise
     finally:
         for new in set(_REGISTRY) - before:  # every learner this spec's import registered
             _PROVIDER.setdefault(new, key)
     _PROVIDER.setdefault(got, key)  # also where the caller imported the module before
     _LOADED[key] = got
     return got
+
+
+def _missing(learner: Any, members: tuple[str, ...]) -> list[str]:
+    """The `members` `learner` lacks (looked up without running a property: a property present
+    counts, whatever it would compute), or has but cannot call where a method is required."""
+    absent = object()
+    out = []
+    for m in members:
+        found = inspect.getattr_static(learner, m, absent)
+        if found is absent or (m in _PROTOCOL and not callable(getattr(learner, m, None))):
+            out.append(m)
+    return out
+
+
+def check_protocol(spec: str, reg: Registration) -> None:
+    """Refuse, in one line, a learner of `spec` that lacks a member the experiment reads
+    (`FRAME_MEMBERS`, or `SEQUENCE_MEMBERS` for a sequential one): checked on a learner built by
+    its factory with sample arguments (a frozen dataclass is cheap to build; nothing is traced).
+    A factory that cannot be called so is left to the run (its own error then); a class whose
+    constructor fails is checked on the class (its attributes, fields and annotations)."""
+    made = getattr(reg.factory, "__wrapped__", reg.factory)
+    try:
+        learner = reg.factory(2, LearnerConfig(**dict(reg.defaults)), 1)
+    except Exception:  # noqa: BLE001 - only the members are checked here
+        if not inspect.isclass(made):
+            return
+        learner = made
+    sequential = reg.sequential or bool(getattr(learner, "sequential", False))
+    members = SEQUENCE_MEMBERS if sequential else FRAME_MEMBERS
+    if inspect.isclass(learner):  # fields and annotated attributes are not on the class itself
+        known = set(dir(learner))
+        if dataclasses.is_dataclass(learner):
+            known |= {f.name for f in dataclasses.fields(learner)}
+        for klass in learner.__mro__:
+            known |= set(getattr(klass, "__annotations__", {}))
+        missing = [m for m in members if m not in known]
+    else:
+        missing = _missing(learner, members)
+    if missing:
+        kind, protocol = (("sequential learner", "SequenceLearner") if sequential
+                          else ("frame learner", "FrameLearner"))
+        what = made.__name__ if inspect.isclass(made) else type(learner).__name__
+        raise LearnerLoadError(
+            f"learner {spec!r}: {what} is no {kind}: it lacks {', '.join(missing)}; add them as "
+            f"docs/extending.md's 'A new learner' lists ({protocol}, bulbjax/learners/base.py)")
 
 
 def _belongs(reg: Registration, module: Any) -> bool:

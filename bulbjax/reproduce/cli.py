@@ -16,14 +16,18 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
     return 1 if summary.get("failed") else 0
 
 
-def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
-    """`bulbjax reproduce`: the paper's figures as one plan of jobs over this host's GPUs."""
+def add_parser(sub: argparse._SubParsersAction,
+               formatter_class: type[argparse.HelpFormatter] = argparse.HelpFormatter) -> argparse.ArgumentParser:
+    """`bulbjax reproduce`: the paper's figures as one plan of jobs over this host's GPUs. Its help
+    takes the formatter of the other subcommands (`bulbjax.cli.HelpFormatter`, given by the main
+    CLI: a default shown once, where the help text does not say it already, and none for switches
+    and unset options); the help texts say the defaults the parser cannot show (None)."""
     rp = sub.add_parser(
         "reproduce", help="run the paper's figures (Figs. 2-5) as one plan of jobs, one process per GPU",
         description="Run the paper's figures as a plan of jobs (one seed of a preset each), one `bulbjax run` "
                     "process per GPU taking the next job, then write OUT/results.md. Run the same command "
                     "again to continue unfinished jobs (finished ones are skipped).",
-        formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+        formatter_class=formatter_class)
     rp.add_argument("--figures", default="all",
                     help=f"comma-separated figures ({', '.join(FIGURES)}, all) or presets of them (e.g. fig2-ant)")
     rp.add_argument("--scale", default="paper", choices=SCALES,
@@ -31,18 +35,20 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
                          "tiny: CPU-sized, 2 epochs (tests)")
     rp.add_argument("--out", default="runs/reproduce", help="the plan's folder (runs, logs, results.md)")
     rp.add_argument("--gpus", type=int, default=None,
-                    help="GPUs of this host to use (default all visible); without GPUs: CPU worker processes "
-                         "(default 1)")
+                    help="GPUs of this host to use, or CPU worker processes on a host without GPUs "
+                         "(default: every visible GPU, else 1 CPU worker)")
     rp.add_argument("--shard", default=None, metavar="K/N",
                     help="this host's share K of a plan split over N hosts (e.g. a SLURM array task), "
-                         "balanced by estimated cost; every host computes the same split")
+                         "balanced by estimated cost; every host computes the same split (default: the whole "
+                         "plan on this host)")
     rp.add_argument("--add-learner", action="append", metavar="SPEC",
                     help="a learner of your own (pkg.module:Name, docs/extending.md) run beside the paper's in "
-                         "every figure; repeatable")
+                         "every figure; repeatable (default: none)")
     rp.add_argument("--dry-run", action="store_true", help="print the jobs and the estimated time, run nothing")
     rp.add_argument("--overwrite", action="store_true", help="start afresh: delete the plan's folder first")
     rp.add_argument("--max-minutes", type=float, default=0.0,
-                    help="stop every job (checkpointed) after this wall time; the same command continues (0: none)")
+                    help="stop every job (checkpointed) after this wall time; the same command continues "
+                         "(default: 0, no limit)")
     rp.add_argument("--progress-every", type=float, default=30.0, help="seconds between progress lines")
     rp.set_defaults(fn=cmd_reproduce)
     return rp

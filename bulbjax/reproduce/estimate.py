@@ -138,6 +138,12 @@ def simulate(jobs: Sequence[Job], times: dict[str, Timing], gpus: int,
     return Estimate(gpus, gpu_s, wall, spans)
 
 
+def hours_unit(kind: str) -> str:
+    """What a plan's busy hours are hours of on slots of `kind` (`device_kind`): "CPU-hours" on a
+    host without a GPU (its slots are CPU worker processes), else "GPU-hours"."""
+    return "CPU-hours" if kind == "cpu" else "GPU-hours"
+
+
 def hms(seconds: float) -> str:
     """Seconds as h:mm:ss."""
     s = int(round(max(0.0, seconds)))

@@ -20,7 +20,7 @@ from typing import Any, Callable, Sequence
 from bulbjax.experiment.config import PRESETS
 from bulbjax.reproduce import jobs as J
 from bulbjax.reproduce import results
-from bulbjax.reproduce.estimate import device_kind, hms, job_cost, load_times, simulate
+from bulbjax.reproduce.estimate import device_kind, hms, hours_unit, job_cost, load_times, simulate
 from bulbjax.reproduce.plan import (PLAN_FILE, Job, parse_figures, parse_shard, plan_differences, plan_jobs,
                                     plan_record, read_plan, shard_of)
 from bulbjax.reproduce.queue import Queue, Slot
@@ -131,14 +131,13 @@ def reproduce(figures: str | Sequence[str] = "all", scale: str = "paper", out: s
         where = shard_of(all_jobs, costs, n)
         mine = [j for j in all_jobs if where[j.id] == k - 1]
     record = plan_record(figs, scale, list(add_learners), all_jobs)
+    _check_ycb(mine)  # --dry-run too: no plan of Fig. 5 without its models; before --overwrite clears anything
     _open_out(out, record, overwrite, dry_run)
-    if not dry_run:
-        _check_ycb(mine)
     lines, est = plan_table(out, mine, times, len(slots))
     note = "" if times_kind == kind else f" (estimates of an {times_kind}: none measured on this kind yet)"
     log(f"plan: {len(mine)} job(s)" + (f", shard {share[0]}/{share[1]} of {len(all_jobs)}" if share else "")
         + f", scale {scale}, on {len(slots)} {kind} slot(s){note}\n" + "\n".join(lines)
-        + f"\nestimated: {est.gpu_s / 3600:.2f} GPU-hours, {hms(est.wall_s)} wall on {len(slots)} slot(s) "
+        + f"\nestimated: {est.gpu_s / 3600:.2f} {hours_unit(kind)}, {hms(est.wall_s)} wall on {len(slots)} slot(s) "
         f"(utilisation {est.utilisation:.0%})")
     summary: dict[str, Any] = {"gpus": len(slots), "device_kind": kind, "times_of": times_kind,
                                "estimated_wall_s": est.wall_s, "estimated_gpu_s": est.gpu_s,

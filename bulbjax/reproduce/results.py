@@ -18,7 +18,7 @@ import numpy as np
 from bulbjax.experiment import report
 from bulbjax.experiment.records import band, ci90, last_returns, metrics_path, probed, read_jsonl
 from bulbjax.reproduce import jobs as J
-from bulbjax.reproduce.estimate import hms
+from bulbjax.reproduce.estimate import hms, hours_unit
 from bulbjax.reproduce.plan import PLAN_FILE, TITLES, Job, job_of, read_plan
 
 PAGE = "results.md"
@@ -175,7 +175,7 @@ def _summary_line(s: dict[str, Any]) -> str:
     est = s.get("estimated_wall_s")
     return (f"This stretch: {s.get('gpus')} {s.get('device_kind')} slot(s), {hms(s.get('measured_wall_s', 0))} "
             f"wall (estimated {hms(est) if est is not None else '-'}), utilisation "
-            f"{(s.get('utilisation') or 0):.0%}, {s.get('gpu_hours', 0):.2f} GPU-hours.")
+            f"{(s.get('utilisation') or 0):.0%}, {s.get('gpu_hours', 0):.2f} {hours_unit(s.get('device_kind', ''))}.")
 
 
 def read_summary(out: str) -> dict[str, Any] | None:
