@@ -163,6 +163,10 @@ def _run_here(args: argparse.Namespace, out: str, local: list, t_start: float, s
         cfg = resolve(args.preset, **settings)
         opts = RunOptions(seed=0 if args.seed is None else args.seed,
                           probe_every=1 if args.probe_every is None else args.probe_every, **_stretch_options(args))
+    from bulbjax.envs.registry import env_class
+
+    # before the run folder and its log.txt are made: a missing YCB folder or pybullet is one line, no folder
+    env_class(cfg.env).check_sources()
     if args.devices is not None and not 1 <= args.devices <= len(local):
         raise ValueError(f"--devices {args.devices}: this machine has {len(local)} local devices")
     # every process's first D local devices (D: --devices, default all of them)

@@ -165,7 +165,9 @@ def test_brax_wrapper_refuses_wrong_shape():
     (["run", "--version", "-1"], "--version must be a non-negative int or 'random'"),
     (["run", "--devices", "0"], "--devices 0: this machine has"),
     (["fit", "--env", "SyntheticMovers", "--seed", "-3"], "--seed must be a non-negative integer"),
-    (["fit", "--env", "SyntheticMovers", "--data-worlds", "0"], "data_worlds must be >= 1"),
+    (["fit", "--env", "SyntheticMovers", "--data-worlds", "0"], "--data-worlds must be >= 1, got 0"),
+    (["fit", "--env", "SyntheticMovers", "--probe-every", "0"], "--probe-every must be >= 1, got 0"),
+    (["fit", "--env", "SyntheticMovers", "--updates", "0"], "--updates must be >= 1, got 0"),
     (["fit", "--env", "SyntheticMovers", "--data-seed", "-1"], "--data-seed must be a non-negative integer"),
     (["fit", "--env", "Nope"], "unknown environment 'Nope'; available: CartPole.*, SyntheticMovers"),
     (["render", "--frames", "0"], "--frames must be >= 1, got 0"),
@@ -176,5 +178,31 @@ def test_cli_bad_values_are_one_line_errors(args, message, tmp_path, capsys):
     assert main([*args, "--out", out]) == 2
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and err.startswith("bulbjax: error: ")
+    assert re.search(message, err), err
+    assert not os.path.exists(out)  # refused before anything was written
+
+
+@pytest.mark.parametrize("args, message", [
+    (["render", "--env", "FrankaRearrangeGeom"],
+     r"need pybullet .*: pip install 'bulbjax\[pybullet\]' \(in a checkout: pip install -e '\.\[pybullet\]'\)$"),
+    (["run", "--env", "FrankaRearrangeGeom", "--small", "--epochs", "1", "--seeds", "1"],
+     r"need pybullet .*pip install 'bulbjax\[pybullet\]'"),
+    (["run", "--env", "ReacherRearrangeYcb", "--small", "--epochs", "1", "--seeds", "1"],
+     r"YCB models not found: .*BULBJAX_YCB_DIR is not set"),
+    (["run", "--env", "YcbOnIncline", "--small", "--epochs", "1", "--seeds", "1"],
+     r"YCB models not found: .*BULBJAX_YCB_DIR is not set"),
+])
+def test_cli_missing_downloads_are_one_line_errors(args, message, tmp_path, capsys, monkeypatch):
+    """A domain whose files come from outside bulbjax (pybullet's Panda, the YCB meshes) without
+    them: one line saying what to install or set, for a wheel's user too (issue 65: a 39-line
+    traceback ending in a checkout-only `pip install -e`), and no run folder (it held log.txt)."""
+    import sys
+
+    monkeypatch.setitem(sys.modules, "pybullet_data", None)  # as without pybullet: importing it fails
+    monkeypatch.delenv("BULBJAX_YCB_DIR", raising=False)
+    out = str(tmp_path / "out")
+    assert main([*args, "--out", out]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and err.startswith("bulbjax: error: "), err
     assert re.search(message, err), err
     assert not os.path.exists(out)  # refused before anything was written

@@ -317,3 +317,48 @@ def test_importing_interop_gym_registers(tmp_path):
                        text=True, timeout=300)
     assert r.returncode == 0, r.stderr[-3000:]
     assert "bulbjax/Ant-v0" in r.stdout
+
+
+def _brax_snippet(num_envs: int) -> str:
+    """docs/interop.md's Brax snippet (the first python block of its Brax section), with
+    `num_envs` worlds for its 1024."""
+    import os
+    import re
+
+    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    with open(os.path.join(root, "docs", "interop.md"), encoding="utf-8") as f:
+        section = f.read().split("## Brax and MuJoCo Playground", 1)[1]
+    code = re.search(r"```python\n(.*?)```", section, re.S).group(1)
+    assert "1024" in code and "benv.step" in code, code
+    return code.replace("1024", str(num_envs))
+
+
+def test_brax_snippet_exits(tmp_path):
+    """docs/interop.md's Brax snippet, run as a script with Brax installed, prints its shapes and
+    exits (issue 65: it printed them, then hung in the interpreter's final garbage collection: the
+    step still running called Warp's GIL-taking callback after Python began finalising). Whether
+    its one step is still running at the end depends on timing, so the script then dispatches 200
+    steps and ends without waiting for them: that hung every time. Brax is in the test extra, so
+    `make test` runs this."""
+    import os
+    import subprocess
+    import sys
+
+    pytest.importorskip("brax", reason="brax is in the test extra (pyproject.toml): pip install -e '.[test]'")
+    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    code = _brax_snippet(16) + (
+        "import brax.envs.base\n"
+        "assert isinstance(state, brax.envs.base.State), type(state)\n"
+        "zeros = jnp.zeros((16, benv.action_size))\n"
+        "state = jax.jit(lambda s: jax.lax.fori_loop(0, 200, lambda i, s: benv.step(s, zeros), s))(state)\n"
+        "print('dispatched', flush=True)\n")  # and the script ends with them running
+    script = tmp_path / "brax_snippet.py"
+    script.write_text(code)
+    env = {**os.environ, "PYTHONPATH": root}
+    try:  # ~20 s on 2 CPU cores (importing brax ~6 s); a hang is what this catches
+        r = subprocess.run([sys.executable, str(script)], cwd=str(tmp_path), env=env, capture_output=True,
+                           text=True, timeout=180)
+    except subprocess.TimeoutExpired as e:
+        pytest.fail(f"the Brax snippet did not exit within {e.timeout} s; it printed {e.stdout!r}")
+    assert r.returncode == 0, r.stderr[-3000:]
+    assert "(16, 4) (16,)" in r.stdout and "dispatched" in r.stdout, r.stdout

@@ -2,10 +2,12 @@
 file bulbjax reads at run time (the MJCF models, package data found through
 `importlib.resources`), and installed into an empty folder outside the checkout it makes an
 environment and runs `bulbjax envs` from another working directory, with the checkout's own
-copy out of reach; on a machine without the NVIDIA driver, without Warp's line about it."""
+copy out of reach; on a machine without the NVIDIA driver, without Warp's line about it. The
+wheel carries the licence file and says MIT in its metadata, the current way (issue 65)."""
 
 from __future__ import annotations
 
+import email.parser
 import os
 import shutil
 import subprocess
@@ -16,22 +18,26 @@ import pytest
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 MJCF = os.path.join(ROOT, "bulbjax", "envs", "mjcf")
-# what a build reads: the project file, its readme and the packages it finds
-SOURCES = ("pyproject.toml", "README.md", "bulbjax", "pybullet_compat")
+# what a build reads: the project file, its readme and licence, and the packages it finds
+SOURCES = ("pyproject.toml", "README.md", "LICENSE", "bulbjax", "pybullet_compat")
 
 
-def _pip(*args: str, cwd: str) -> None:
+def _pip(*args: str, cwd: str) -> str:
+    """Run pip; its stdout and stderr together."""
     r = subprocess.run([sys.executable, "-m", "pip", *args], cwd=cwd, capture_output=True,
                        text=True, timeout=300)
     assert r.returncode == 0, f"pip {' '.join(args)}:\n{r.stdout[-3000:]}\n{r.stderr[-3000:]}"
+    return r.stdout + r.stderr
 
 
 @pytest.fixture(scope="module")
-def installed(tmp_path_factory) -> str:
-    """The wheel built (no build isolation: the test extra brings `wheel`) from a copy of the
-    sources (the checkout stays untouched by build/ and egg-info) and installed with
-    `pip install --target` into an empty folder; returns that folder."""
+def built(tmp_path_factory) -> tuple[str, str]:
+    """The wheel built (no build isolation: the test extra brings `wheel` and setuptools >= 77)
+    from a copy of the sources (the checkout stays untouched by build/ and egg-info); returns its
+    path and the build's output (`pip wheel -v`: setuptools' warnings included)."""
     pytest.importorskip("wheel", reason="setuptools < 70.1 builds wheels with `wheel` (test extra)")
+    pytest.importorskip("setuptools", minversion="77",
+                        reason="the SPDX `license` of pyproject.toml needs setuptools >= 77 (test extra)")
     tmp = tmp_path_factory.mktemp("packaging")
     src = tmp / "src"
     src.mkdir()
@@ -42,11 +48,18 @@ def installed(tmp_path_factory) -> str:
                             ignore=shutil.ignore_patterns("__pycache__", "*.egg-info"))
         else:
             shutil.copy(path, src / name)
-    _pip("wheel", "--no-deps", "--no-build-isolation", "-q", "-w", str(tmp / "wheels"), str(src),
-         cwd=str(tmp))
+    log = _pip("wheel", "--no-deps", "--no-build-isolation", "-v", "-w", str(tmp / "wheels"), str(src),
+               cwd=str(tmp))
     wheels = os.listdir(tmp / "wheels")
     assert len(wheels) == 1 and wheels[0].endswith(".whl"), wheels
-    wheel = str(tmp / "wheels" / wheels[0])
+    return str(tmp / "wheels" / wheels[0]), log
+
+
+@pytest.fixture(scope="module")
+def installed(built, tmp_path_factory) -> str:
+    """The wheel installed with `pip install --target` into an empty folder; returns that folder."""
+    wheel = built[0]
+    tmp = tmp_path_factory.mktemp("site")
     with zipfile.ZipFile(wheel) as z:
         names = set(z.namelist())
     models = sorted(f for f in os.listdir(MJCF) if f.endswith(".xml"))
@@ -56,6 +69,25 @@ def installed(tmp_path_factory) -> str:
     site = tmp / "site"
     _pip("install", "--no-deps", "--no-index", "-q", "--target", str(site), wheel, cwd=str(tmp))
     return str(site)
+
+
+def test_wheel_carries_the_licence(built):
+    """LICENSE (MIT) is in the wheel's dist-info and its metadata says MIT as an SPDX expression
+    (`License-Expression`), and the build warns of no deprecated licence form (issue 65: none
+    was shipped, and `license = { text = "MIT" }` drew setuptools' deprecation warning)."""
+    wheel, log = built
+    with zipfile.ZipFile(wheel) as z:
+        names = z.namelist()
+        licences = [n for n in names if n.endswith(".dist-info/licenses/LICENSE")]
+        assert licences, f"no LICENSE in the wheel's dist-info: {sorted(n for n in names if 'dist-info' in n)}"
+        assert z.read(licences[0]).decode().startswith("MIT License")
+        metadata = z.read(next(n for n in names if n.endswith(".dist-info/METADATA"))).decode()
+    headers = email.parser.Parser().parsestr(metadata)
+    assert headers["License-Expression"] == "MIT", metadata[:1500]
+    assert headers.get_all("License-File") == ["LICENSE"], metadata[:1500]
+    assert headers["License"] is None, "the deprecated free-text License field is set"
+    warned = [line for line in log.splitlines() if "licen" in line.lower() and "deprecat" in line.lower()]
+    assert not warned, "\n".join(warned)
 
 
 def _python(site: str, cwd: str, *args: str) -> subprocess.CompletedProcess:

@@ -1,5 +1,5 @@
 """The Franka Emika Panda for the FrankaRearrange domains: `pybullet_data`'s `franka_panda/panda.urdf`
-(Apache-2.0, ships with the `pybullet` package: `pip install -e '.[pybullet]'`) converted to MJCF by
+(Apache-2.0, ships with the `pybullet` package: `pip install 'bulbjax[pybullet]'`) converted to MJCF by
 MuJoCo's URDF importer at first use, cached on disk (`bulbjax.assets.cache`).
 
 What the conversion does: the two finger joints become fixed (bulb's Rearrange envs never actuate
@@ -34,13 +34,20 @@ DARK_RGBA = (0.25, 0.25, 0.27, 1.0)
 DARK_PARTS = ("hand", "finger", "link7")
 
 
+class PybulletNotInstalled(ModuleNotFoundError, ValueError):
+    """pybullet, whose pybullet_data holds the Panda, is not installed. A ModuleNotFoundError for
+    library code, and a ValueError, which the CLI turns into its one-line error (the message says
+    what to install, for a wheel and for a checkout)."""
+
+
 def panda_urdf_dir() -> Path:
-    """`pybullet_data`'s franka_panda folder; a clear error when pybullet is not installed."""
+    """`pybullet_data`'s franka_panda folder; `PybulletNotInstalled` when pybullet is not installed."""
     try:
         import pybullet_data
-    except ImportError as e:  # pragma: no cover - depends on the install
-        raise ImportError("The Franka Panda model comes from the pybullet package's pybullet_data: "
-                          "install it with `pip install -e '.[pybullet]'` (or `pip install pybullet`).") from e
+    except ImportError as e:
+        raise PybulletNotInstalled("the FrankaRearrange domains need pybullet (the Franka Panda model is its "
+                                   "pybullet_data's panda.urdf): pip install 'bulbjax[pybullet]' "
+                                   "(in a checkout: pip install -e '.[pybullet]')", name="pybullet_data") from e
     folder = Path(pybullet_data.getDataPath()) / "franka_panda"
     if not (folder / "panda.urdf").is_file():
         raise FileNotFoundError(f"{folder / 'panda.urdf'} not found in pybullet_data; reinstall pybullet")

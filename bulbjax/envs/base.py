@@ -142,8 +142,17 @@ class MjxPixelEnv:
     # Per-world draws that a domain's `reset_with` fixes (`[num_envs, ...]`, gathered per chunk).
     _fixed: dict[str, jax.Array] = {}
 
+    @classmethod
+    def check_sources(cls, ycb_dir: str | None = None) -> None:
+        """Raise this domain's one-line error (a ValueError) when something it reads from outside
+        bulbjax is missing: the YCB meshes (`ycb_dir`, default `$BULBJAX_YCB_DIR`), pybullet's
+        Panda. Why: `bulbjax run` checks this before it makes its run folder, and the constructor
+        before it builds anything, so a missing download fails at once and leaves nothing behind.
+        Nothing is read from outside by default."""
+
     def __init__(self, config: EnvConfig):
         check_config(config)
+        self.check_sources(config.ycb_dir)
         self.reset_chunk = chunk_size(config.reset_chunk, self.reset_chunk_fraction, config.num_envs)
         self.reset_pool = pool_multiple(config.reset_pool, self.reset_pool_multiple)
         self.pool_size = self.reset_pool * config.num_envs
@@ -166,6 +175,7 @@ class MjxPixelEnv:
                 add_bulb_camera(spec, cam, name=f"pan{i}")
         self.mj_model = spec.compile()
         warp_graphs.install()  # keep every CUDA graph an epoch captures (GPU), see warp_graphs
+        warp_graphs.wait_at_exit()  # a script ending mid-step exits (Warp's callbacks need the GIL)
         # on this process's first device: MJX's default is the first device of all processes,
         # which under jax.distributed is another process's (arrays this process cannot address)
         device = jax.local_devices()[0]

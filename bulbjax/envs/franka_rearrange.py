@@ -100,6 +100,15 @@ class FrankaRearrange(Rearrange):
         self._first_jointed = min(i for i, j in enumerate(self._chain_joint) if j >= 0)
         self._rest = jnp.asarray(FRANKA_REST, jnp.float32)
 
+    @classmethod
+    def check_sources(cls, ycb_dir: str | None = None) -> None:
+        """The Panda comes from pybullet's pybullet_data: pybullet must be installed
+        (`PybulletNotInstalled`, a one-line ValueError, says how)."""
+        super().check_sources(ycb_dir)
+        from bulbjax.assets.franka import panda_urdf_dir
+
+        panda_urdf_dir()
+
     def _robot_model(self) -> mjcf.RootElement:
         from bulbjax.assets.franka import franka_mjcf
 

@@ -397,6 +397,15 @@ class YcbOnIncline(Incline):
     name = "YcbOnIncline"
     variant = "Ycb"
 
+    @classmethod
+    def check_sources(cls, ycb_dir: str | None = None) -> None:
+        """The meshes come from `ycb_dir` / `$BULBJAX_YCB_DIR`: that folder must exist
+        (`YcbModelsNotFound`, a one-line ValueError, names what to set)."""
+        super().check_sources(ycb_dir)
+        from bulbjax.assets.ycb import ycb_dir as find_ycb_dir
+
+        find_ycb_dir(ycb_dir)
+
     def _object_model(self, version: int) -> mjcf.RootElement:
         from bulbjax.assets import load_ycb_object, ycb_mjcf
 

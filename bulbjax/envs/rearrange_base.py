@@ -104,6 +104,16 @@ class Rearrange(MjxPixelEnv):
     # one batch when fewer than the ended worlds remain, every ~32 steps): `resets.reset_from_pool`
     reset_pool_multiple = 2
 
+    @classmethod
+    def check_sources(cls, ycb_dir: str | None = None) -> None:
+        """The YCB variants read their meshes from `ycb_dir` / `$BULBJAX_YCB_DIR`: that folder
+        must exist (`YcbModelsNotFound`, a one-line ValueError, names what to set)."""
+        super().check_sources(ycb_dir)
+        if any(name not in GEOM_INFO for objects in OBJECT_LISTS[cls.variant] for name in objects):
+            from bulbjax.assets.ycb import ycb_dir as find_ycb_dir
+
+            find_ycb_dir(ycb_dir)
+
     def __init__(self, config: EnvConfig):
         version = config.version
         if version == "random":

@@ -17,10 +17,14 @@ epoch to the next, so the set of graphs stops growing after the first epoch of e
 made before. A value passed explicitly to `warp.jax_callable` is kept. CPU runs never capture.
 With `$BULBJAX_STABLE_WARP_IDS` set it also numbers Warp's calls by their signature
 (`stable_call_ids()`), so that re-traced programs load from JAX's persistent compilation cache.
+
+`wait_at_exit()` (also called when an environment is built) lets a script exit that ends with a
+step still running (issue 65): see its docstring.
 """
 
 from __future__ import annotations
 
+import atexit
 import functools
 import hashlib
 import inspect
@@ -31,6 +35,7 @@ from typing import Any
 GRAPH_CACHE_MAX = 4096  # captured graphs kept per callable: far above what an epoch needs (~150 in all)
 
 _installed_limit: int | None = None
+_exit_wait_registered = False
 STABLE_IDS_VAR = "BULBJAX_STABLE_WARP_IDS"  # set (1/true/yes/on): `install()` also calls `stable_call_ids()`
 
 
@@ -66,6 +71,49 @@ def install(limit: int = GRAPH_CACHE_MAX) -> None:
             c.graph_cache_max = limit
     if os.environ.get(STABLE_IDS_VAR, "").strip().lower() in ("1", "true", "yes", "on"):
         stable_call_ids()
+
+
+def wait_at_exit() -> None:
+    """Register (once) an exit handler that waits for the device work still running.
+
+    Why: every MJX-Warp call is a `ctypes` callback that XLA calls from one of its own threads and
+    that takes the GIL. A script whose last step is still running when it reaches its end (JAX
+    dispatches asynchronously: printing `state.obs.shape` does not wait) never exited. Python
+    starts finalising; the XLA thread that then asks for the GIL is ended by Python on the spot
+    (`PyThread_exit_thread`), so that step never completes; the last reference to JAX's client
+    goes in the final garbage collection (`Garbage-collecting` in a stack dump), and the client's
+    destructor waits forever for its thread pool, one of whose tasks will never finish. Exit
+    handlers run before finalisation, while the callback can still take the GIL, and
+    registered after JAX's own (which cannot free the client while arrays hold it) this one runs
+    first: it waits for every live array and every ordered effect, so the client has nothing
+    running when it is freed."""
+    global _exit_wait_registered
+    if not _exit_wait_registered:
+        atexit.register(_wait_for_device_work)
+        _exit_wait_registered = True
+
+
+def _wait_for_device_work() -> None:
+    """Block until every live array of each initialised JAX backend is computed (an array
+    already deleted or donated is skipped), then until JAX's effects are done."""
+    import sys
+
+    jax = sys.modules.get("jax")
+    if jax is None:
+        return
+    try:
+        arrays = jax.live_arrays()
+    except Exception:  # no backend initialised (nothing dispatched) or already torn down
+        return
+    for a in arrays:
+        try:
+            a.block_until_ready()
+        except Exception:  # deleted, donated, or failed: nothing left to wait for
+            pass
+    try:
+        jax.effects_barrier()
+    except Exception:
+        pass
 
 
 def limits() -> dict[str, int | None]:
