@@ -318,3 +318,21 @@ def test_fig2_runs_carry_the_probe_variants_and_the_page_their_table(tmp_path):
     other = tmp_path / "plain"
     write_synthetic_run(str(other), ExperimentConfig(env="CartPole", learners=("vae", "vae_rpl"), seeds=2, epochs=3))
     assert results._protocol_section(str(tmp_path / "out2"), [str(other)]) == []
+
+
+def test_epochs_written_reads_a_last_line_longer_than_its_first_window(tmp_path):
+    """A finished Fig. 2 job's last record (probed, with the probe variants: ~80 KB a line on an
+    H200) is longer than the 64 KB first read from the file's end: the count still comes from the
+    last whole line, not 0 (which left every finished job's measured epoch time unset)."""
+    from bulbjax.reproduce import jobs as J
+
+    job = Job(id="p/seed0", figure="fig2", kind="run", preset="p", seed=0, epochs=3, run_dir="runs/p/seed0")
+    d = tmp_path / job.run_dir
+    d.mkdir(parents=True)
+    small = [json.dumps({"epoch": e, "seed": 0, "probes": {}}) for e in range(2)]
+    big = json.dumps({"epoch": 2, "seed": 0, "probes": {"x": "y" * 200_000}})
+    (d / "metrics.jsonl").write_text("\n".join([*small, big]) + "\n")
+    assert J.epochs_written(str(tmp_path), job) == 3
+    (d / "metrics.jsonl").write_text("\n".join(small) + "\n" + big[:1000])  # a last line being written
+    assert J.epochs_written(str(tmp_path), job) == 2
+    assert J.epochs_written(str(tmp_path / "none"), job) == 0

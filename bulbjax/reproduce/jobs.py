@@ -40,25 +40,33 @@ def is_done(out: str, job: Job) -> bool:
 
 
 def epochs_written(out: str, job: Job) -> int:
-    """Epochs whose records a running job has written (the last line of its metrics.jsonl, read
-    from the file's end: a long run's file is large); 0 before the first."""
+    """Epochs whose records a running job has written (the last whole line of its metrics.jsonl,
+    read from the file's end: a long run's file is large); 0 before the first. The window read
+    grows until it holds a whole line: a probing epoch's records with the probe variants are
+    ~80 KB a line (Fig. 2 CartPole on an H200), longer than a fixed window would hold."""
     path = os.path.join(job_dir(out, job), "metrics.jsonl")
-    try:
-        with open(path, "rb") as f:
-            f.seek(0, os.SEEK_END)
-            size = f.tell()
-            f.seek(max(0, size - 65536))
-            tail = f.read().splitlines()
-    except OSError:
-        return 0
     import json
 
-    for line in reversed(tail):
-        try:
-            return int(json.loads(line)["epoch"]) + 1
-        except (ValueError, KeyError, TypeError):
-            continue
-    return 0
+    window = 65536
+    try:
+        with open(path, "rb") as f:
+            size = f.seek(0, os.SEEK_END)
+            while True:
+                start = max(0, size - window)
+                f.seek(start)
+                lines = f.read().splitlines()
+                if start > 0:
+                    lines = lines[1:]  # the first may begin before the window
+                for line in reversed(lines):
+                    try:
+                        return int(json.loads(line)["epoch"]) + 1
+                    except (ValueError, KeyError, TypeError):
+                        continue
+                if start == 0:
+                    return 0
+                window *= 4
+    except OSError:
+        return 0
 
 
 def command(out: str, job: Job, epoch_s: float, max_minutes: float = 0.0, source: Job | None = None,
