@@ -336,3 +336,47 @@ def test_epochs_written_reads_a_last_line_longer_than_its_first_window(tmp_path)
     (d / "metrics.jsonl").write_text("\n".join(small) + "\n" + big[:1000])  # a last line being written
     assert J.epochs_written(str(tmp_path), job) == 2
     assert J.epochs_written(str(tmp_path / "none"), job) == 0
+
+
+def test_a_host_held_for_minutes_picks_what_it_can_finish() -> None:
+    """`--fit-minutes`: longest first, a job kept while the simulated schedule still ends in time;
+    a Fig. 4 job only with the run it reads. `--jobs`: the named jobs with their Fig. 4 partner."""
+    t = {"a": Timing(1.0, 100.0, 20.0), "b": Timing(1.0, 100.0, 20.0), "recon": Timing(0.0, 30.0, 30.0)}
+    runs = [Job("a/seed0", "fig2", "run", "a", 0, 500, "runs/a/seed0"),   # 600 s cold
+            Job("a/seed1", "fig2", "run", "a", 1, 500, "runs/a/seed1"),   # 520 s warm after it
+            Job("b/seed0", "fig2", "run", "b", 0, 200, "runs/b/seed0")]   # 300 s cold
+    recon = Job("fig4/a", "fig4", "recon", "a", 0, 500, "fig4/a", after="a/seed0")
+    jobs = [*runs, recon]
+    # 11 minutes on one GPU: a/seed0 with its Fig. 4 (630 s); nothing else fits beside them
+    assert [j.id for j in estimate.fit_jobs(jobs, t, 1, 11)] == ["a/seed0", "fig4/a"]
+    # 12 minutes on two GPUs: a/seed0 + fig4 on one, a/seed1 (600 s cold beside it) on the other
+    assert [j.id for j in estimate.fit_jobs(jobs, t, 2, 12)] == ["a/seed0", "a/seed1", "fig4/a"]
+    # a run half done (a checkpoint at epoch 250) costs its start-up and the epochs left
+    assert [j.id for j in estimate.fit_jobs(runs[1:], t, 1, 6, {"a/seed1": 250})] == ["a/seed1"]
+    assert estimate.fit_jobs(jobs, t, 1, 4) == []
+    with pytest.raises(ValueError, match="--fit-minutes must be > 0"):
+        estimate.fit_jobs(jobs, t, 1, 0)
+    assert [j.id for j in plan.parse_jobs("fig4/a", jobs)] == ["a/seed0", "fig4/a"]
+    assert [j.id for j in plan.parse_jobs("b/seed0,a/seed0", jobs)] == ["a/seed0", "b/seed0", "fig4/a"]
+    assert plan.parse_jobs(None, jobs) is None
+    with pytest.raises(ValueError, match=r"--jobs: c/seed0 not in this plan; its jobs: a/seed0, a/seed1"):
+        plan.parse_jobs("c/seed0", jobs)
+
+
+def test_a_job_brought_back_without_its_checkpoints_counts_as_done(tmp_path) -> None:
+    """A shard run on a host whose disk went with it comes back as reduced metrics
+    (`metrics.jsonl.gz`) and reports, no checkpoint: the plan counts it done by its metrics, so the
+    next host skips it; a part of a job without a checkpoint counts nothing."""
+    import gzip
+
+    from bulbjax.reproduce import jobs as J
+
+    job = Job("p/seed0", "fig2", "run", "p", 0, 3, "runs/p/seed0")
+    d = tmp_path / job.run_dir
+    d.mkdir(parents=True)
+    with gzip.open(d / "metrics.jsonl.gz", "wt") as f:
+        f.write("\n".join(json.dumps({"epoch": e, "seed": 0}) for e in range(3)) + "\n")
+    assert J.epochs_done(str(tmp_path), job) == 3 and J.is_done(str(tmp_path), job)
+    with gzip.open(d / "metrics.jsonl.gz", "wt") as f:
+        f.write("\n".join(json.dumps({"epoch": e, "seed": 0}) for e in range(2)) + "\n")
+    assert J.epochs_done(str(tmp_path), job) == 0 and not J.is_done(str(tmp_path), job)

@@ -207,3 +207,16 @@ def test_a_changed_number_is_caught(tmp_path, monkeypatch):
         findings, regenerated = f.read(), g.read()
     assert "**holds**" in findings and not differences(findings, regenerated, footer=False)
     assert differences(findings.replace("**holds**", "**undecided**", 1), regenerated, footer=False)
+
+
+def test_the_campaign_page_regenerates(tmp_path):
+    """docs/results/paper_h200/results.md (issue 64's campaign, `bulbjax report` of its plan
+    folder) is what the page's own code writes from the runs and summaries committed beside it."""
+    from bulbjax.reproduce import results
+
+    folder = os.path.join(ROOT, "docs", "results", "paper_h200")
+    out = str(tmp_path / "paper_h200")
+    shutil.copytree(folder, out, ignore=shutil.ignore_patterns("results.md"))
+    results.write(out, results.read_summary(out), out_name="docs/results/paper_h200")
+    with open(os.path.join(folder, "results.md")) as f, open(os.path.join(out, "results.md")) as g:
+        assert f.read() == g.read()

@@ -12,7 +12,8 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
 
     summary = reproduce(args.figures, args.scale, args.out, gpus=args.gpus, shard=args.shard,
                         add_learners=args.add_learner or (), dry_run=args.dry_run, overwrite=args.overwrite,
-                        max_minutes=args.max_minutes, progress_every=args.progress_every)
+                        max_minutes=args.max_minutes, progress_every=args.progress_every, jobs=args.jobs,
+                        fit_minutes=args.fit_minutes)
     return 1 if summary.get("failed") else 0
 
 
@@ -41,6 +42,13 @@ def add_parser(sub: argparse._SubParsersAction,
                     help="this host's share K of a plan split over N hosts (e.g. a SLURM array task), "
                          "balanced by estimated cost; every host computes the same split (default: the whole "
                          "plan on this host)")
+    rp.add_argument("--jobs", default=None, metavar="ID,...",
+                    help="only these jobs of the plan (ids as --dry-run lists them, e.g. fig2-cartpole/seed3), each "
+                         "with the Fig. 4 job that reads it (default: every job of the plan or shard)")
+    rp.add_argument("--fit-minutes", type=float, default=0.0, metavar="M",
+                    help="of the unfinished jobs left, run those the estimate fits in M minutes on this host "
+                         "(longest first): for a host held for a limited time whose disk goes with it "
+                         "(default: 0, every job)")
     rp.add_argument("--add-learner", action="append", metavar="SPEC",
                     help="a learner of your own (pkg.module:Name, docs/extending.md) run beside the paper's in "
                          "every figure; repeatable (default: none)")

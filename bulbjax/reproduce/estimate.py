@@ -138,6 +138,28 @@ def simulate(jobs: Sequence[Job], times: dict[str, Timing], gpus: int,
     return Estimate(gpus, gpu_s, wall, spans)
 
 
+def fit_jobs(jobs: Sequence[Job], times: dict[str, Timing], gpus: int, minutes: float,
+             epochs_done: dict[str, int] | None = None) -> list[Job]:
+    """The unfinished `jobs` (runs continued from `epochs_done`) that fit `minutes` of wall time
+    on `gpus` GPUs by `simulate`'s schedule: longest first, a job kept when the schedule with it
+    still ends in time, a Fig. 4 job only with the run it reads (both kept, or neither). For a
+    host held for a limited time (an allocation, a SLURM task's time limit): what it can finish,
+    since a job cut short without its checkpoint (a wiped disk) is lost."""
+    if minutes <= 0:
+        raise ValueError(f"--fit-minutes must be > 0, got {minutes:g}")
+    epochs_done = epochs_done or {}
+    ids = {j.id for j in jobs}
+    units = [[j] + [r for r in jobs if r.after == j.id] for j in jobs
+             if j.after is None or j.after not in ids]  # a run with the Fig. 4 job reading it
+    cost = {j.id: job_cost(j, times, epochs_done=epochs_done.get(j.id, 0)) for j in jobs}
+    chosen: list[Job] = []
+    for unit in sorted(units, key=lambda u: -sum(cost[j.id] for j in u)):
+        trial = chosen + unit
+        if simulate(trial, times, gpus, epochs_done).wall_s <= 60 * minutes:
+            chosen = trial
+    return [j for j in jobs if j in chosen]
+
+
 def hours_unit(kind: str) -> str:
     """What a plan's busy hours are hours of on slots of `kind` (`device_kind`): "CPU-hours" on a
     host without a GPU (its slots are CPU worker processes), else "GPU-hours"."""

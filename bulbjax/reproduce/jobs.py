@@ -26,7 +26,33 @@ def epochs_done(out: str, job: Job) -> int:
     if job.kind == "recon":
         return job.epochs if recon_done(out, job) else 0
     steps = rundir.checkpoint_steps(job_dir(out, job))
-    return max(steps) if steps else 0
+    if steps:
+        return max(steps)
+    # a finished job brought back from another machine without its checkpoints (a shard of a
+    # GPU host whose disk went with it: its reduced metrics, `metrics.jsonl.gz`, and reports):
+    # done when its metrics hold its last epoch; a part of a job without a checkpoint is nothing
+    return job.epochs if metrics_epochs(job_dir(out, job)) >= job.epochs else 0
+
+
+def metrics_epochs(run_dir: str) -> int:
+    """Epochs recorded in a run folder's metrics (`metrics.jsonl`, read from its end, else a
+    committed `metrics.jsonl.gz`); 0 without either."""
+    if os.path.exists(os.path.join(run_dir, "metrics.jsonl")):
+        return _last_epoch(os.path.join(run_dir, "metrics.jsonl"))
+    gz = os.path.join(run_dir, "metrics.jsonl.gz")
+    if not os.path.exists(gz):
+        return 0
+    import gzip
+    import json
+
+    last = 0
+    with gzip.open(gz, "rt") as f:
+        for line in f:
+            try:
+                last = max(last, int(json.loads(line)["epoch"]) + 1)
+            except (ValueError, KeyError, TypeError):
+                continue
+    return last
 
 
 def recon_done(out: str, job: Job) -> bool:
@@ -44,7 +70,12 @@ def epochs_written(out: str, job: Job) -> int:
     read from the file's end: a long run's file is large); 0 before the first. The window read
     grows until it holds a whole line: a probing epoch's records with the probe variants are
     ~80 KB a line (Fig. 2 CartPole on an H200), longer than a fixed window would hold."""
-    path = os.path.join(job_dir(out, job), "metrics.jsonl")
+    return _last_epoch(os.path.join(job_dir(out, job), "metrics.jsonl"))
+
+
+def _last_epoch(path: str) -> int:
+    """The epoch after the last whole record of a JSON-lines metrics file, read from its end; 0
+    without one."""
     import json
 
     window = 65536

@@ -17,12 +17,13 @@ import shutil
 import time
 from typing import Any, Callable, Sequence
 
+from bulbjax.experiment import rundir
 from bulbjax.experiment.config import PRESETS
 from bulbjax.reproduce import jobs as J
 from bulbjax.reproduce import results
-from bulbjax.reproduce.estimate import device_kind, hms, hours_unit, job_cost, load_times, simulate
-from bulbjax.reproduce.plan import (PLAN_FILE, Job, parse_figures, parse_shard, plan_differences, plan_jobs,
-                                    plan_record, read_plan, shard_of)
+from bulbjax.reproduce.estimate import device_kind, fit_jobs, hms, hours_unit, job_cost, load_times, simulate
+from bulbjax.reproduce.plan import (PLAN_FILE, Job, parse_figures, parse_jobs, parse_shard, plan_differences,
+                                    plan_jobs, plan_record, read_plan, shard_of)
 from bulbjax.reproduce.queue import Queue, Slot
 
 
@@ -108,11 +109,16 @@ def plan_table(out: str, jobs: Sequence[Job], times: dict, est_gpus: int) -> tup
 def reproduce(figures: str | Sequence[str] = "all", scale: str = "paper", out: str = "runs/reproduce",
               gpus: int | None = None, shard: str | None = None, add_learners: Sequence[str] = (),
               dry_run: bool = False, overwrite: bool = False, max_minutes: float = 0.0,
-              progress_every: float = 30.0, log: Callable[[str], None] = print) -> dict[str, Any]:
+              progress_every: float = 30.0, log: Callable[[str], None] = print,
+              jobs: str | Sequence[str] | None = None, fit_minutes: float = 0.0) -> dict[str, Any]:
     """Run (or with `dry_run`, only plan) the paper's `figures` at `scale` into `out`; returns the
     summary (also `out/summary.json`). Rerunning with the same arguments continues unfinished
     jobs and skips finished ones. `shard` "K/N": this host's share of a plan split over N hosts.
-    `add_learners`: learner specs run beside the paper's learners in every figure."""
+    `add_learners`: learner specs run beside the paper's learners in every figure. `jobs`: only
+    these jobs of the plan (ids, with their Fig. 4 partners); `fit_minutes`: of the unfinished
+    jobs left, those that fit this many minutes on this host (`estimate.fit_jobs`), for a host
+    held for a limited time. A stretch that selects jobs writes `summary_<UTC time>.json`, so the
+    stretches of one plan folder (several hosts, several allocations) each keep theirs."""
     figs = parse_figures(figures)
     share = parse_shard(shard)
     if share is not None and overwrite:
@@ -130,12 +136,38 @@ def reproduce(figures: str | Sequence[str] = "all", scale: str = "paper", out: s
         k, n = share
         where = shard_of(all_jobs, costs, n)
         mine = [j for j in all_jobs if where[j.id] == k - 1]
+    named = parse_jobs(jobs, all_jobs)
+    if named is not None:
+        mine = [j for j in mine if j in named]
     record = plan_record(figs, scale, list(add_learners), all_jobs)
+    if fit_minutes:  # before the YCB check: Fig. 5 may not be among what fits
+        if overwrite:
+            raise ValueError("--fit-minutes picks among the plan's unfinished jobs: drop --overwrite")
+        left = [j for j in mine if not J.is_done(out, j)]
+        lost = [j for j in left if j.after and J.is_done(out, _job(all_jobs, j.after))
+                and not rundir.checkpoint_steps(J.job_dir(out, _job(all_jobs, j.after)))]
+        for j in lost:  # its run finished on a host whose disk (and the checkpoint) went with it
+            log(f"{j.id} left out: its run {j.after} finished on another host and left no checkpoint here to "
+                f"draw from; delete {J.job_dir(out, _job(all_jobs, j.after))} to run both again")
+        left = [j for j in left if j not in lost]
+        from bulbjax.assets.ycb import YCB_DIR_ENV  # here: it imports trimesh
+
+        if any("ycb" in j.preset for j in left) and not os.environ.get(YCB_DIR_ENV):
+            log("--fit-minutes: Fig. 5's jobs left out ($BULBJAX_YCB_DIR is not set)")
+            left = [j for j in left if "ycb" not in j.preset]
+        mine = fit_jobs(left, times, len(slots), fit_minutes, {j.id: J.epochs_done(out, j) for j in left})
+        if not mine and left:
+            shortest = min(job_cost(j, times) for j in left if j.kind == "run")
+            raise ValueError(f"--fit-minutes {fit_minutes:g}: no unfinished job fits (the shortest needs "
+                             f"{hms(shortest)} here); give more minutes")
     _check_ycb(mine)  # --dry-run too: no plan of Fig. 5 without its models; before --overwrite clears anything
     _open_out(out, record, overwrite, dry_run)
     lines, est = plan_table(out, mine, times, len(slots))
     note = "" if times_kind == kind else f" (estimates of an {times_kind}: none measured on this kind yet)"
+    picked = (f", {len(mine)} picked" + (f" to fit {fit_minutes:g} min" if fit_minutes else " by --jobs")
+              if fit_minutes or named is not None else "")
     log(f"plan: {len(mine)} job(s)" + (f", shard {share[0]}/{share[1]} of {len(all_jobs)}" if share else "")
+        + (f" of {len(all_jobs)}{picked}" if picked else "")
         + f", scale {scale}, on {len(slots)} {kind} slot(s){note}\n" + "\n".join(lines)
         + f"\nestimated: {est.gpu_s / 3600:.2f} {hours_unit(kind)}, {hms(est.wall_s)} wall on {len(slots)} slot(s) "
         f"(utilisation {est.utilisation:.0%})")
@@ -149,7 +181,10 @@ def reproduce(figures: str | Sequence[str] = "all", scale: str = "paper", out: s
         json.dump(record, f, indent=1)
     learners_of = _learners_of(names)
     deadline = time.monotonic() + 60 * max_minutes if max_minutes else None
-    status = f"status_shard{share[0]}of{share[1]}.json" if share else "status.json"
+    stamp = datetime.datetime.now(datetime.timezone.utc).strftime("%Y%m%dT%H%M%SZ")
+    selected = fit_minutes or named is not None
+    status = (f"status_shard{share[0]}of{share[1]}.json" if share and not selected
+              else f"status_{stamp}.json" if selected else "status.json")
     q = Queue(out, mine, all_jobs, slots, times, deadline, progress_every, learners_of, log, status)
     ran = q.run()
     summary.update(measured_wall_s=ran["wall_s"], utilisation=ran["utilisation"], busy_s=ran["busy_s"],
@@ -158,7 +193,8 @@ def reproduce(figures: str | Sequence[str] = "all", scale: str = "paper", out: s
                        timespec="seconds"))
     ran_any = any(r["attempts"] for r in ran["jobs"].values())
     if ran_any:  # a rerun that found everything done keeps the summary of the stretch that ran
-        name = f"summary_shard{share[0]}of{share[1]}.json" if share else "summary.json"
+        name = (f"summary_shard{share[0]}of{share[1]}.json" if share and not selected
+                else f"summary_{stamp}.json" if selected else "summary.json")
         with open(os.path.join(out, name), "w") as f:
             json.dump(summary, f, indent=1)
     page = results.write(out, summary if ran_any else results.read_summary(out), out_name=out)
@@ -166,6 +202,10 @@ def reproduce(figures: str | Sequence[str] = "all", scale: str = "paper", out: s
         + (f"; unfinished: {len(ran['unfinished'])} job(s): run the same command to continue"
            if ran["unfinished"] else ""))
     return summary
+
+
+def _job(jobs: Sequence[Job], job_id: str) -> Job:
+    return next(j for j in jobs if j.id == job_id)
 
 
 def _learners_of(added: Sequence[str]) -> Callable[[Job], list[str]]:

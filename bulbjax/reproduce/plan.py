@@ -249,6 +249,30 @@ def shard_of(jobs: Sequence[Job], cost: dict[str, float], n: int) -> dict[str, i
     return out
 
 
+def with_partners(jobs: Sequence[Job], chosen: Sequence[str]) -> list[Job]:
+    """The jobs named in `chosen` with their partners, in plan order: a Fig. 4 job and the run it
+    reads go together (the run's last checkpoint is drawn on the host that ran it, and a host's
+    disk may not outlive it)."""
+    ids = set(chosen)
+    ids |= {j.after for j in jobs if j.id in ids and j.after}
+    ids |= {j.id for j in jobs if j.after in ids}
+    return [j for j in jobs if j.id in ids]
+
+
+def parse_jobs(text: str | Sequence[str] | None, jobs: Sequence[Job]) -> list[Job] | None:
+    """`--jobs ID,ID` (job ids as `--dry-run` lists them, e.g. fig2-cartpole/seed3): those jobs of
+    the plan with their partners (`with_partners`); None for all. An id the plan does not hold
+    is a one-line error listing the plan's."""
+    if text is None:
+        return None
+    items = [t.strip() for t in (text.split(",") if isinstance(text, str) else text) if t.strip()]
+    known = [j.id for j in jobs]
+    bad = [t for t in items if t not in known]
+    if bad or not items:
+        raise ValueError(f"--jobs: {', '.join(bad) or 'no job named'} not in this plan; its jobs: {', '.join(known)}")
+    return with_partners(jobs, items)
+
+
 # ---------------------------------------------------------------------------- the plan file
 PLAN_FILE = "plan.json"
 # what a plan's identity is: a rerun with other values of these is refused (--overwrite to start afresh)

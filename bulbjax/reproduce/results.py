@@ -102,11 +102,20 @@ def write(out: str, summary: dict[str, Any] | None = None, out_name: str | None 
              "bands over seeds (docs/probes.md).", ""]
     if summary:
         lines += [_summary_line(summary), ""]
-    lines += ["| job | figure | epochs done | state |", "|---|---|---|---|"]
+    ran = job_times(out)
+    lines += ["| job | figure | epochs done | state | GPU time | start-up | s / epoch |", "|---|---|---|---|---|---|---|"]
     for j in jobs:
-        done = J.epochs_done(out, j)
+        done, r = J.epochs_done(out, j), ran.get(j.id, {})
+        per = f"{r['epoch_s']:.3f}" if r.get("epoch_s") else "-"
         lines.append(f"| {j.id} | {j.figure} | {done} / {j.epochs} | "
-                     f"{'done' if J.is_done(out, j) else 'unfinished'} |")
+                     f"{'done' if J.is_done(out, j) else 'unfinished'} | "
+                     f"{hms(r['busy_s']) if r.get('busy_s') else '-'} | "
+                     f"{hms(r['startup_s']) if r.get('startup_s') else '-'} | {per} |")
+    stretches = summaries(out)
+    if stretches:
+        busy = sum(s.get("busy_s", 0.0) for s in stretches)
+        lines.append(f"\nGPU time of the stretches that ran jobs ({len(stretches)}, `summary*.json`): "
+                     f"{busy / 3600:.2f} {hours_unit(stretches[-1].get('device_kind', ''))}.")
     lines.append("")
     by_preset = runs_by_preset(jobs)
     for fig in ("fig2", "fig3", "fig4", "fig5"):
@@ -178,9 +187,38 @@ def _summary_line(s: dict[str, Any]) -> str:
             f"{(s.get('utilisation') or 0):.0%}, {s.get('gpu_hours', 0):.2f} {hours_unit(s.get('device_kind', ''))}.")
 
 
+def summaries(out: str) -> list[dict[str, Any]]:
+    """Every stretch's summary in the plan's folder (`summary.json`, `summary_shard<K>of<N>.json`,
+    `summary_<UTC time>.json`: one per host of a sharded plan or per stretch that selected its
+    jobs), oldest first by their `finished_utc`."""
+    out_ = []
+    for path in glob.glob(os.path.join(glob.escape(out), "summary*.json")):
+        with open(path) as f:
+            out_.append(json.load(f))
+    return sorted(out_, key=lambda s: s.get("finished_utc", ""))
+
+
+def job_times(out: str) -> dict[str, dict[str, Any]]:
+    """Each job's measured GPU time (`busy_s`, summed over the stretches that ran it), its last
+    start-up (`startup_s`) and seconds per epoch (`epoch_s`), from every stretch's summary."""
+    times: dict[str, dict[str, Any]] = {}
+    for s in summaries(out):
+        for jid, r in (s.get("jobs") or {}).items():
+            if not r.get("attempts"):
+                continue
+            t = times.setdefault(jid, {"busy_s": 0.0})
+            t["busy_s"] += r.get("busy_s") or 0.0
+            for k in ("startup_s", "epoch_s"):
+                if r.get(k):
+                    t[k] = r[k]
+    return times
+
+
 def read_summary(out: str) -> dict[str, Any] | None:
+    """The last stretch's summary (`summary.json`, else the newest `summary*.json`), or None."""
     path = os.path.join(out, "summary.json")
-    if not os.path.exists(path):
-        return None
-    with open(path) as f:
-        return json.load(f)
+    if os.path.exists(path):
+        with open(path) as f:
+            return json.load(f)
+    every = summaries(out)
+    return every[-1] if every else None
