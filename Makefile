@@ -8,7 +8,7 @@ SHARED ?= $(abspath ../shared)
 
 .PHONY: demo test test-all venv bench clean
 
-$(STAMP): pyproject.toml
+$(STAMP): pyproject.toml setup.py
 	$(PY) -m venv $(VENV)
 	$(BIN)/pip install -q --upgrade pip
 	$(BIN)/pip install -q -e '.[test,pybullet]'

@@ -3,7 +3,7 @@ joint trajectories under zero and random torques while nothing is touched.
 
 The PyBullet side follows bulb's `ReacherBulletSimulation` (facts in
 `../shared/reference/bulb-multiobject.md`): the reacher loaded with `loadMJCF` (here bulbjax's
-`bulbjax/envs/mjcf/reacher_rearrange.xml`, as bulb's own `reacher.xml` is not in the stored
+`mjcf_assets/reacher_rearrange.xml`, as bulb's own `reacher.xml` is not in the stored
 repository), `plane.urdf` underneath, gravity -9.81, time step 0.01 s with 2 substeps and 5 solver iterations,
 the motors of the controlled joints (0 and 2) disabled, torque control, and after every
 `stepSimulation` a joint beyond (31/32, 26/32) pi put back on that limit with its velocity

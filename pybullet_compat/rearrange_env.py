@@ -16,7 +16,7 @@ The scene:
   scale 1: the <=200-face convex hull collides, the decimated textured mesh is drawn, the body
   frame at the mesh's centre of mass). Prepare them in the parent with `rearrange_objects` and
   pass `objects=` to workers; otherwise the env prepares them (importing bulbjax.assets).
-- Reacher: bulbjax's `bulbjax/envs/mjcf/reacher_rearrange.xml` through `loadMJCF` (as
+- Reacher: bulbjax's `mjcf_assets/reacher_rearrange.xml` through `loadMJCF` (as
   `pybullet_compat.rearrange.ReacherBullet`), its base made static (`loadMJCF` leaves the root
   body free: a 0.06 kg base that the arm's reaction torques throw around), the elbow drawn orange.
   Franka: `pybullet_data`'s `franka_panda/panda.urdf`, fixed base at (-0.7, 0, 0), link

@@ -151,18 +151,22 @@ def rearrange_domain(name: str) -> RearrangeSpec:
 
 
 def reacher_mjcf_path() -> str:
-    """bulbjax's reacher MJCF (`$BULBJAX_MJCF_DIR`, else the package data `bulbjax/envs/mjcf/`,
-    as `bulbjax.envs.base.asset_dir`, found without importing bulbjax: `find_spec` of a top-level
-    package locates it without running it)."""
+    """bulbjax's reacher MJCF (`$BULBJAX_MJCF_DIR`, else the MJCF folder as
+    `bulbjax.envs.base.asset_dir` finds it: `bulbjax/mjcf_assets/` in an installed wheel, the
+    checkout's top-level `mjcf_assets/` beside `bulbjax/` otherwise), found without importing
+    bulbjax: `find_spec` of a top-level package locates it without running it."""
     folder = os.environ.get("BULBJAX_MJCF_DIR")
     if not folder:
         spec = importlib.util.find_spec("bulbjax")
         locations = list(spec.submodule_search_locations or []) if spec else []
-        folder = os.path.join(locations[0], "envs", "mjcf") if locations else "bulbjax/envs/mjcf"
+        candidates = ([os.path.join(locations[0], "mjcf_assets"),  # an installed wheel
+                       os.path.join(os.path.dirname(os.path.abspath(locations[0])), "mjcf_assets")]  # a checkout
+                      if locations else ["mjcf_assets"])
+        folder = next((c for c in candidates if os.path.isdir(c)), candidates[0])
     path = os.path.join(folder, "reacher_rearrange.xml")
     if not os.path.isfile(path):
         raise FileNotFoundError(f"reacher MJCF {path!r} not found (set BULBJAX_MJCF_DIR to the folder of "
-                                "bulbjax's MJCF files, bulbjax/envs/mjcf)")
+                                "bulbjax's MJCF files, mjcf_assets/ in a checkout)")
     return path
 
 

@@ -1,13 +1,15 @@
 """The package installs like any other (issue 58): a wheel built from the sources carries every
-file bulbjax reads at run time (the MJCF models, package data found through
-`importlib.resources`), and installed into an empty folder outside the checkout it makes an
-environment and runs `bulbjax envs` from another working directory, with the checkout's own
-copy out of reach; on a machine without the NVIDIA driver, without Warp's line about it. The
-wheel carries the licence file and says MIT in its metadata, the current way (issue 65)."""
+file bulbjax reads at run time (the MJCF models: the checkout's top-level `mjcf_assets/`, shipped
+as `bulbjax/mjcf_assets/` by setup.py's package_dir mapping and pyproject.toml's package-data,
+issue 66), and installed into an empty folder outside the checkout it makes every environment
+family and runs `bulbjax envs` from another working directory, with the checkout's own copy out
+of reach; on a machine without the NVIDIA driver, without Warp's line about it. The wheel
+carries the licence file and says MIT in its metadata, the current way (issue 65)."""
 
 from __future__ import annotations
 
 import email.parser
+import importlib.util
 import os
 import shutil
 import subprocess
@@ -17,9 +19,10 @@ import zipfile
 import pytest
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-MJCF = os.path.join(ROOT, "bulbjax", "envs", "mjcf")
-# what a build reads: the project file, its readme and licence, and the packages it finds
-SOURCES = ("pyproject.toml", "README.md", "LICENSE", "bulbjax", "pybullet_compat")
+MJCF = os.path.join(ROOT, "mjcf_assets")  # the design's top-level folder of MJCF models
+WHEEL_MJCF = "bulbjax/mjcf_assets"  # where the wheel carries them (setup.py's package_dir)
+# what a build reads: the project files, its readme and licence, and the packages it finds
+SOURCES = ("pyproject.toml", "setup.py", "README.md", "LICENSE", "bulbjax", "pybullet_compat", "mjcf_assets")
 
 
 def _pip(*args: str, cwd: str) -> str:
@@ -64,8 +67,9 @@ def installed(built, tmp_path_factory) -> str:
         names = set(z.namelist())
     models = sorted(f for f in os.listdir(MJCF) if f.endswith(".xml"))
     assert models, f"no MJCF files in {MJCF}"
-    missing = [m for m in models if f"bulbjax/envs/mjcf/{m}" not in names]
-    assert not missing, f"the wheel lacks the MJCF files {missing} (pyproject.toml's package-data)"
+    missing = [m for m in models if f"{WHEEL_MJCF}/{m}" not in names]
+    assert not missing, f"the wheel lacks the MJCF files {missing} (setup.py, pyproject.toml's package-data)"
+    assert not [n for n in names if n.startswith("mjcf_assets/")], "the MJCF files belong inside bulbjax/"
     site = tmp / "site"
     _pip("install", "--no-deps", "--no-index", "-q", "--target", str(site), wheel, cwd=str(tmp))
     return str(site)
@@ -99,19 +103,61 @@ def _python(site: str, cwd: str, *args: str) -> subprocess.CompletedProcess:
                           text=True, timeout=600)
 
 
-def test_installed_wheel_makes_an_environment(installed, tmp_path):
+def _model_files() -> dict[str, list[str]]:
+    """The MJCF files each registered environment reads from the asset folder (`xml_file`,
+    `robot_file`); the domains composed in code read none."""
+    from bulbjax.envs.registry import _REGISTRY
+
+    files = {name: [f for f in (getattr(cls, "xml_file", ""), getattr(cls, "robot_file", "")) if f]
+             for name, cls in _REGISTRY.items()}
+    assert any(files.values()), files
+    return files
+
+
+def test_mjcf_assets_at_the_top_level():
+    """The design's layout: the MJCF models in the checkout's top-level `mjcf_assets/` (issue 66),
+    every file an environment loads among them, none left in the old `bulbjax/envs/mjcf/`; and
+    `asset_dir()` of a bulbjax imported from this checkout reads that folder."""
+    from bulbjax.envs import base
+
+    assert os.path.isdir(MJCF), MJCF
+    need = sorted({f for fs in _model_files().values() for f in fs})
+    missing = [f for f in need if not os.path.isfile(os.path.join(MJCF, f))]
+    assert not missing, f"{MJCF} lacks {missing}"
+    assert not os.path.exists(os.path.join(ROOT, "bulbjax", "envs", "mjcf"))
+    if os.path.realpath(base.__file__).startswith(os.path.realpath(ROOT) + os.sep) and not os.environ.get(base.ASSET_DIR_ENV):
+        assert os.path.realpath(base.asset_dir()) == os.path.realpath(MJCF), base.asset_dir()
+
+
+def test_installed_wheel_makes_every_family(installed, tmp_path):
+    """From the installed copy alone: `asset_dir()` is its `bulbjax/mjcf_assets/`, every registered
+    environment that needs no YCB models is made (each family: pendulums, locomotion, Incline,
+    Reacher and Franka Rearrange; the Ycb variants read the same package files plus the YCB data
+    set), and CartPole resets."""
+    names = [n for n in _model_files() if "Ycb" not in n]
+    families = ["CartPole", "InvertedPendulum", "HalfCheetah", "Ant", "GeomOnIncline", "ReacherRearrangeGeom",
+                "FrankaRearrangeGeom"]
+    if importlib.util.find_spec("pybullet_data") is None:  # the Panda is pybullet_data's (the pybullet extra)
+        names = [n for n in names if not n.startswith("Franka")]
+        families.remove("FrankaRearrangeGeom")
     code = ("import os, sys, jax, bulbjax\n"
             "from bulbjax.envs.base import asset_dir\n"
             f"site = os.path.realpath({installed!r})\n"
             "here = os.path.realpath(bulbjax.__file__)\n"
             "assert here.startswith(site + os.sep), here\n"
-            "assert os.path.realpath(asset_dir()).startswith(site + os.sep), asset_dir()\n"
+            f"assert os.path.realpath(asset_dir()) == os.path.join(site, {WHEEL_MJCF!r}), asset_dir()\n"
+            f"for name in {names!r}:\n"
+            "    bulbjax.make(name, num_envs=2, render=False)\n"
+            "    print('made', name)\n"
             "env = bulbjax.make('CartPole', num_envs=2, render=False)\n"
             "state = jax.jit(env.reset)(jax.random.PRNGKey(0))\n"
             "print('lowdim', state.lowdim.shape)\n")
     r = _python(installed, str(tmp_path), "-c", code)
     assert r.returncode == 0, r.stderr[-4000:]
     assert "lowdim (2, 4)" in r.stdout
+    made = [line.split()[1] for line in r.stdout.splitlines() if line.startswith("made ")]
+    assert made == names, r.stdout
+    assert set(families) <= set(made), made
     from bulbjax.envs import render
 
     if not render._cuda_driver_loads():  # a CPU-only machine: Warp's no-driver line is not printed

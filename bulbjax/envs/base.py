@@ -32,23 +32,29 @@ from bulbjax.eval.spec import StateEntry
 ASSET_DIR_ENV = "BULBJAX_MJCF_DIR"
 
 
-MJCF_FOLDER = "mjcf"  # package data of `bulbjax.envs` (pyproject.toml's package-data)
+MJCF_FOLDER = "mjcf_assets"  # top level in a checkout; `bulbjax/mjcf_assets/` in a wheel (setup.py)
 
 
 def asset_dir() -> str:
-    """Folder of the MJCF files: `$BULBJAX_MJCF_DIR`, else `bulbjax/envs/mjcf/`, package data
-    found through `importlib.resources`, so that an installed wheel finds its models as a
-    checkout does. MuJoCo reads files by path: a package imported from a zip archive needs
-    `$BULBJAX_MJCF_DIR`."""
+    """Folder of the MJCF files: `$BULBJAX_MJCF_DIR`, else `mjcf_assets` inside the package (an
+    installed wheel: setup.py maps the checkout's top-level `mjcf_assets/` to the package
+    `bulbjax.mjcf_assets`, pyproject.toml's package-data ships its files), else `mjcf_assets/`
+    beside the package (a checkout, imported from `sys.path` or installed editable): the files
+    that go with the bulbjax code imported. The package is found through `importlib.resources`;
+    MuJoCo reads files by path, so a package imported from a zip archive needs `$BULBJAX_MJCF_DIR`."""
     given = os.environ.get(ASSET_DIR_ENV)
     if given:
         return given
-    folder = resources.files("bulbjax.envs").joinpath(MJCF_FOLDER)
-    if not isinstance(folder, os.PathLike):
-        raise ValueError(f"bulbjax's MJCF files are inside an archive ({folder}), which MuJoCo "
+    package = resources.files("bulbjax")
+    if not isinstance(package, os.PathLike):
+        raise ValueError(f"bulbjax's MJCF files are inside an archive ({package}), which MuJoCo "
                          f"cannot read: install bulbjax unzipped, or set {ASSET_DIR_ENV} to a folder "
                          "holding them")
-    return os.fspath(folder)
+    for folder in (os.path.join(package, MJCF_FOLDER), os.path.join(os.path.dirname(package), MJCF_FOLDER)):
+        if os.path.isdir(folder):
+            return folder
+    raise FileNotFoundError(f"bulbjax's MJCF files are neither in {package} nor beside it ({MJCF_FOLDER}/): "
+                            f"reinstall bulbjax, or set {ASSET_DIR_ENV} to a folder holding them")
 
 
 @struct.dataclass

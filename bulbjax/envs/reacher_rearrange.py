@@ -24,7 +24,7 @@ REACHER_LIMITS = np.array([31 / 32, 26 / 32]) * math.pi  # bulb's clamp of |q|
 
 
 class ReacherRearrange(Rearrange):
-    """bulb's ReacherRearrangeEnv: the planar 2-link reacher (`envs/mjcf/reacher_rearrange.xml`)
+    """bulb's ReacherRearrangeEnv: the planar 2-link reacher (`mjcf_assets/reacher_rearrange.xml`)
     at the tray's centre, 3 N m per joint, black floor, top-down camera."""
 
     joint_names = ("joint0", "joint1")

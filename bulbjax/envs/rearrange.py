@@ -44,7 +44,7 @@ What is mirrored:
 Known differences from bulb:
 - bulb's `reacher.xml`, `cube.urdf`, `cylinder.urdf` and table textures are not in the stored
   repository: the reacher is written from the reference's numbers (heights, hand sizes and
-  mass assumed, see `envs/mjcf/reacher_rearrange.xml`); cube = bulb's block (box 0.05 x 0.10 x
+  mass assumed, see `mjcf_assets/reacher_rearrange.xml`); cube = bulb's block (box 0.05 x 0.10 x
   0.15 m, 0.05 kg), cylinder radius 0.06, half-height 0.06, 0.2 kg; its contact parameters
   (restitution 0, lateral friction 0.5) assumed; tray colours are the textures' mean colours.
 - The reacher follows the reference's numbers (2 kg links, armature 1, damping 1: a slow arm,
