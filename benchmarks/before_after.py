@@ -10,9 +10,9 @@ seeds) and the paired per-seed difference after - before with its 90% band, plus
 versions' curves: `before_after.md`, `before_after.png`, `before_after.json`.
 
     git worktree add /tmp/before 90433af     # before: the LSTMs as flax nn.RNN cells
-    python benchmarks/diagnostics/before_after.py run --code /tmp/before --deconv-impl transpose --out runs/ba_before
-    python benchmarks/diagnostics/before_after.py run --code . --out runs/ba_after            # subpixel, hoisted LSTMs
-    python benchmarks/diagnostics/before_after.py compare runs/ba_before runs/ba_after --out docs/results/before_after
+    python benchmarks/before_after.py run --code /tmp/before --deconv-impl transpose --out runs/ba_before
+    python benchmarks/before_after.py run --code . --out runs/ba_after            # subpixel, hoisted LSTMs
+    python benchmarks/before_after.py compare runs/ba_before runs/ba_after --out docs/results/before_after
 """
 
 from __future__ import annotations
@@ -25,7 +25,7 @@ from typing import Any
 
 import numpy as np
 
-ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
 
 def cmd_run(a: argparse.Namespace) -> None:

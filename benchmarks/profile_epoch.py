@@ -54,7 +54,7 @@ from bulbjax.xla_options import parse_named_options  # noqa: E402
 
 def add_config_args(p: argparse.ArgumentParser) -> None:
     """The options `build_config` reads (preset and its overrides), for every script that builds
-    an experiment from a preset (profile_epoch, diagnostics/profile_compile.py, diagnostics/diag_init_compile.py)."""
+    an experiment from a preset."""
     p.add_argument("--preset", default="fig2-invpend")
     p.add_argument("--small", action="store_true", help="CPU sizes (small_config)")
     p.add_argument("--seeds", type=int, default=0, help="override the preset's seeds")

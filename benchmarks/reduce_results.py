@@ -4,7 +4,7 @@ Why: the GPU runs under `docs/results/` kept every epoch's full record (probe er
 state entry with float64 digits, learner and PPO scalars) and matplotlib's truecolour PNGs; the
 tracked tree had grown to 36 MB, most of it these files. What a reader needs from them is what
 `bulbjax report` (fig2.png, table.md, findings.md, objects.png, `--merge-seeds`,
-`--compare-rl`) and `benchmarks/diagnostics/before_after.py compare` read, plus the scalar history of each
+`--compare-rl`) and `benchmarks/before_after.py compare` read, plus the scalar history of each
 epoch. Git history keeps the full files.
 
 Metrics (`metrics.jsonl`, `metrics.jsonl.gz`, `*_metrics.jsonl.gz`, offline `curves.jsonl`),

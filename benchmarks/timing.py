@@ -1,5 +1,5 @@
-"""Timing of jitted calls for the benchmark scripts. Needs only jax, so scripts that must run
-without MuJoCo (`diagnostics/bench_lstm.py`) share it with those that import bulbjax."""
+"""Timing of jitted calls for the benchmark scripts. Needs only jax, so a script that must run
+without MuJoCo can share it with those that import bulbjax."""
 
 from __future__ import annotations
 

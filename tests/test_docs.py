@@ -258,20 +258,26 @@ def test_slugs_follow_github():
     assert _slug("Interop (`bulbjax/interop/`, host-side adapters)") == "interop-bulbjaxinterop-host-side-adapters"
 
 
-# a path of the repository naming a script: `benchmarks/diagnostics/before_after.py`, `tests/test_run.py`
+# a path of the repository naming a script: `benchmarks/before_after.py`, `tests/test_run.py`
 _SCRIPT = re.compile(r"(?<![\w./-])((?:benchmarks|bulbjax|tests|examples|pybullet_compat|docs)/"
                      r"[\w./-]*\.(?:py|sh))\b")
+# a commit before a path (`git show d5ec66c:benchmarks/diagnostics/bench_lstm.py`): that commit's file
+_AT_COMMIT = re.compile(r"\b[0-9a-f]{7,40}:$")
 
 
 def missing_scripts(text: str) -> list[str]:
-    """The repository paths of scripts (`.py`, `.sh`) named anywhere in `text` that do not exist."""
-    return sorted({p for p in _SCRIPT.findall(text) if not os.path.exists(os.path.join(ROOT, p))})
+    """The repository paths of scripts (`.py`, `.sh`) named anywhere in `text` that do not exist
+    (a path named at a commit, `REV:path`, is that commit's and is not checked)."""
+    named = {m.group(1) for m in _SCRIPT.finditer(text)
+             if not _AT_COMMIT.search(text[max(0, m.start() - 41):m.start()])}
+    return sorted(p for p in named if not os.path.exists(os.path.join(ROOT, p)))
 
 
 @pytest.mark.parametrize("page", PAGES + COMMAND_PAGES + README_PAGES)
 def test_named_scripts_exist(page):
     """A script a page names by its path exists there (issue 57: the before/after READMEs named
-    `benchmarks/before_after.py` after it moved to `benchmarks/diagnostics/`)."""
+    `benchmarks/before_after.py` after it moved to `benchmarks/diagnostics/`; issue 66: it moved
+    back, and the answered diagnostics left)."""
     with open(os.path.join(ROOT, page), encoding="utf-8") as f:
         gone = missing_scripts(f.read())
     assert not gone, f"{page} names scripts that do not exist: {', '.join(gone)}"
@@ -279,10 +285,14 @@ def test_named_scripts_exist(page):
 
 def test_the_script_check_catches_a_moved_script():
     assert len(README_PAGES) > 20 and "docs/results/before_after_dgrad/README.md" in README_PAGES
-    moved = "made by `benchmarks/before_after.py`:\n    python benchmarks/before_after.py run"
-    assert missing_scripts(moved) == ["benchmarks/before_after.py"]
-    assert not missing_scripts("`benchmarks/diagnostics/before_after.py`, `tests/test_docs.py`, "
-                               "../shared/device/stage-wheels.sh, warp/_src/jax/ffi.py")
+    moved = ("made by `benchmarks/diagnostics/before_after.py`:\n"
+             "    python benchmarks/diagnostics/before_after.py run")
+    assert missing_scripts(moved) == ["benchmarks/diagnostics/before_after.py"]
+    assert not missing_scripts("`benchmarks/before_after.py`, `tests/test_docs.py`, "
+                               "../shared/device/stage-wheels.sh, warp/_src/jax/ffi.py, "
+                               "`git show d5ec66c:benchmarks/diagnostics/bench_lstm.py`")
+    gone = "`d5ec66c benchmarks/diagnostics/bench_lstm.py`"  # a commit beside it, not before it
+    assert missing_scripts(gone) == ["benchmarks/diagnostics/bench_lstm.py"]
 
 
 # ---------------------------------------------------------------------------- lists and signatures
@@ -411,3 +421,148 @@ def test_slow_tier_count_in_the_docs_is_the_suites() -> None:
         with open(os.path.join(ROOT, page), encoding="utf-8") as f:
             said = re.search(pattern, f.read())
         assert said and int(said.group(1)) == n, f"{page} says {said and said.group(1)} slow tests; the suite has {n}"
+
+
+# ---------------------------------------------------------------------------- docs true to the folders
+# a line that is only a placeholder name, as `KILL_RESUME_TABLE` stood in docs/runs.md (issue 65)
+_PLACEHOLDER = re.compile(r"^[A-Z][A-Z0-9]*(?:_[A-Z0-9]+)+$")
+
+
+def placeholders(text: str) -> list[int]:
+    """Line numbers, outside code blocks, of lines that hold nothing but an ALL_CAPS_NAME."""
+    out, inside = [], False
+    for no, line in enumerate(text.splitlines(), 1):
+        if _FENCE.match(line):
+            inside = not inside
+        elif not inside and _PLACEHOLDER.match(line.strip()):
+            out.append(no)
+    return out
+
+
+@pytest.mark.parametrize("page", PAGES + COMMAND_PAGES + README_PAGES)
+def test_no_placeholder_is_left(page):
+    found = placeholders(_read(page))
+    assert not found, f"{page}: a placeholder where text belongs, line(s) {found}"
+
+
+def test_the_placeholder_check_catches_one():
+    assert placeholders("results:\n\nKILL_RESUME_TABLE\n\nWhat the kills found") == [3]
+    assert not placeholders("```\nBULBJAX_YCB_DIR\n```\n`BULBJAX_CACHE_DIR` is read\nA_b\n")
+
+
+def test_readme_lists_every_docs_page():
+    """README's Documentation list links every page of docs/ (issue 65: runs.md and soak.md were
+    missing)."""
+    text = _read("README.md")
+    section = text[text.index("## Documentation"):]
+    section = section[:section.index("\n## ")]
+    linked = set(re.findall(r"\]\((docs/[^)#\s]+\.md)\)", section))
+    pages = {p for p in PAGES if p.startswith("docs" + os.sep)}
+    missing = sorted(p for p in pages if p.replace(os.sep, "/") not in linked)
+    assert not missing, f"README's Documentation list lacks {missing}"
+
+
+def test_kill_resume_table_is_the_json_s():
+    """docs/runs.md's table of the kills is the newest committed `benchmarks/kill_resume.py`
+    result, counted again from its JSON (it was a literal `KILL_RESUME_TABLE` once)."""
+    import json
+
+    results = sorted(glob.glob(os.path.join(ROOT, "benchmarks", "results", "kill_resume_*.json")))
+    assert results, "no committed kill_resume result"
+    text = _read("docs/runs.md")
+    newest = os.path.basename(results[-1])
+    assert f"](../benchmarks/results/{newest})" in text, f"docs/runs.md should link {newest}"
+    with open(results[-1], encoding="utf-8") as f:
+        result = json.load(f)
+    rows = {r[0]: [int(c) for c in r[1:]] for r in _table_rows(text, "| where the kill landed |")}
+    want: dict[str, list[int]] = {}
+    for k in result["kills"]:
+        counts = want.setdefault(k["doing"], [0] * 5)
+        for i, hit in enumerate((True, k["state_after_kill"]["half_line"],
+                                 k["state_after_kill"]["partial_checkpoints"] > 0,
+                                 k.get("resume_ok") is True, k.get("resume_ok") is None)):
+            counts[i] += bool(hit)
+    want["all"] = [sum(c[i] for c in want.values()) for i in range(5)]
+    assert rows == want, f"docs/runs.md's kill table {rows} is not {newest}'s {want}"
+    s = result["summary"]
+    assert want["all"][0] == s["kills"] and want["all"][3] == s["resumes_from_newest_complete_checkpoint"]
+    said = " ".join(text.split())
+    assert f"The {s['kills']} kills went to {s['runs_finished']} runs" in said
+    assert f"all {s['runs_equal_to_reference']} finished" in said and s["runs_equal_to_reference"] == s["runs_finished"]
+    assert f"reported {len(s['failures'])} failures" in said
+
+
+def test_merged_folder_regenerates_as_the_docs_say(monkeypatch):
+    """README's headline figure is a merged folder: it holds no metrics, and docs/experiments.md
+    gives the `--merge-seeds` command over the halves it pooled (issue 65: the docs said every
+    committed folder redraws with `bulbjax report DIR`)."""
+    from bulbjax.experiment import report
+
+    monkeypatch.chdir(ROOT)
+    image = re.search(r"!\[[^\]]*\]\((docs/results/[^)]+)/fig2\.png\)", _read("README.md")).group(1)
+    assert os.path.exists(os.path.join(image, "config.json")) and not any(
+        os.path.exists(os.path.join(image, n)) for n in ("metrics.jsonl", "metrics.jsonl.gz")), image
+    halves = [os.path.normpath(h) for h in report.merge_sources(image)]
+    commands = [line for _, line in _code_lines(_read("docs/experiments.md"))
+                if "--merge-seeds" in line and os.path.dirname(image) in line]
+    assert commands, f"docs/experiments.md gives no --merge-seeds command for {image}"
+    args = [a for a in _bulbjax_args(commands[0])[1:] if not a.startswith("--")]
+    assert args[:len(halves)] == halves, f"docs/experiments.md merges {args}, the folder pooled {halves}"
+    text = " ".join(_read("docs/experiments.md").split())
+    assert f"e.g. README's headline `{image}`) holds no metrics" in text
+
+
+def test_checkpoint_sizes_in_the_docs_are_the_states():
+    """docs/experiments.md's in-memory sizes of the run state (what a checkpoint holds) are the
+    state's: the Makefile's demo and a six-learner Fig. 2 preset, built as `bulbjax run` builds them
+    (shapes only). The demo's checkpoint on disk (orbax compresses it) is smaller than its state."""
+    import jax
+    import numpy as np
+
+    from bulbjax.experiment.loop import Experiment
+    from bulbjax.experiment.resolve import resolve
+    from bulbjax.run_command import _settings
+
+    def state_bytes(cfg) -> int:
+        return sum(int(np.prod(x.shape)) * x.dtype.itemsize for x in jax.tree.leaves(Experiment(cfg).abstract_state()))
+
+    def hand_back(self, *args, **kwargs):
+        raise _Parser(self)
+
+    from bulbjax import cli
+
+    with mock.patch.object(argparse.ArgumentParser, "parse_args", hand_back):
+        with pytest.raises(_Parser) as caught:
+            cli.main(["envs"])
+    make = next(line for line in _read("Makefile").splitlines() if "bin)/bulbjax run" in line.lower())
+    args = caught.value.parser.parse_args(_bulbjax_args(make.replace("$(BIN)/", "")))
+    demo = state_bytes(resolve(args.preset, **_settings(args)))
+    preset = state_bytes(resolve("fig2-cartpole"))
+    text = " ".join(_read("docs/experiments.md").split())
+    m = re.search(r"the run state is ~([\d.]+) GB in memory for a six-learner Fig\. 2 preset with 6 seeds "
+                  r"and ([\d.]+) MB for `make demo`", text)
+    assert m, "docs/experiments.md should give the run state's size for a Fig. 2 preset and for make demo"
+    assert float(m.group(1)) == round(preset / 1e9, 1), f"a Fig. 2 preset's state is {preset / 1e9:.2f} GB"
+    assert float(m.group(2)) == round(demo / 1e6, 1), f"make demo's state is {demo / 1e6:.1f} MB"
+    disk = re.search(r"`make demo`'s checkpoint is (\d+) MB", text)
+    assert disk and int(disk.group(1)) < demo / 1e6
+
+
+def test_readme_front_door():
+    """README opens with what bulbjax is (at most three lines), then the two set-up commands in one
+    block; it gives the GPU install with an extra pyproject.toml has, the paper's citation
+    (BibTeX with an arXiv id) and the project's licence file beside the data licences (issue 65)."""
+    tomllib = pytest.importorskip("tomllib")
+    text = _read("README.md")
+    head = text[:text.index("```")].splitlines()
+    assert head[0] == "# bulbjax" and 1 <= len([x for x in head[1:] if x.strip()]) <= 3, head
+    block = text[text.index("```bash\n") + 8:]
+    block = block[:block.index("```")]
+    assert [line.split()[:2] for line in block.splitlines()] == [["make", "demo"], ["make", "test"]], block
+    with open(os.path.join(ROOT, "pyproject.toml"), "rb") as f:
+        extras = tomllib.load(f)["project"]["optional-dependencies"]
+    for extra in re.findall(r"pip install -e '\.\[(\w+)\]'", text):
+        assert extra in extras, f"README installs the extra {extra!r}; pyproject.toml has {sorted(extras)}"
+    assert "pip install -e '.[cuda]'" in text
+    assert re.search(r"```bibtex\n@\w+\{[^`]*arXiv:\d{4}\.\d{4,5}", text), "README should give a BibTeX entry"
+    assert "](LICENSE)" in text and os.path.exists(os.path.join(ROOT, "LICENSE"))

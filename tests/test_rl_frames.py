@@ -1,7 +1,7 @@
 """PPO observing the last K frames (`rl_frames`, issue 41): with a frame learner's latent, the
 latents of the last K frames of the world's episode concatenated oldest first, the episode's
 first frame repeated until K are held; with pixels, the frames stacked along the channels.
-Why: one frame holds positions, not velocities (benchmarks/diagnostics/ppo_partial_obs.py)."""
+Why: one frame holds positions, not velocities (docs/ppo.md, "From a latent or pixels")."""
 
 from __future__ import annotations
 

@@ -30,7 +30,7 @@ def resolve_seed_loop(choice: str, mesh: Mesh) -> str:
 
     "vmap" batches the seeds: every convolution over per-seed weights becomes a grouped one,
     which on the H100 runs a VAE update at half the rate of S separate updates (6 seeds, bf16:
-    7.97 against 4.19 ms per seed-update, `benchmarks/diagnostics/bench_seed_axis.py`). "map"
+    7.97 against 4.19 ms per seed-update, `bench_seed_axis.py`: benchmarks/diagnostics/README.md). "map"
     runs the seeds one after another (`lax.map`), each a plain batch-1,024 update that fills the
     GPU alone. "hybrid" is "map" except for learners whose LSTMs dominate (`hybrid_vmapped`:
     DSA), which are vmapped with their convolutions one seed at a time (`with_seed_loop`,

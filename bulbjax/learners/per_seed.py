@@ -2,7 +2,7 @@
 
 Why: the learners of a run are vmapped (or `lax.map`ped) over seeds with per-seed weights. A
 vmapped convolution becomes a grouped one (seeds = feature groups), which cuDNN runs at about
-half the rate of S plain ones (`benchmarks/diagnostics/bench_seed_axis.py`), so on one GPU the
+half the rate of S plain ones (`bench_seed_axis.py`: benchmarks/diagnostics/README.md), so on one GPU the
 experiment runs each seed's update alone (`lax.map`). That serialises the sequential learners' LSTMs too:
 24 steps of a few small kernels each, at ~42 windows per seed, which leave the GPU idle. With
 these wrappers around the frame networks, a learner can be vmapped over seeds (its LSTMs, heads

@@ -94,7 +94,8 @@ class SequentialVAE:
     sequential: ClassVar[bool] = True
     # Whether the "hybrid" seed loop vmaps this learner (`experiment.seeds.with_seed_loop`): worth
     # it where LSTMs are a large share of an update (DSA: three; H100, 6 seeds, 5.74 -> 5.03 ms
-    # per seed-update), not for SVAE's one (4.25 -> 4.28 ms; benchmarks/diagnostics/bench_seed_axis.py).
+    # per seed-update), not for SVAE's one (4.25 -> 4.28 ms; the diagnostic bench_seed_axis.py,
+    # benchmarks/diagnostics/README.md).
     hybrid_vmapped: ClassVar[bool] = False
 
     def __post_init__(self) -> None:

@@ -131,7 +131,8 @@ def lstm_scan(xi: jax.Array, wh: jax.Array, unroll: int = 1) -> jax.Array:
 
 def lstm_scan_autodiff(xi: jax.Array, wh: jax.Array, unroll: int = 1) -> jax.Array:
     """`lstm_scan` with autodiff's gradient (the reference the written-out one is tested
-    against, and the form `benchmarks/diagnostics/bench_lstm.py` compares it with)."""
+    against, and the form the diagnostic `bench_lstm.py` compared it with; its answer is in
+    benchmarks/diagnostics/README.md)."""
     return jnp.moveaxis(_lstm_forward(jnp.moveaxis(xi, 2, 0), wh, unroll)[0], 0, 2)
 
 
