@@ -69,6 +69,9 @@ def add_config_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--programs", default="", choices=("", "fused", "split"),
                    help="init and the epoch as one program each or several (ExperimentConfig.programs; "
                         "default: the preset's)")
+    p.add_argument("--overlap", default="", choices=("", "none", "pipeline", "streams"),
+                   help="the next epoch's PPO work beside this epoch's learner updates (ExperimentConfig.overlap; "
+                        "default: the preset's)")
     p.add_argument("--no-shared-updates", action="store_true",
                    help="one update and probe program per frame VAE, not one for vae/vae_rpl/beta_vae "
                         "(ExperimentConfig.shared_updates)")
@@ -88,6 +91,8 @@ def build_config(a: argparse.Namespace) -> ExperimentConfig:
         overrides["shared_updates"] = False
     if getattr(a, "programs", ""):
         overrides["programs"] = a.programs
+    if getattr(a, "overlap", ""):
+        overrides["overlap"] = a.overlap
     learner: dict[str, Any] = {}
     if a.bf16:
         learner["compute_dtype"] = "bfloat16"
@@ -136,12 +141,14 @@ def profile(cfg: ExperimentConfig, repeats: int, warm_epochs: int, trace_dir: st
         out["split_programs"] = progs.split
         out["programs"] = progs.names
         t0 = time.perf_counter()
-        progs.prepare("init")
+        progs.prepare("init", *(("prime",) if exp.pipelined else ()))
         t_lower_init = time.perf_counter() - t0
         progs.prepare("epoch")
         out["lower_s"] = time.perf_counter() - t0
         out["lower_init_s"] = t_lower_init
         rs = jax.block_until_ready(progs.init(key))
+        if exp.pipelined:  # the first epoch's environment work (ExperimentConfig.overlap)
+            rs = jax.block_until_ready(progs.prime(rs, jax.random.fold_in(key, 99)))
         out["init_s"] = time.perf_counter() - t0  # lowering + init's compile (or load) + run
         flag_compiled = progs.compiled("epoch")
         out["epoch_ready_s"] = time.perf_counter() - t0  # lowering + the epoch's compile (or load)
@@ -153,6 +160,8 @@ def profile(cfg: ExperimentConfig, repeats: int, warm_epochs: int, trace_dir: st
     else:
         t0 = time.perf_counter()
         rs = jax.block_until_ready(exp.init(key))
+        if exp.pipelined:
+            rs = jax.block_until_ready(exp.prime(rs, jax.random.fold_in(key, 99)))
         out["init_s"] = time.perf_counter() - t0  # compile + run of init
         log(f"build {out['build_s']:.1f} s, init (compile + run) {out['init_s']:.1f} s")
     if warp_stats:

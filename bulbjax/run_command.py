@@ -14,7 +14,7 @@ def _settings(args: argparse.Namespace) -> dict:
     text values are parsed and checked there)."""
     flags = (("env", "env"), ("seeds", "seeds"), ("epochs", "epochs"), ("sequence_length", "sequence_length"),
              ("learners", "learners"), ("version", "version"), ("rl_input", "rl_input"), ("rl_frames", "rl_frames"),
-             ("seed_loop", "learner_seed_loop"), ("programs", "programs"), ("ppo_updates", "ppo_updates_per_epoch"),
+             ("seed_loop", "learner_seed_loop"), ("programs", "programs"), ("overlap", "overlap"), ("ppo_updates", "ppo_updates_per_epoch"),
              ("resolution", "resolution"), ("graph_mode", "graph_mode"),
              ("probe_variants", "probe_variants"))
     overrides = {field: getattr(args, flag) for flag, field in flags if getattr(args, flag, None) is not None}

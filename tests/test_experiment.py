@@ -518,3 +518,49 @@ def test_whole_window_latent_has_the_learners_window_size(run):
         context = pv.context_of(learner, exp.config.probe)
         ctx = probe.context_latents(z, context)
         np.testing.assert_array_equal(pv.held_step_latents(ctx, context), z)
+
+
+def test_the_pipelined_epoch_gives_the_plain_epochs(run):
+    """`overlap="pipeline"`: one program does epoch t's learner updates and probes and epoch t+1's
+    PPO work and replay inserts. From the same init and epoch keys as the fixture's two epochs it
+    gives their metrics and their learners (its state carries the next epoch's environment work,
+    `RunState.pending`). Through `epoch_flag`, as a run probing every k epochs calls it: the first
+    epoch probing, the second not (its updates still the fixture's second epoch's)."""
+    exp, _, rs2, m1, m2, _, rs1 = run
+    pipe = Experiment(dataclasses.replace(exp.config, overlap="pipeline"))
+    assert pipe.pipelined and not pipe.on_streams  # streams: a GPU setting
+    rs = pipe.init(jax.random.PRNGKey(0))
+    assert rs.pending == {}
+    rs = pipe.prime(rs, jax.random.PRNGKey(1))  # epoch 0's environment work, with epoch 0's key
+    assert set(rs.pending) >= {"metrics", "k_learn", "k_eval", "k_probe"} and int(rs.epoch) == 0
+    rs, m = jax.device_get(pipe.epoch_flag(rs, jax.random.PRNGKey(2), pipe.put_flag(True)))  # epoch 1's key
+    assert int(rs.epoch) == 1 and jax.tree.structure(m) == jax.tree.structure(m1)
+    assert _max_abs_diff(m, m1) <= 1e-4
+    assert _max_abs_diff(rs.learners, rs1.learners) <= 1e-5
+    assert _max_abs_diff([rs.curr_env, rs.rand_env], [rs1.curr_env, rs1.rand_env]) <= 1e-5
+    rs, m = jax.device_get(pipe.epoch_flag(rs, jax.random.PRNGKey(3), pipe.put_flag(False)))
+    assert _max_abs_diff({k: v for k, v in m.items() if k != "probes"},
+                         {k: v for k, v in m2.items() if k != "probes"}) <= 1e-4
+    assert _max_abs_diff(rs.learners, rs2.learners) <= 1e-5
+    assert np.all(np.isnan(m["probes"]["vae"]["curr"]["mae"]))  # not probed
+    with pytest.raises(ValueError, match="PPO observes vae's latent"):
+        dataclasses.replace(exp.config, overlap="pipeline", rl_input="latent:vae")
+    with pytest.raises(ValueError, match="overlap must be one of"):
+        dataclasses.replace(exp.config, overlap="always")
+
+
+def test_on_stream_marks_the_call_for_a_cuda_stream():
+    """`overlap="streams"` puts the learners' updates in a call XLA runs on CUDA stream 1: the
+    lowered call carries the stream annotation and is kept as a call (not inlined); on the CPU
+    the same function computes the same numbers."""
+    from bulbjax.experiment.loop import on_stream
+
+    def f(x, y):
+        return {"s": (x * y).sum(), "d": x - y}
+
+    g = on_stream(f, 1)
+    x, y = np.arange(6.0).reshape(2, 3), np.ones((2, 3))
+    text = jax.jit(lambda a, b: g(a, b)).lower(x, y).as_text()
+    assert '_xla_stream_annotation = "1"' in text and 'inlineable = "false"' in text
+    assert "_xla_stream_annotation" not in jax.jit(f).lower(x, y).as_text()
+    np.testing.assert_array_equal(jax.jit(lambda a, b: g(a, b))(x, y)["d"], x - y)

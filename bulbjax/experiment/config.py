@@ -21,6 +21,8 @@ from bulbjax.rl.ppo_config import PPOConfig
 SEED_LOOPS = ("auto", "vmap", "map", "hybrid")
 # How init and the epoch are compiled (`ExperimentConfig.programs`).
 PROGRAM_FORMS = ("fused", "split")
+# How an epoch's PPO work and its learners' updates are laid out (`ExperimentConfig.overlap`).
+OVERLAP_MODES = ("none", "pipeline", "streams")
 # Probe-protocol variants computed beside the present probe (`ExperimentConfig.probe_variants`,
 # docs/probes.md "Variants of the protocol"): a common probe set for every learner of a seed,
 # the whole window's latent for the sequential learners, raw MAE per state group.
@@ -100,7 +102,7 @@ class ExperimentConfig:
     # an episode's first frame repeated until K are held).
     # One frame holds positions, not velocities: from the positions alone PPO reaches 950 on
     # InvertedPendulum but holds it in 20-36% of later updates, from two steps' in 93-100%
-    # (benchmarks/diagnostics/ppo_partial_obs.py, docs/ppo.md).
+    # (docs/ppo.md, "From a latent or pixels").
     rl_frames: int = 1
     # How learner work runs over the seed axis (`seeds.resolve_seed_loop`): "vmap", "map" (one
     # seed at a time; ~1.9x faster VAE updates on the H100), "hybrid" (map, but DSA, whose three
@@ -121,6 +123,17 @@ class ExperimentConfig:
     # side is slower than one after another; benchmarks/README.md, "Split programs"), so fused
     # is the default.
     programs: str = "fused"
+    # Whether the next epoch's PPO work runs beside this epoch's learner updates (`loop.Experiment`,
+    # "The pipelined epoch"): "none" (an epoch's PPO, then its learners), "pipeline" (one program
+    # does epoch t's learner updates and probes and epoch t+1's rollouts, PPO updates and replay
+    # inserts, which do not depend on them when PPO observes the true state or pixels) or
+    # "streams" (the same, the learner updates on a CUDA stream of their own, so that the GPU runs
+    # them while MuJoCo Warp's small kernels leave it idle: a GPU setting, the same as "pipeline"
+    # elsewhere). Each epoch computes what it computes with "none", from the same keys and inputs
+    # (the same numbers up to floating-point reassociation); the run state carries the next
+    # epoch's environment work done (`RunState.pending`), so a checkpoint resumes only in the mode
+    # that wrote it. Fused programs only; not with PPO on a learner's latent.
+    overlap: str = "none"
     # Probe-protocol variants (`PROBE_VARIANTS`) computed in the same run beside the present
     # probe, which they leave unchanged (docs/probes.md, "Variants of the protocol"): "common"
     # (every learner's probe fit on the same pairs: a fixed draw of random-policy steps kept from
@@ -185,6 +198,13 @@ class ExperimentConfig:
             raise ValueError(f"learner_seed_loop must be one of {SEED_LOOPS}, got {self.learner_seed_loop!r}")
         if self.programs not in PROGRAM_FORMS:
             raise ValueError(f"programs must be one of {PROGRAM_FORMS}, got {self.programs!r}")
+        if self.overlap not in OVERLAP_MODES:
+            raise ValueError(f"overlap must be one of {OVERLAP_MODES}, got {self.overlap!r}")
+        if self.overlap != "none" and self.rl_learner is not None:
+            raise ValueError(f"--overlap {self.overlap}: PPO observes {self.rl_learner}'s latent, so its rollouts "
+                             "read the learners' updates and cannot run beside them: use --overlap none")
+        if self.overlap != "none" and self.programs != "fused":
+            raise ValueError(f"--overlap {self.overlap} lays out the fused epoch program: use --programs fused")
         bad = [v for v in self.probe_variants if v not in PROBE_VARIANTS]
         if bad or len(set(self.probe_variants)) != len(self.probe_variants):
             raise ValueError(f"probe_variants must be distinct names of {', '.join(PROBE_VARIANTS)} "

@@ -144,7 +144,8 @@ class Devices:
                         train_env=each(rs.train_env, world), curr_env=each(rs.curr_env, world),
                         rand_env=each(rs.rand_env, world),
                         policy_history=each(rs.policy_history, seed_world),
-                        ref_spread=self._rep, epoch=self._rep, probe_set=each(rs.probe_set, seed))
+                        ref_spread=self._rep, epoch=self._rep, probe_set=each(rs.probe_set, seed),
+                        pending={k: each(v, seed if k == "fresh" else self._rep) for k, v in rs.pending.items()})
 
     @property
     def replicated(self) -> NamedSharding:

@@ -200,6 +200,14 @@ class SeedGroups:
                       for rs, e in zip(states, self.exps)]
         return self._wrap(states)
 
+    def prime(self, state: Any, key: jax.Array) -> Any:
+        """Every local group's first epoch's environment work on init's state (a pipelined run,
+        `ExperimentConfig.overlap`; `state` donated); the state itself otherwise."""
+        if not self.exp.pipelined:
+            return state
+        return self._wrap(_side_by_side([functools.partial(p.prime, rs, key)
+                                         for p, rs in zip(self._programs, self._unwrap(state))]))
+
     def epoch(self, state: Any, key: jax.Array, probe: bool = True) -> tuple[Any, dict[str, Any]]:
         """One epoch of every local group (dispatched together, run side by side on their devices;
         `state` donated). Returns the new state and the metrics of all the run's seeds (host

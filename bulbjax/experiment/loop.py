@@ -15,7 +15,7 @@ physics launch and one render context for all seeds, which is what makes the GPU
 
 from __future__ import annotations
 
-from typing import Any, Mapping, Sequence
+from typing import Any, Callable, Mapping, Sequence
 
 import jax
 import jax.numpy as jnp
@@ -79,8 +79,15 @@ class Experiment:
                                object_pixels(self.env), objects.default_radius(c.resolution),
                                self.targets, c.probe_variants_run)
         self.common_probes = "common" in c.probe_variants  # the common probe set is kept and drawn
-        shapes = jax.eval_shape(self._init, jax.random.PRNGKey(0))
+        # the pipelined epoch (`ExperimentConfig.overlap`): its state carries the next epoch's
+        # environment work (`RunState.pending`), which `prime` does once after init
+        self.pipelined = c.overlap != "none"
+        self.on_streams = c.overlap == "streams" and self.mesh.devices.flat[0].platform == "gpu"
+        init_shapes = jax.eval_shape(self._init, jax.random.PRNGKey(0))
+        shapes = (jax.eval_shape(self._prime, init_shapes, jax.random.PRNGKey(0)) if self.pipelined
+                  else init_shapes)
         self._state_sh = dev.state_shardings(shapes)
+        self._init_sh = dev.state_shardings(init_shapes)
         rep = dev.replicated
         # what `programs.Programs.of` keeps of this experiment's programs (per `probes`)
         self.programs_cache: dict[tuple[bool, ...], Any] = {}
@@ -89,8 +96,12 @@ class Experiment:
         # it asks for the state's shapes
         self._abstract_state = jax.tree.map(lambda x, sh: jax.ShapeDtypeStruct(x.shape, x.dtype, sharding=sh),
                                             shapes, self._state_sh)
+        self._abstract_init = jax.tree.map(lambda x, sh: jax.ShapeDtypeStruct(x.shape, x.dtype, sharding=sh),
+                                           init_shapes, self._init_sh)
         opts = self.compiler_options or None
-        self.init = jax.jit(self._init, out_shardings=self._state_sh, compiler_options=opts)
+        self.init = jax.jit(self._init, out_shardings=self._init_sh, compiler_options=opts)
+        # `prime(rs, key)`: the first epoch's environment work on init's state (pipelined runs)
+        self.prime = jax.jit(self._prime, donate_argnums=0, out_shardings=self._state_sh, compiler_options=opts)
         # `epoch(rs, key, probe=False)` skips the held-out rollouts and probes (`--probe-every`).
         # Outputs laid out exactly as the inputs (state as `init` gives it, metrics replicated):
         # an equivalent but differently written sharding (XLA drops size-1 mesh axes) would
@@ -114,6 +125,11 @@ class Experiment:
     def abstract_state(self) -> RunState:
         """Shapes, dtypes and shardings of the RunState (what a checkpoint is restored into)."""
         return self._abstract_state
+
+    def abstract_init_state(self) -> RunState:
+        """What `init` returns: `abstract_state` but for a pipelined run, whose init state has no
+        `pending` until `prime` (`ExperimentConfig.overlap`)."""
+        return self._abstract_init
 
     def abstract_key(self) -> jax.ShapeDtypeStruct:
         return self.devices.abstract_key()
@@ -239,6 +255,8 @@ class Experiment:
         epoch did not probe; `Programs.epoch` drops them). `programs.Stages` runs the same steps
         (`env_stage`, `Learning.learn_unit`, `eval_stage`, `Probing.probe_unit`) as programs of
         their own."""
+        if self.pipelined:
+            return self._epoch_pipelined(rs, key, probe)
         rl_learners = self.policy.rl_learners
         hist = dict(rs.policy_history)
         env = self.env_stage(rs.ppo, rs.train_env, rs.buffers, rs.windows, hist.get("train"),
@@ -246,10 +264,80 @@ class Experiment:
         if env.train_hist is not None:
             hist["train"] = env.train_hist
         ppo_state, train_env, buffers, windows = env.ppo, env.train_env, env.buffers, env.windows
-        k_eval, k_probe = env.k_eval, env.k_probe
         learners, learn_m = self.learning.learn_phase(rs.learners, buffers, env.k_learn, windows)
         metrics = {**env.metrics, "learners": learn_m}
-        curr_env, rand_env = rs.curr_env, rs.rand_env
+        ops = (rs.curr_env, rs.rand_env, hist.get("curr"), ppo_state, learners, buffers, windows, rs.probe_set,
+               env.fresh)
+        curr_env, rand_env = self._probe_tail(probe, ops, env.k_eval, env.k_probe, hist, metrics)
+        new = RunState(ppo=ppo_state, learners=learners, buffers=buffers, windows=windows,
+                       train_env=train_env, curr_env=curr_env, rand_env=rand_env, policy_history=hist,
+                       ref_spread=rs.ref_spread, epoch=env.epoch, probe_set=rs.probe_set)
+        if self.sharded:  # the next epoch gets the layout this one got
+            new = jax.lax.with_sharding_constraint(new, self._state_sh)
+        return new, metrics
+
+    # ------------------------------------------------------------------ the pipelined epoch
+    # With `ExperimentConfig.overlap` "pipeline" or "streams", the program of epoch t does epoch
+    # t's learner updates (on the frames of t's rollouts, in the buffers since the program before)
+    # and, beside them, epoch t+1's environment work: PPO's rollouts and updates and the replay
+    # and window inserts, which read the PPO state, worlds and buffers and never the learners when
+    # PPO observes the true state or pixels. Then epoch t's held-out rollouts and probes. Every
+    # part takes the inputs and keys it takes in the plain epoch (epoch t's learning, held-out and
+    # probe keys come from t's key, kept in `RunState.pending` with t's metrics), so an epoch's
+    # numbers are the plain epoch's; what changes is what one program holds, so that the GPU can
+    # run the updates while MuJoCo Warp's chains of small kernels leave it idle (docs/performance.md,
+    # "The locomotion epoch on one H200"). `prime` does epoch 0's environment work after init; the
+    # last program does one epoch's environment work that no later epoch uses.
+    def _prime(self, rs: RunState, key: jax.Array) -> RunState:
+        """Init's state with the first epoch's environment work done (`key`: that epoch's key)."""
+        hist = dict(rs.policy_history)
+        env = self.env_stage(rs.ppo, rs.train_env, rs.buffers, rs.windows, hist.get("train"), None,
+                             rs.ref_spread, rs.epoch, key)
+        if env.train_hist is not None:
+            hist["train"] = env.train_hist
+        new = rs.replace(ppo=env.ppo, train_env=env.train_env, buffers=env.buffers, windows=env.windows,
+                         policy_history=hist, pending=_pending(env))
+        if self.sharded:
+            new = jax.lax.with_sharding_constraint(new, self._state_sh)
+        return new
+
+    def _epoch_pipelined(self, rs: RunState, key: jax.Array, probe: bool | jax.Array
+                         ) -> tuple[RunState, dict[str, Any]]:
+        """Epoch t of a pipelined run: `rs` holds t's environment work done (`rs.pending`), `key`
+        is epoch t+1's. Returns the state with t's learners updated and t+1's environment work
+        done, and epoch t's metrics (as `_epoch` gives them)."""
+        p, hist = rs.pending, dict(rs.policy_history)
+        learners, learn_m = self._learn(rs.learners, rs.buffers, p["k_learn"], rs.windows)
+        env = self.env_stage(rs.ppo, rs.train_env, rs.buffers, rs.windows, hist.get("train"), None,
+                             rs.ref_spread, rs.epoch, key)
+        metrics = {**p["metrics"], "learners": learn_m}
+        ops = (rs.curr_env, rs.rand_env, hist.get("curr"), rs.ppo, learners, rs.buffers, rs.windows, rs.probe_set,
+               p.get("fresh"))
+        curr_env, rand_env = self._probe_tail(probe, ops, p["k_eval"], p["k_probe"], hist, metrics)
+        if env.train_hist is not None:
+            hist["train"] = env.train_hist
+        new = RunState(ppo=env.ppo, learners=learners, buffers=env.buffers, windows=env.windows,
+                       train_env=env.train_env, curr_env=curr_env, rand_env=rand_env, policy_history=hist,
+                       ref_spread=rs.ref_spread, epoch=rs.epoch + 1, probe_set=rs.probe_set, pending=_pending(env))
+        if self.sharded:
+            new = jax.lax.with_sharding_constraint(new, self._state_sh)
+        return new, metrics
+
+    def _learn(self, learners: dict, buffers: dict, key: jax.Array, windows: dict) -> tuple[dict, dict]:
+        """`Learning.learn_phase`; with overlap "streams" on a GPU, as a program of its own on CUDA
+        stream 1 (`on_stream`), which XLA runs beside what the epoch does on its main stream."""
+        if self.on_streams:
+            return on_stream(self.learning.learn_phase, 1)(learners, buffers, key, windows)
+        return self.learning.learn_phase(learners, buffers, key, windows)
+
+    def _probe_tail(self, probe: bool | jax.Array, ops: tuple, k_eval: jax.Array, k_probe: jax.Array,
+                    hist: dict, metrics: dict) -> tuple[EnvState, EnvState]:
+        """An epoch's held-out rollouts and probes (`ops`: the held-out worlds and policy history,
+        the PPO state, learners and buffers they read, the common probe set's parts): none when
+        `probe` is False, under `lax.switch` when it is traced. Writes `metrics["probes"]` and the
+        current-policy history into `hist`; returns the held-out worlds."""
+        rl_learners = self.policy.rl_learners
+        curr_env, rand_env = ops[0], ops[1]
 
         def evaluate(ops: tuple) -> tuple:
             curr_env, rand_env, curr_hist, ppo_state, learners, buffers, windows, probe_set, fresh = ops
@@ -259,8 +347,6 @@ class Experiment:
             return curr_env, rand_env, curr_hist, self.probing.probe_phase(learners, buffers, held_out, k_probe,
                                                                            windows, common)
 
-        ops = (curr_env, rand_env, hist.get("curr"), ppo_state, learners, buffers, windows, rs.probe_set,
-               env.fresh)
         if isinstance(probe, (bool, np.bool_)):
             if probe:
                 curr_env, rand_env, curr_hist, metrics["probes"] = evaluate(ops)
@@ -286,12 +372,31 @@ class Experiment:
                 jnp.where(probe, 0, 1), [evaluate_once, skip], ops)
             if curr_hist is not None:
                 hist["curr"] = curr_hist
-        new = RunState(ppo=ppo_state, learners=learners, buffers=buffers, windows=windows,
-                       train_env=train_env, curr_env=curr_env, rand_env=rand_env, policy_history=hist,
-                       ref_spread=rs.ref_spread, epoch=env.epoch, probe_set=rs.probe_set)
-        if self.sharded:  # the next epoch gets the layout this one got
-            new = jax.lax.with_sharding_constraint(new, self._state_sh)
-        return new, metrics
+        return curr_env, rand_env
+
+
+def _pending(env: EnvStage) -> dict[str, Any]:
+    """What a pipelined epoch keeps of the next epoch's environment work for that epoch's
+    learning and probing (`RunState.pending`)."""
+    out = {"metrics": env.metrics, "k_learn": env.k_learn, "k_eval": env.k_eval, "k_probe": env.k_probe}
+    if env.fresh is not None:
+        out["fresh"] = env.fresh
+    return out
+
+
+def on_stream(fn: Callable[..., Any], stream: int) -> Callable[..., Any]:
+    """`fn` as a jitted program of its own whose call XLA runs on CUDA stream `stream` of the GPU
+    (`jax.experimental.compute_on`'s "gpu_stream:N": the call carries `_xla_stream_annotation`
+    and is not inlined), beside the ops of the enclosing program on the main stream that do not
+    depend on it."""
+    from jax.experimental.compute_on import compute_on
+
+    jitted = jax.jit(fn)
+
+    def call(*args: Any) -> Any:
+        with compute_on(f"gpu_stream:{stream}"):
+            return jitted(*args)
+    return call
 
 
 def _blank(s: jax.ShapeDtypeStruct) -> jax.Array:

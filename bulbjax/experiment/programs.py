@@ -47,7 +47,7 @@ class Stages:
     (fig2-invpend, 6 learners x 6 seeds, 2026-11-25) it does not start sooner: on one machine
     the first epoch came after 223 s against the fused programs' 205 s (195 s on another).
     XLA's autotuning does not run side by side on one GPU: two VAE updates compiled in threads
-    took 58.8 s, one after the other 20.0 s (`benchmarks/diagnostics/diag_parallel_compile.py`).
+    took 58.8 s, one after the other 20.0 s (`diag_parallel_compile.py`: benchmarks/diagnostics/README.md).
     Kept as an option (`ExperimentConfig.programs="split"`). One device only: the sharded run's
     layouts are set on the fused programs' outputs."""
 
@@ -161,6 +161,9 @@ def _members(learners: dict, unit: Sequence[str]) -> dict:
 class Programs:
     """A run's init and epoch executables, traced in one fixed order and then only called.
 
+    A pipelined run (`ExperimentConfig.overlap`) has a third program, `prime`, traced between init
+    and the epoch.
+
     MuJoCo Warp writes two per-process counters into every program that steps or renders: the
     FFI target's name (`<function>_<n>`, numbered in the order the targets are first traced)
     and each call site's `call_id` (numbered in the order the call sites are traced). Both are
@@ -197,6 +200,8 @@ class Programs:
             self._traced: dict[str, Any] = self._stages.trace(True in self.probes)
         else:
             self._traced = {"init": exp.init.trace(key)}
+            if exp.pipelined:  # the first epoch's environment work on init's state (`Experiment.prime`)
+                self._traced["prime"] = exp.prime.trace(exp.abstract_init_state(), key)
             if self.flag:
                 self._traced["epoch"] = exp.epoch_flag.trace(rs, key, exp.abstract_flag())
             else:
@@ -286,6 +291,11 @@ class Programs:
             self.prepare("init")
             return self._stages.init(self.compiled, self._exp.put_key(key))
         return self.compiled("init")(self._exp.put_key(key))
+
+    def prime(self, rs: RunState, key: jax.Array) -> RunState:
+        """`Experiment.prime` (`rs`, init's state, donated): a pipelined run's first epoch's
+        environment work; the key, that epoch's, is placed on the mesh here."""
+        return self.compiled("prime")(rs, self._exp.put_key(key))
 
     def epoch(self, rs: RunState, key: jax.Array, probe: bool = True) -> tuple[RunState, Any]:
         """`Experiment.epoch` (`rs` donated); the key is placed on the mesh here. The metrics of

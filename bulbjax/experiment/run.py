@@ -263,7 +263,7 @@ def run(cfg: ExperimentConfig, opts: RunOptions, run_dir: str, *, resume: bool =
         programs = groups.programs((True,) if opts.probe_every == 1 else (True, False))
         # compiles (or compile-cache loads) in background threads: init's and the epoch's overlap,
         # and a resume's restore overlaps the epoch's
-        programs.prepare(*(("epoch",) if resume else ("init", "epoch")))
+        programs.prepare(*(("epoch",) if resume else ("init", *(("prime",) if exp.pipelined else ()), "epoch")))
     # MuJoCo Warp's kernels built (or loaded) beside the compiles, so init finds them ready. Not
     # on a resume: the one resume that ran it beside the checkpoint's restore and a compile
     # ended in a SIGSEGV of process 1 (two H200s; the same resume without it ran), and a resume
@@ -274,6 +274,8 @@ def run(cfg: ExperimentConfig, opts: RunOptions, run_dir: str, *, resume: bool =
     if compile_only:
         with stages("compiling init and the epoch"):
             programs.compiled("init")
+            if exp.pipelined:
+                programs.compiled("prime")
             programs.compiled("epoch")
         warming = _physics_ready(warming, stages)
         log("compiled init and the epoch into the compile cache (--compile-only: no epoch ran)")
@@ -298,6 +300,11 @@ def run(cfg: ExperimentConfig, opts: RunOptions, run_dir: str, *, resume: bool =
             rs = programs.init(jax.random.PRNGKey(opts.seed))
             jax.block_until_ready(rs)
         key, start, records = groups.put_key(jax.random.PRNGKey(opts.seed + 1)), 0, []
+        if exp.pipelined:  # the first epoch's environment work, with the first epoch's key
+            with stages("running the first epoch's rollouts (--overlap)"):
+                key, k = jax.random.split(key)
+                rs = groups.prime(rs, k)
+                jax.block_until_ready(rs)
     if writer:
         _write_json_atomic(config_path, raw)
     jax.block_until_ready(rs)

@@ -102,6 +102,11 @@ class RunState:
     # the common probe set's random-policy part, kept from init (`probe_variants.ProbeSet`, [S]);
     # None without the "common" probe variant (no leaves: checkpoints of runs without it unchanged)
     probe_set: Any = None
+    # the next epoch's environment work, done (`ExperimentConfig.overlap`, "pipeline"/"streams"):
+    # its metrics, the keys of its learning, held-out rollouts and probes, and its new steps for
+    # the common probe set; {} in a run that does each epoch's environment work in that epoch
+    # (no leaves: its checkpoints unchanged)
+    pending: dict[str, Any] = struct.field(default_factory=dict)
 
 
 class EnvStage(NamedTuple):
