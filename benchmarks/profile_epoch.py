@@ -69,7 +69,7 @@ def add_config_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--programs", default="", choices=("", "fused", "split"),
                    help="init and the epoch as one program each or several (ExperimentConfig.programs; "
                         "default: the preset's)")
-    p.add_argument("--overlap", default="", choices=("", "none", "pipeline", "streams"),
+    p.add_argument("--overlap", default="", choices=("", "none", "pipeline"),
                    help="the next epoch's PPO work beside this epoch's learner updates (ExperimentConfig.overlap; "
                         "default: the preset's)")
     p.add_argument("--no-shared-updates", action="store_true",

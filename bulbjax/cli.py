@@ -275,11 +275,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     r.add_argument("--programs", default=None, choices=("fused", "split"),
                    help="init and the epoch as one program each (fused, default) or as several compiled "
                         "side by side (split, one device); the same numbers either way")
-    r.add_argument("--overlap", default=None, choices=("none", "pipeline", "streams"),
+    r.add_argument("--overlap", default=None, choices=("none", "pipeline"),
                    help="pipeline: one program does this epoch's learner updates and the next epoch's PPO "
-                        "rollouts and updates; streams: the same, the learner updates on a CUDA stream of their "
-                        "own (GPU). The same numbers; a checkpoint resumes in its own mode; not with PPO on a "
-                        "latent (default: none)")
+                        "rollouts and updates (the same numbers, as fast on one GPU; a checkpoint resumes in its "
+                        "own mode; not with PPO on a latent) (default: none)")
     r.add_argument("--small", action="store_true", help="CPU-sized settings (not the paper's)")
     r.add_argument("--bf16", action="store_true", help="bf16 compute in the learners (GPU)")
     r.add_argument("--rnn-unroll", type=int, default=None, metavar="N",

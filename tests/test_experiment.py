@@ -528,7 +528,7 @@ def test_the_pipelined_epoch_gives_the_plain_epochs(run):
     epoch probing, the second not (its updates still the fixture's second epoch's)."""
     exp, _, rs2, m1, m2, _, rs1 = run
     pipe = Experiment(dataclasses.replace(exp.config, overlap="pipeline"))
-    assert pipe.pipelined and not pipe.on_streams  # streams: a GPU setting
+    assert pipe.pipelined
     rs = pipe.init(jax.random.PRNGKey(0))
     assert rs.pending == {}
     rs = pipe.prime(rs, jax.random.PRNGKey(1))  # epoch 0's environment work, with epoch 0's key
@@ -547,20 +547,3 @@ def test_the_pipelined_epoch_gives_the_plain_epochs(run):
         dataclasses.replace(exp.config, overlap="pipeline", rl_input="latent:vae")
     with pytest.raises(ValueError, match="overlap must be one of"):
         dataclasses.replace(exp.config, overlap="always")
-
-
-def test_on_stream_marks_the_call_for_a_cuda_stream():
-    """`overlap="streams"` puts the learners' updates in a call XLA runs on CUDA stream 1: the
-    lowered call carries the stream annotation and is kept as a call (not inlined); on the CPU
-    the same function computes the same numbers."""
-    from bulbjax.experiment.loop import on_stream
-
-    def f(x, y):
-        return {"s": (x * y).sum(), "d": x - y}
-
-    g = on_stream(f, 1)
-    x, y = np.arange(6.0).reshape(2, 3), np.ones((2, 3))
-    text = jax.jit(lambda a, b: g(a, b)).lower(x, y).as_text()
-    assert '_xla_stream_annotation = "1"' in text and 'inlineable = "false"' in text
-    assert "_xla_stream_annotation" not in jax.jit(f).lower(x, y).as_text()
-    np.testing.assert_array_equal(jax.jit(lambda a, b: g(a, b))(x, y)["d"], x - y)

@@ -22,7 +22,7 @@ SEED_LOOPS = ("auto", "vmap", "map", "hybrid")
 # How init and the epoch are compiled (`ExperimentConfig.programs`).
 PROGRAM_FORMS = ("fused", "split")
 # How an epoch's PPO work and its learners' updates are laid out (`ExperimentConfig.overlap`).
-OVERLAP_MODES = ("none", "pipeline", "streams")
+OVERLAP_MODES = ("none", "pipeline")
 # Probe-protocol variants computed beside the present probe (`ExperimentConfig.probe_variants`,
 # docs/probes.md "Variants of the protocol"): a common probe set for every learner of a seed,
 # the whole window's latent for the sequential learners, raw MAE per state group.
@@ -123,16 +123,16 @@ class ExperimentConfig:
     # side is slower than one after another; benchmarks/README.md, "Split programs"), so fused
     # is the default.
     programs: str = "fused"
-    # Whether the next epoch's PPO work runs beside this epoch's learner updates (`loop.Experiment`,
-    # "The pipelined epoch"): "none" (an epoch's PPO, then its learners), "pipeline" (one program
+    # How an epoch's PPO work and its learners' updates are laid out (`loop.Experiment`, "The
+    # pipelined epoch"): "none" (an epoch's PPO, then its learners) or "pipeline" (one program
     # does epoch t's learner updates and probes and epoch t+1's rollouts, PPO updates and replay
-    # inserts, which do not depend on them when PPO observes the true state or pixels) or
-    # "streams" (the same, the learner updates on a CUDA stream of their own, so that the GPU runs
-    # them while MuJoCo Warp's small kernels leave it idle: a GPU setting, the same as "pipeline"
-    # elsewhere). Each epoch computes what it computes with "none", from the same keys and inputs
-    # (the same numbers up to floating-point reassociation); the run state carries the next
-    # epoch's environment work done (`RunState.pending`), so a checkpoint resumes only in the mode
-    # that wrote it. Fused programs only; not with PPO on a learner's latent.
+    # inserts, which do not depend on them when PPO observes the true state or pixels: the layout
+    # in which the two sides can run at once, once they run on different streams or devices; on
+    # one stream it runs them one after the other, as "none"). Each epoch computes what it
+    # computes with "none", from the same keys and inputs (the same numbers up to floating-point
+    # reassociation); the run state carries the next epoch's environment work done
+    # (`RunState.pending`), so a checkpoint resumes only in the mode that wrote it. Fused
+    # programs only; not with PPO on a learner's latent.
     overlap: str = "none"
     # Probe-protocol variants (`PROBE_VARIANTS`) computed in the same run beside the present
     # probe, which they leave unchanged (docs/probes.md, "Variants of the protocol"): "common"

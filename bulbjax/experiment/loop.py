@@ -15,7 +15,7 @@ physics launch and one render context for all seeds, which is what makes the GPU
 
 from __future__ import annotations
 
-from typing import Any, Callable, Mapping, Sequence
+from typing import Any, Mapping, Sequence
 
 import jax
 import jax.numpy as jnp
@@ -82,7 +82,6 @@ class Experiment:
         # the pipelined epoch (`ExperimentConfig.overlap`): its state carries the next epoch's
         # environment work (`RunState.pending`), which `prime` does once after init
         self.pipelined = c.overlap != "none"
-        self.on_streams = c.overlap == "streams" and self.mesh.devices.flat[0].platform == "gpu"
         init_shapes = jax.eval_shape(self._init, jax.random.PRNGKey(0))
         shapes = (jax.eval_shape(self._prime, init_shapes, jax.random.PRNGKey(0)) if self.pipelined
                   else init_shapes)
@@ -277,17 +276,19 @@ class Experiment:
         return new, metrics
 
     # ------------------------------------------------------------------ the pipelined epoch
-    # With `ExperimentConfig.overlap` "pipeline" or "streams", the program of epoch t does epoch
+    # With `ExperimentConfig.overlap` "pipeline", the program of epoch t does epoch
     # t's learner updates (on the frames of t's rollouts, in the buffers since the program before)
     # and, beside them, epoch t+1's environment work: PPO's rollouts and updates and the replay
     # and window inserts, which read the PPO state, worlds and buffers and never the learners when
     # PPO observes the true state or pixels. Then epoch t's held-out rollouts and probes. Every
     # part takes the inputs and keys it takes in the plain epoch (epoch t's learning, held-out and
     # probe keys come from t's key, kept in `RunState.pending` with t's metrics), so an epoch's
-    # numbers are the plain epoch's; what changes is what one program holds, so that the GPU can
-    # run the updates while MuJoCo Warp's chains of small kernels leave it idle (docs/performance.md,
-    # "The locomotion epoch on one H200"). `prime` does epoch 0's environment work after init; the
-    # last program does one epoch's environment work that no later epoch uses.
+    # numbers are the plain epoch's; what changes is what one program holds: the two sides are
+    # independent in it, the layout for running them at once (docs/performance.md, "The
+    # locomotion epoch on one H200": on one GPU stream XLA runs them one after the other, and its
+    # stream annotation does not take a call that holds loops on JAX 0.11.2). `prime` does epoch
+    # 0's environment work after init; the last program does one epoch's environment work that
+    # no later epoch uses.
     def _prime(self, rs: RunState, key: jax.Array) -> RunState:
         """Init's state with the first epoch's environment work done (`key`: that epoch's key)."""
         hist = dict(rs.policy_history)
@@ -307,7 +308,7 @@ class Experiment:
         is epoch t+1's. Returns the state with t's learners updated and t+1's environment work
         done, and epoch t's metrics (as `_epoch` gives them)."""
         p, hist = rs.pending, dict(rs.policy_history)
-        learners, learn_m = self._learn(rs.learners, rs.buffers, p["k_learn"], rs.windows)
+        learners, learn_m = self.learning.learn_phase(rs.learners, rs.buffers, p["k_learn"], rs.windows)
         env = self.env_stage(rs.ppo, rs.train_env, rs.buffers, rs.windows, hist.get("train"), None,
                              rs.ref_spread, rs.epoch, key)
         metrics = {**p["metrics"], "learners": learn_m}
@@ -322,13 +323,6 @@ class Experiment:
         if self.sharded:
             new = jax.lax.with_sharding_constraint(new, self._state_sh)
         return new, metrics
-
-    def _learn(self, learners: dict, buffers: dict, key: jax.Array, windows: dict) -> tuple[dict, dict]:
-        """`Learning.learn_phase`; with overlap "streams" on a GPU, as a program of its own on CUDA
-        stream 1 (`on_stream`), which XLA runs beside what the epoch does on its main stream."""
-        if self.on_streams:
-            return on_stream(self.learning.learn_phase, 1)(learners, buffers, key, windows)
-        return self.learning.learn_phase(learners, buffers, key, windows)
 
     def _probe_tail(self, probe: bool | jax.Array, ops: tuple, k_eval: jax.Array, k_probe: jax.Array,
                     hist: dict, metrics: dict) -> tuple[EnvState, EnvState]:
@@ -382,21 +376,6 @@ def _pending(env: EnvStage) -> dict[str, Any]:
     if env.fresh is not None:
         out["fresh"] = env.fresh
     return out
-
-
-def on_stream(fn: Callable[..., Any], stream: int) -> Callable[..., Any]:
-    """`fn` as a jitted program of its own whose call XLA runs on CUDA stream `stream` of the GPU
-    (`jax.experimental.compute_on`'s "gpu_stream:N": the call carries `_xla_stream_annotation`
-    and is not inlined), beside the ops of the enclosing program on the main stream that do not
-    depend on it."""
-    from jax.experimental.compute_on import compute_on
-
-    jitted = jax.jit(fn)
-
-    def call(*args: Any) -> Any:
-        with compute_on(f"gpu_stream:{stream}"):
-            return jitted(*args)
-    return call
 
 
 def _blank(s: jax.ShapeDtypeStruct) -> jax.Array:
