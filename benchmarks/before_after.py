@@ -33,9 +33,9 @@ def cmd_run(a: argparse.Namespace) -> None:
     import dataclasses
 
     import bulbjax
+    from bulbjax.config import RunOptions, preset, small_config
     from bulbjax.envs import registry
-    from bulbjax.experiment.config import preset, small_config
-    from bulbjax.experiment.run import RunOptions, run
+    from bulbjax.run import run
 
     print(f"bulbjax from {os.path.dirname(bulbjax.__file__)}")
     cfg = preset(a.preset)
@@ -53,7 +53,7 @@ def _errors(run_dir: str, last: int) -> tuple[dict[str, np.ndarray], list[int], 
     """Per (learner, stream): `[seeds]` overall normalised error over the last `last` probed
     epochs; the epochs; the learners; all records."""
     sys.path.insert(0, ROOT)
-    from bulbjax.experiment import records
+    from bulbjax.report import records
 
     recs = records.read_jsonl(records.metrics_path(run_dir))
     epochs = sorted({r["epoch"] for r in records.probed(recs)})[-last:]
@@ -64,7 +64,7 @@ def _errors(run_dir: str, last: int) -> tuple[dict[str, np.ndarray], list[int], 
 
 def cmd_compare(a: argparse.Namespace) -> None:
     sys.path.insert(0, ROOT)
-    from bulbjax.experiment import records
+    from bulbjax.report import records
 
     before, ep_b, learners, rec_b = _errors(a.before, a.last)
     after, ep_a, _, rec_a = _errors(a.after, a.last)

@@ -39,10 +39,11 @@ def main(argv: list[str] | None = None) -> dict:
     import jax
     import numpy as np
 
-    from bulbjax.experiment import checkpoint, run as run_mod
-    from bulbjax.experiment.config import RunOptions
-    from bulbjax.experiment.loop import Experiment
-    from bulbjax.experiment.resolve import resolve
+    from bulbjax.config import RunOptions
+    from bulbjax.epoch.loop import Experiment
+    from bulbjax.run import checkpoint
+    from bulbjax.run import loop as run_mod
+    from bulbjax.run.settings import resolve
 
     cfg = resolve(None, overrides=dict(env="CartPole", learners="vae", seeds=1, epochs=a.epochs,
                                        ppo_updates_per_epoch=1), small=True, ppo_options=("num_steps=16",))

@@ -2,7 +2,7 @@
 
 For each seed count of `--seeds` (default 6 and 12) and each device count of `--devices`
 (default 1 and all), builds the run's `SeedGroups(preset, devices=first n)` (as `bulbjax run`
-does: one seed group per device, `bulbjax.experiment.groups`), times build + compile + `init`,
+does: one seed group per device, `bulbjax.epoch.groups`), times build + compile + `init`,
 the first epoch and then `--epochs` epochs one by one (each waits for the metrics on the host, as
 the run loop does), and reports the median epoch time, epochs/s, seed-epochs/s and the speedup in
 seed-epochs/s over one device (goals on 2 GPUs: >= 1.8x at 12 seeds, >= 1.6x at 6).
@@ -43,10 +43,10 @@ sys.path.insert(0, os.path.dirname(HERE))  # this working tree's bulbjax
 import jax  # noqa: E402
 
 from bulbjax import compile_cache  # noqa: E402
-from bulbjax.experiment.groups import SeedGroups  # noqa: E402
-from bulbjax.experiment.resolve import resolve  # noqa: E402
-from bulbjax.experiment.run import provenance  # noqa: E402
+from bulbjax.epoch.groups import SeedGroups  # noqa: E402
 from bulbjax.local_processes import free_port  # noqa: E402
+from bulbjax.run.provenance import provenance  # noqa: E402
+from bulbjax.run.settings import resolve  # noqa: E402
 
 
 def measure(cfg, devices, epochs: int, probe: bool = True) -> dict:

@@ -89,11 +89,13 @@ def child(a: argparse.Namespace, cli_args: list[str]) -> int:
         phase.flush()
 
     mark("start")
-    import bulbjax.experiment as experiment
-    from bulbjax.experiment import checkpoint, config, programs, rundir
+    from bulbjax import config
+    from bulbjax.epoch import programs
+    from bulbjax.report import records
+    from bulbjax.run import checkpoint, settings
 
-    if a.tiny:
-        experiment.small_config = config.small_config = _tiny_config(config.small_config)
+    if a.tiny:  # where `--small` is resolved (`bulbjax.run.settings` took the name on import)
+        settings.small_config = config.small_config = _tiny_config(config.small_config)
 
     real_epoch = programs.Programs.epoch
 
@@ -102,7 +104,7 @@ def child(a: argparse.Namespace, cli_args: list[str]) -> int:
         return real_epoch(self, rs, key, probe)
 
     programs.Programs.epoch = epoch
-    real_append = rundir.append_whole
+    real_append = records.append_whole
 
     def append(path: str, data: bytes) -> None:
         if os.path.basename(path) != "metrics.jsonl":
@@ -118,7 +120,7 @@ def child(a: argparse.Namespace, cli_args: list[str]) -> int:
             real_append(path, data)
         mark("append-done")
 
-    rundir.append_whole = append
+    records.append_whole = append
     real_save, real_restore = checkpoint.Checkpointer.save, checkpoint.Checkpointer.restore
 
     def save(self, epoch, state, host=None):
@@ -177,7 +179,7 @@ def read_phases(path: str) -> list[tuple[float, str]]:
 def inspect(run_dir: str, seeds: int) -> dict[str, Any]:
     """The run folder's state: complete and unfinished checkpoints, and metrics.jsonl checked
     for order, gaps, duplicates and a half-written last line."""
-    from bulbjax.experiment import rundir
+    from bulbjax.run import rundir
 
     path = os.path.join(run_dir, "metrics.jsonl")
     raw = open(path, "rb").read() if os.path.exists(path) else b""
@@ -248,7 +250,7 @@ def start(a: argparse.Namespace, run_dir: str, cli_args: list[str], tag: str, pa
 def stretch_args(a: argparse.Namespace, run_dir: str) -> tuple[list[str], str, int | None]:
     """How the next stretch starts: resume from the newest complete checkpoint, or start afresh
     (over what a run killed before its first checkpoint left: --overwrite)."""
-    from bulbjax.experiment import rundir
+    from bulbjax.run import rundir
 
     steps = rundir.checkpoint_steps(run_dir)
     if steps:

@@ -1,6 +1,6 @@
 """Does the stream's PPO keep what it learned? PPO alone, from the true state, as a preset runs it.
 
-Runs the experiment's own policy phase (`bulbjax.experiment.policy.Policy.rl_phase`: the
+Runs the experiment's own policy phase (`bulbjax.epoch.policy.Policy.rl_phase`: the
 preset's worlds per seed, PPO updates per epoch and PPO settings, all seeds' worlds stepped at
 once) with no representation learners, S seeds for E epochs, in jitted chunks of `--chunk`
 epochs (a `lax.scan`; the host syncs only between chunks to print and check `--max-minutes`).
@@ -94,8 +94,8 @@ class Variant:
     compiled chunk of `chunk` epochs, and the per-epoch records so far."""
 
     def __init__(self, name: str, cfg: Any, dev: Any, seed: int, chunk: int):
-        from bulbjax.experiment.policy import Policy
-        from bulbjax.experiment.seeds import Team
+        from bulbjax.epoch.policy import Policy
+        from bulbjax.epoch.seeds import Team
 
         self.name, self.cfg, self.chunk = name, cfg, chunk
         team = Team(learners={}, seed_loop="vmap", group=dev.group)
@@ -199,8 +199,8 @@ def main(argv: list[str] | None = None) -> int:
     from bulbjax import compile_cache
 
     compile_cache.enable()  # a later call of the same settings loads the chunk programs
-    from bulbjax.experiment.devices import Devices
-    from bulbjax.experiment.resolve import resolve
+    from bulbjax.epoch.devices import Devices
+    from bulbjax.run.settings import resolve
 
     given = dict(seeds=a.seeds, epochs=a.epochs, ppo_updates_per_epoch=a.ppo_updates)
     overrides = {k: v for k, v in given.items() if v is not None}

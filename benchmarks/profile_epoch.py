@@ -44,11 +44,11 @@ import jax  # noqa: E402
 import warp_ffi_stats  # noqa: E402
 from timing import time_fn  # noqa: E402
 
-from bulbjax.experiment.records import epoch_records  # noqa: E402
-from bulbjax.experiment.config import ExperimentConfig  # noqa: E402
-from bulbjax.experiment.loop import Experiment  # noqa: E402
-from bulbjax.experiment.programs import Programs, without_probes  # noqa: E402
-from bulbjax.experiment.resolve import resolve  # noqa: E402
+from bulbjax.config import ExperimentConfig  # noqa: E402
+from bulbjax.epoch.loop import Experiment  # noqa: E402
+from bulbjax.epoch.programs import Programs, without_probes  # noqa: E402
+from bulbjax.report.records import epoch_records  # noqa: E402
+from bulbjax.run.settings import resolve  # noqa: E402
 from bulbjax.xla_options import parse_named_options  # noqa: E402
 
 
@@ -78,7 +78,7 @@ def add_config_args(p: argparse.ArgumentParser) -> None:
 
 
 def build_config(a: argparse.Namespace) -> ExperimentConfig:
-    """The preset resolved as `bulbjax run` resolves it (`bulbjax.experiment.resolve`: the
+    """The preset resolved as `bulbjax run` resolves it (`bulbjax.run.settings`: the
     domain's PPO settings, --small, then the flags given)."""
     overrides: dict[str, Any] = {}
     if a.seeds:

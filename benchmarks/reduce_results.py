@@ -51,7 +51,7 @@ import sys
 from typing import Any, Iterable
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-sys.path.insert(0, ROOT)  # kept_probed_epochs reads bulbjax.experiment.findings_objects
+sys.path.insert(0, ROOT)  # kept_probed_epochs reads bulbjax.report.findings_objects
 DEFAULT_PATHS = ("docs/results", "docs/images")
 SCALARS = ("epoch", "seed", "rl_return", "rl_episodes", "nonfinite_resets", "ppo", "learners", "replay_dropped",
            "probes")
@@ -116,7 +116,7 @@ def kept_probed_epochs(epochs: Iterable[int], every: int) -> set[int]:
     `every`, the last 3 (the tables and findings average over them) and the object findings'
     early ones (`findings_objects.early_epochs`: what "SPAIR's localisation does not improve"
     compares the last ones with), so that the reports read the same numbers as before."""
-    from bulbjax.experiment.findings_objects import early_epochs
+    from bulbjax.report.findings_objects import early_epochs
 
     epochs = sorted(set(epochs))
     return {e for e in epochs if e % every == 0} | set(epochs[-3:]) | set(early_epochs(epochs))
@@ -131,8 +131,8 @@ def merged_read_epochs(run_dir: str, every: int) -> set[int]:
     A merge reads the last epochs *all* halves have, which for a half that ran longer are not
     its own last ones (fig2_invpend_h100_6seeds: seed0's metrics end at 943, so the merge reads
     920-940, which seed1's own rule, keeping 980-999, dropped)."""
-    from bulbjax.experiment.records import metrics_path
-    from bulbjax.experiment.report import merge_sources
+    from bulbjax.report.records import metrics_path
+    from bulbjax.report.report import merge_sources
 
     here, parent = os.path.abspath(run_dir), os.path.dirname(os.path.abspath(run_dir))
     out: set[int] = set()

@@ -1,6 +1,7 @@
 """Command line: `bulbjax run | report | fit | recon | envs | render | reproduce` (parsing only: the flags map
-to `bulbjax.experiment.resolve`, which resolves the settings; the run loop is
-`bulbjax.experiment.run`, the offline fit `bulbjax.experiment.offline`)."""
+to the arguments of `bulbjax.run`'s `resolve`, `resolve_resume` and `resolve_offline`, which resolve
+the settings; the run loop is `bulbjax.run.run`, the offline fit `bulbjax.run.fit`, the reports
+`bulbjax.report`)."""
 
 from __future__ import annotations
 
@@ -25,8 +26,8 @@ DESCRIPTION = (
 
 
 def build_config(args: argparse.Namespace):
-    """The ExperimentConfig of `bulbjax run`'s flags (`bulbjax.experiment.resolve.resolve`)."""
-    from bulbjax.experiment.resolve import resolve
+    """The ExperimentConfig of `bulbjax run`'s flags (`bulbjax.run.resolve`)."""
+    from bulbjax.run import resolve
 
     return resolve(args.preset, **_settings(args))
 
@@ -38,17 +39,17 @@ def cmd_run(args: argparse.Namespace) -> int:
 
 def cmd_recon(args: argparse.Namespace) -> int:
     """`bulbjax recon RUN_DIR`: the run's figures from its newest (or --epoch) checkpoint."""
-    from bulbjax.experiment.figures import FigureConfig
-    from bulbjax.experiment.recon import redraw
+    from bulbjax.report import FigureConfig
+    from bulbjax.run import redraw_figures
 
     learners = [s.strip() for s in args.learners.split(",") if s.strip()] if args.learners else None
-    redraw(args.run_dir, epoch=args.epoch, learners=learners,
+    redraw_figures(args.run_dir, epoch=args.epoch, learners=learners,
            config=FigureConfig(frames=args.frames, seed=args.seed), out_dir=args.out)
     return 0
 
 
 def cmd_report(args: argparse.Namespace) -> int:
-    from bulbjax.experiment import report
+    from bulbjax import report
 
     if args.compare_rl:
         out = args.out or os.path.dirname(os.path.normpath(args.run_dirs[0])) or "."
@@ -59,10 +60,8 @@ def cmd_report(args: argparse.Namespace) -> int:
         if not args.out:
             raise ValueError("--probe-protocol writes table.md into a folder: give it with "
                              "--out DIR (e.g. docs/results/probe_protocol)")
-        from bulbjax.experiment import protocol
-
         fp32 = getattr(args, "fp32", None) or ()
-        print(protocol.probe_protocol_table(args.run_dirs, fp32, args.out))
+        print(report.probe_protocol_table(args.run_dirs, fp32, args.out))
         print(f"table: {os.path.join(args.out, 'table.md')}")
         return 0
     if args.merge_seeds:
@@ -94,8 +93,8 @@ def cmd_report(args: argparse.Namespace) -> int:
 
 
 def build_offline_config(args: argparse.Namespace):
-    """The OfflineConfig of `bulbjax fit`'s flags (`bulbjax.experiment.resolve.resolve_offline`)."""
-    from bulbjax.experiment.resolve import resolve_offline
+    """The OfflineConfig of `bulbjax fit`'s flags (`bulbjax.run.resolve_offline`)."""
+    from bulbjax.run import resolve_offline
 
     dataset = {n: getattr(args, n) for n in ("data_worlds", "data_steps", "heldout_steps")
                if getattr(args, n) is not None}
@@ -104,10 +103,7 @@ def build_offline_config(args: argparse.Namespace):
 
 
 def cmd_fit(args: argparse.Namespace) -> int:
-    from bulbjax.experiment import offline
-
-    from bulbjax.experiment.console import log_to_file
-    from bulbjax.experiment.rundir import LOG_FILE, check_out_dir
+    from bulbjax.run import LOG_FILE, check_out_dir, fit, log_to_file
 
     cfg = build_offline_config(args)
     if args.seed < 0:
@@ -115,8 +111,8 @@ def cmd_fit(args: argparse.Namespace) -> int:
     check_out_dir(args.out, resume=args.resume, overwrite=args.overwrite, fit=True)
     with log_to_file(os.path.join(args.out, LOG_FILE), fresh=args.overwrite,
                      header=" ".join(["bulbjax", *getattr(args, "argv", [])])):
-        offline.run(cfg, args.out, cache_dir=args.cache_dir, max_minutes=args.max_minutes, seed=args.seed,
-                    resume=args.resume, overwrite=args.overwrite)
+        fit(cfg, args.out, cache_dir=args.cache_dir, max_minutes=args.max_minutes, seed=args.seed,
+            resume=args.resume, overwrite=args.overwrite)
     recon = os.path.join(args.out, "recon.png")
     print(f"curves: {args.out}/curves.png, {args.out}/curves.jsonl; table: {args.out}/table.md"
           + (f"; reconstructions: {recon}" if os.path.exists(recon) else ""))
@@ -159,7 +155,7 @@ def cmd_render(args: argparse.Namespace) -> int:
     import numpy as np
 
     import bulbjax
-    from bulbjax.experiment.resolve import parse_version
+    from bulbjax.run import parse_version
 
     for flag, value, least in (("--frames", args.frames, 1), ("--steps", args.steps, 0), ("--seed", args.seed, 0)):
         if value < least:
@@ -242,7 +238,7 @@ def _leave_quietly() -> int:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    from bulbjax.experiment.config import PRESETS
+    from bulbjax.config import PRESETS
     from bulbjax.learners import learner_names
 
     t_main = time.time()  # the end of Python's start-up and imports (`bulbjax run` says how long they took)

@@ -1,16 +1,23 @@
-"""`bulbjax run`: from its flags to `bulbjax.experiment.run.run`, in this process or as one
-process per GPU of this host (`bulbjax.local_processes`); split from `bulbjax.cli`, which parses
-the flags and uses `_settings` (the flags as `bulbjax.experiment.resolve`'s arguments) from here."""
+"""`bulbjax run`: from its flags to `bulbjax.run.run`, in this process or as one process per GPU
+of this host (`bulbjax.local_processes`); split from `bulbjax.cli`, which parses the flags and uses
+`_settings` (the flags as the arguments of `bulbjax.run.resolve`) from here. The flags are resolved
+once (`bulbjax.run.resolve_run`; a resume reads its run's config.json there) and what they resolve
+to is handed down to the checks, the processes and the run."""
 
 from __future__ import annotations
 
 import argparse
 import os
 import sys
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:  # the names of the annotations only: `bulbjax run --help` imports no JAX
+    from bulbjax.config import ExperimentConfig, RunOptions
+    from bulbjax.run import Resume
 
 
 def _settings(args: argparse.Namespace) -> dict:
-    """The flags of `run` and `fit` as `bulbjax.experiment.resolve`'s arguments (the flags given;
+    """The flags of `run` and `fit` as the arguments of `bulbjax.run.resolve` (the flags given;
     text values are parsed and checked there)."""
     flags = (("env", "env"), ("seeds", "seeds"), ("epochs", "epochs"), ("sequence_length", "sequence_length"),
              ("learners", "learners"), ("version", "version"), ("rl_input", "rl_input"), ("rl_frames", "rl_frames"),
@@ -46,7 +53,7 @@ def _stretch_options(args: argparse.Namespace) -> dict:
                 stop_after=args.stop_after, tensorboard=args.tensorboard, recon_every=args.recon_every)
 
 
-def _per_gpu(args: argparse.Namespace, out: str) -> int | None:
+def _per_gpu(args: argparse.Namespace, out: str, cfg: ExperimentConfig, resume: Resume | None) -> int | None:
     """On a host with several GPUs (`--layout auto` or `processes`): run one process per GPU
     (`bulbjax.local_processes`: in one process the GPUs would take turns in MJX-Warp's Python
     callbacks) and return its exit code; None where one process is the layout. What would make
@@ -60,50 +67,41 @@ def _per_gpu(args: argparse.Namespace, out: str) -> int | None:
             raise ValueError(f"--layout processes runs one process per GPU and this host has {len(gpus)} "
                              "(CUDA_VISIBLE_DEVICES / nvidia-smi): leave --layout at auto")
         return None
-    from bulbjax.experiment.resolve import resolve, resolve_resume
-
-    settings = _settings(args)
-    if args.resume:  # the seed count of the run being resumed
-        cfg, opts = resolve_resume(args.resume, args.preset, seed=args.seed, probe_every=args.probe_every,
-                                   **settings, **_stretch_options(args))
-        seeds = cfg.seeds
-    else:
-        seeds = resolve(args.preset, **settings).seeds
-    n = local_processes.process_count(seeds, len(gpus))
+    n = local_processes.process_count(cfg.seeds, len(gpus))
     if n < len(gpus):
-        print(f"{seeds} seeds on {len(gpus)} GPUs: {n} process(es), one GPU each, {len(gpus) - n} GPU(s) idle "
+        print(f"{cfg.seeds} seeds on {len(gpus)} GPUs: {n} process(es), one GPU each, {len(gpus) - n} GPU(s) idle "
               f"(every process runs as many seeds: give --seeds a multiple of {len(gpus)} to use all)", flush=True)
     if n < 2:
         return None
-    if args.resume:
-        from bulbjax.experiment.config import read_run_config
-        from bulbjax.experiment.run import check_processes, check_resume
-
-        check_resume(args.resume, cfg, opts)
-        check_processes(args.resume, read_run_config(args.resume)[1], processes=n)
+    if resume is not None:
+        resume.check(processes=n)
     return local_processes.run_per_gpu(args.argv, gpus[:n], out)
 
 
 def cmd_run(args: argparse.Namespace) -> int:
-    """Map the flags to (config, options, folder) (`bulbjax.experiment.resolve`; a resumed run
-    starts from its own config.json, and `run.check_resume` refuses any flag that changes what it
-    computes: only --epochs may grow it) and hand over to `bulbjax.experiment.run.run`. The
-    console names each start-up stage with the seconds since the process started (Python and the
-    imports, joining `jax.distributed`, the JAX backend, then `run`'s own stages)."""
+    """Map the flags to (config, options, folder), once (`bulbjax.run.resolve_run`: a resumed run
+    starts from its own config.json, read there, and `Resume.check` refuses any flag that changes
+    what it computes: only --epochs may grow it), and hand what they resolve to over to
+    `bulbjax.run.run`. The flags are parsed first, so that a bad one is refused before anything is
+    done. The console names each start-up stage with the seconds since the process started
+    (Python and the imports, joining `jax.distributed`, the JAX backend, then `run`'s own stages)."""
     import shutil
     import tempfile
 
     from bulbjax import distributed
-    from bulbjax.experiment.console import StageLog, process_start_time
-    from bulbjax.experiment.rundir import check_out_dir
+    from bulbjax.envs.registry import env_class
+    from bulbjax.run import StageLog, check_out_dir, process_start_time, resolve_run
+    from bulbjax.xla_options import parse_compiler_options
 
     t_start = process_start_time()
     said: list[str] = []  # the start-up lines before the log file opens: copied into it
     stages = StageLog(lambda line: (print(line, flush=True), said.append(line)), t_start)
     stages.line(f"Python start-up and imports: {getattr(args, 't_main', t_start) - t_start:.1f} s")
+    ids, settings, stretch = _parse_ids(args.local_devices), _settings(args), _stretch_options(args)
     dist = distributed.DistributedConfig.from_env(
         coordinator=args.coordinator, num_processes=args.num_processes, process_id=args.process_id,
-        local_device_ids=_parse_ids(args.local_devices), auto=args.distributed)
+        local_device_ids=ids, auto=args.distributed)
+    compiler_options = parse_compiler_options(args.xla_option or [])
     if args.resume and args.overwrite:
         raise ValueError("--resume continues the run in its folder and --overwrite deletes it: give one of them")
     if args.resume and args.out is not None and os.path.abspath(args.out) != os.path.abspath(args.resume):
@@ -120,20 +118,25 @@ def cmd_run(args: argparse.Namespace) -> int:
         # (a resume's missing folder is left to resolve_resume's message, not created here)
         if not args.resume or os.path.isdir(out):
             check_out_dir(out, resume=bool(args.resume), overwrite=args.overwrite or args.compile_only)
-        if not dist.wanted and args.layout in ("auto", "processes"):
-            spread = _per_gpu(args, out)
-            if spread is not None:
-                return spread
-        # before anything else touches JAX's devices: a multi-process run joins its peers first
+        # before anything else touches JAX's devices, and before the settings are resolved (so that
+        # its processes refuse bad settings together): a multi-process run joins its peers first
         if dist.wanted:
             with stages(f"joining jax.distributed as process {'?' if dist.process_id is None else dist.process_id} "
                         f"of {'?' if dist.num_processes is None else dist.num_processes}"):
                 distributed.initialize(dist)
+        cfg, opts, resume = resolve_run(args.preset, resume=args.resume, seed=args.seed,
+                                        probe_every=args.probe_every, stretch=stretch, **settings)
+        # before the run's log.txt is made or a process starts: a missing YCB folder or pybullet is one line
+        env_class(cfg.env).check_sources()
+        if not dist.wanted and args.layout in ("auto", "processes"):
+            spread = _per_gpu(args, out, cfg, resume)
+            if spread is not None:
+                return spread
         import jax
 
         with stages("starting the JAX backend"):
             local = jax.local_devices()
-        return _run_here(args, out, local, t_start, said)
+        return _run_here(args, out, local, t_start, said, cfg, opts, resume, compiler_options)
     except ValueError:  # bad input changes nothing: no empty run folder left behind
         if made and os.path.isdir(out) and not os.listdir(out):
             os.rmdir(out)
@@ -143,40 +146,23 @@ def cmd_run(args: argparse.Namespace) -> int:
             shutil.rmtree(out, ignore_errors=True)
 
 
-def _run_here(args: argparse.Namespace, out: str, local: list, t_start: float, said: list[str]) -> int:
+def _run_here(args: argparse.Namespace, out: str, local: list, t_start: float, said: list[str],
+              cfg: ExperimentConfig, opts: RunOptions, resume: Resume | None, compiler_options: dict) -> int:
     """`cmd_run` in this process, once it joined its peers (if any) and its backend is up."""
     import jax
 
     from bulbjax import distributed
-    from bulbjax.experiment.config import RunOptions
-    from bulbjax.experiment.console import log_to_file
-    from bulbjax.experiment.resolve import resolve, resolve_resume
-    from bulbjax.experiment.run import run
-    from bulbjax.experiment.rundir import log_name
-    from bulbjax.xla_options import parse_compiler_options
+    from bulbjax.run import log_name, log_to_file, run
 
-    settings = _settings(args)
-    if args.resume:
-        cfg, opts = resolve_resume(args.resume, args.preset, seed=args.seed, probe_every=args.probe_every,
-                                   **settings, **_stretch_options(args))
-    else:
-        cfg = resolve(args.preset, **settings)
-        opts = RunOptions(seed=0 if args.seed is None else args.seed,
-                          probe_every=1 if args.probe_every is None else args.probe_every, **_stretch_options(args))
-    from bulbjax.envs.registry import env_class
-
-    # before the run folder and its log.txt are made: a missing YCB folder or pybullet is one line, no folder
-    env_class(cfg.env).check_sources()
     if args.devices is not None and not 1 <= args.devices <= len(local):
         raise ValueError(f"--devices {args.devices}: this machine has {len(local)} local devices")
     # every process's first D local devices (D: --devices, default all of them)
     devices = [d for p in range(jax.process_count())
                for d in [x for x in jax.devices() if x.process_index == p][: args.devices or None]]
-    compiler_options = parse_compiler_options(args.xla_option or [])
     argv = ["bulbjax", *getattr(args, "argv", [])]
     with log_to_file(os.path.join(out, log_name(jax.process_index())), fresh=args.overwrite, header=" ".join(argv),
                      preamble=said):
-        run(cfg, opts, out, resume=bool(args.resume), overwrite=args.overwrite, devices=devices, argv=argv,
+        run(cfg, opts, out, resume=resume or False, overwrite=args.overwrite, devices=devices, argv=argv,
             compiler_options=compiler_options, layout="groups" if args.layout == "processes" else args.layout,
             t0=t_start, compile_only=args.compile_only)
     distributed.shutdown()

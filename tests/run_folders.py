@@ -7,8 +7,8 @@ import dataclasses
 import json
 import os
 
-from bulbjax.experiment import records
-from bulbjax.experiment.config import ExperimentConfig
+from bulbjax.config import ExperimentConfig
+from bulbjax.report import records
 
 # one probe stream's scores: the overall and per-group normalised errors and their baselines
 STREAM = {"overall": {"mae_norm": 0.5, "baseline_norm": 1.4},

@@ -14,9 +14,9 @@ import pytest
 
 from bulbjax.envs.rearrange_scene import (GEOM_COLOURS, GEOM_INFO, OBJECT_LISTS, PROP_MAX, PROP_MIN, _normalise,
                                           rearrange_state_spec)
+from bulbjax.epoch.probing import fit_and_score, probe_targets
 from bulbjax.eval import angles
 from bulbjax.eval.probe import ProbeConfig, summarise
-from bulbjax.experiment.probing import fit_and_score, probe_targets
 
 
 def _rz(t: float) -> np.ndarray:

@@ -71,7 +71,7 @@ def test_every_option_has_help_and_shows_its_default(subparsers):
 
 
 def test_help_lists_every_preset_and_learner(subparsers):
-    from bulbjax.experiment.config import PRESETS
+    from bulbjax.config import PRESETS
     from bulbjax.learners import learner_names
 
     for cmd in ("run", "fit"):
@@ -105,7 +105,7 @@ def test_reproduce_help_states_each_default_once(subparsers):
 
 def test_the_top_level_help_says_what_bulbjax_is(capsys):
     """`bulbjax --help` opens with what the tool is and what each command does (it opened with the
-    module's internal note, "parsing only: the flags map to `bulbjax.experiment.resolve`")."""
+    module's internal note, "parsing only: the flags map to `bulbjax.run.settings`")."""
     with pytest.raises(SystemExit) as caught:
         cli.main(["--help"])
     assert caught.value.code == 0
@@ -130,7 +130,7 @@ def test_envs_prints_no_solved_return_where_there_is_none(capsys):
 
 def _run_dir(path: str) -> str:
     """A run folder as `bulbjax run` leaves it (config.json, metrics.jsonl), synthetic records."""
-    from bulbjax.experiment.config import ExperimentConfig
+    from bulbjax.config import ExperimentConfig
     from run_folders import write_synthetic_run
 
     return write_synthetic_run(path, ExperimentConfig(env="InvertedPendulum", learners=("vae", "vae_rpl"),

@@ -8,7 +8,7 @@ import time
 
 import pytest
 
-from bulbjax.experiment.programs import Programs
+from bulbjax.epoch.programs import Programs
 
 
 class _Lowered:
@@ -74,8 +74,8 @@ def test_a_failed_physics_warm_up_is_one_line_and_not_the_runs_failure():
     said once, in one line, and the run goes on (init builds the kernels itself)."""
     from concurrent.futures import Future
 
-    from bulbjax.experiment.console import StageLog
-    from bulbjax.experiment.run import _physics_ready
+    from bulbjax.run.console import StageLog
+    from bulbjax.run.loop import _physics_ready
 
     lines: list[str] = []
     stages = StageLog(lines.append)

@@ -1,4 +1,4 @@
-"""The configuration layer (`bulbjax.experiment.resolve`): presets resolve with their domain's
+"""The configuration layer (`bulbjax.run.settings`): presets resolve with their domain's
 PPO settings, overrides and learner options apply in the documented order (the flags given win
 over `--small`), `fit` and `--resume` resolve through the same steps, and bad values are errors
 that name what was wrong and what is accepted. No environment is built here."""
@@ -10,10 +10,9 @@ import json
 
 import pytest
 
+from bulbjax.config import PRESETS, ExperimentConfig, preset, small_config
 from bulbjax.envs.registry import ppo_config_for
-from bulbjax.experiment.config import PRESETS, ExperimentConfig, preset, small_config
-from bulbjax.experiment.resolve import (SMALL_DATASET, parse_learners, parse_version, resolve, resolve_offline,
-                                        resolve_resume)
+from bulbjax.run.settings import SMALL_DATASET, parse_learners, parse_version, resolve, resolve_offline, resolve_resume
 
 
 def test_presets_resolve_with_their_domain_ppo():
@@ -133,26 +132,52 @@ def test_resume_starts_from_the_runs_own_config(tmp_path):
     saved = resolve("fig2-halfcheetah", small=True, overrides={"seeds": 2, "epochs": 5})
     with open(tmp_path / "config.json", "w") as f:
         json.dump({"experiment": dataclasses.asdict(saved), "run": {"seed": 7, "probe_every": 3}}, f)
-    cfg, opts = resolve_resume(str(tmp_path), keep=4)
+    r = resolve_resume(str(tmp_path), keep=4)
+    cfg, opts = r.config, r.options
     assert cfg == saved and (opts.seed, opts.probe_every, opts.keep) == (7, 3, 4)
-    longer, opts = resolve_resume(str(tmp_path), overrides={"epochs": 9}, seed=1)
-    assert longer == saved.replace(epochs=9) and opts.seed == 1
+    assert r.saved.config == saved and r.saved.run_dir == str(tmp_path) and r.saved.processes == 1
+    r.check()  # the resolved settings are the run's own
+    longer = resolve_resume(str(tmp_path), overrides={"epochs": 9}, seed=1)
+    assert longer.config == saved.replace(epochs=9) and longer.options.seed == 1
+    with pytest.raises(ValueError, match=r"--resume .*seed: saved 7, given 1"):
+        longer.check()
     # the flags given apply to the saved settings; the domain's PPO only with a new env
-    lr, _ = resolve_resume(str(tmp_path), learner={"lr": 0.5})
+    lr = resolve_resume(str(tmp_path), learner={"lr": 0.5}).config
     assert lr.learner.lr == 0.5 and lr.ppo == saved.ppo
-    ant, _ = resolve_resume(str(tmp_path), overrides={"env": "Ant"})
+    ant = resolve_resume(str(tmp_path), overrides={"env": "Ant"}).config
     assert ant.ppo == ppo_config_for("Ant", saved.ppo)
-    anew, _ = resolve_resume(str(tmp_path), "fig2-invpend")
+    anew = resolve_resume(str(tmp_path), "fig2-invpend").config
     assert anew == resolve("fig2-invpend").replace(epochs=saved.epochs)
     with pytest.raises(ValueError, match="config.json does not exist"):
         resolve_resume(str(tmp_path / "nowhere"))
+
+
+def test_a_resume_reads_the_runs_config_once(tmp_path, monkeypatch):
+    """`bulbjax run --resume` reads the run's config.json once, in `resolve_resume`, and hands
+    the `Resume` down: the checks before the processes start and the run itself read no more."""
+    import bulbjax.run as run_face
+    from bulbjax import cli
+    from bulbjax.run import resume as resume_mod
+
+    saved = resolve(None, small=True, overrides={"env": "CartPole", "learners": "vae", "seeds": 1, "epochs": 2})
+    d = tmp_path / "r"
+    d.mkdir()
+    with open(d / "config.json", "w") as f:
+        json.dump({"experiment": dataclasses.asdict(saved), "run": {"seed": 0, "probe_every": 1}}, f)
+    reads, got = [], {}
+    real = resume_mod.read_run_config
+    monkeypatch.setattr(resume_mod, "read_run_config", lambda run_dir: reads.append(run_dir) or real(run_dir))
+    monkeypatch.setattr(run_face, "run", lambda cfg, opts, out, **kw: got.update(kw, cfg=cfg))
+    assert cli.main(["run", "--resume", str(d), "--epochs", "4", "--layout", "single"]) == 0
+    assert reads == [str(d)] and isinstance(got["resume"], run_face.Resume)
+    assert got["cfg"] == saved.replace(epochs=4) and got["resume"].saved.config == saved
 
 
 def test_a_frame_learners_latent_gets_the_entropy_bonus_unless_set():
     """PPO from a frame learner's latent (positions only) collapses its action noise without an
     entropy bonus (docs/results/rl_inputs_frames_h200): a fresh run gets LATENT_ENT_COEF, the
     user's ent_coef wins, and the state, pixels and sequential learners' latents keep 0."""
-    from bulbjax.experiment.resolve import LATENT_ENT_COEF
+    from bulbjax.run.settings import LATENT_ENT_COEF
 
     def ent(rl_input, learners="vae_rpl,dsa", options=()):
         return resolve("fig2-invpend", overrides={"learners": learners, "rl_input": rl_input},
@@ -173,7 +198,7 @@ def test_ppo_from_pixels_gets_the_pixel_learning_rate_unless_set():
     """PPO's conv torso learnt the pole in 1 of 3 seeds at the pendulums' lr 1e-3 and in 3 of 3 at
     3e-4 (docs/results/rl_inputs_pixels_h200): a fresh pixel run gets PIXEL_LR, the user's lr
     wins, state and latent inputs keep the domain's lr, and a resumed run keeps its own."""
-    from bulbjax.experiment.resolve import PIXEL_LR
+    from bulbjax.run.settings import PIXEL_LR
 
     def lr(rl_input, options=()):
         return resolve("fig2-invpend", overrides={"learners": "vae_rpl", "rl_input": rl_input},

@@ -13,8 +13,8 @@ import pytest
 
 from bulbjax.data import sequence, synthetic
 from bulbjax.data.sequence import Windows
+from bulbjax.epoch.probing import probe_latents
 from bulbjax.eval import linear, probe
-from bulbjax.experiment.probing import probe_latents
 from bulbjax.learners import learner_names, make_learner
 from bulbjax.data.augment import random_shift
 from bulbjax.learners.contrastive import info_nce
@@ -114,8 +114,8 @@ def test_loss_falls_and_the_probe_reads_position(name: str, options: dict, data)
 def test_one_epoch_of_the_experiment_with_ppo_on_stdim() -> None:
     """Both learners in one epoch of the experiment (stdim from the window buffer, curl from
     replay), PPO observing stdim's latent: losses, MLP and linear probes of both."""
+    from bulbjax.epoch import Experiment, ExperimentConfig
     from bulbjax.eval.probe import ProbeConfig
-    from bulbjax.experiment import Experiment, ExperimentConfig
     from bulbjax.learners import LearnerConfig
     from bulbjax.rl.ppo import PPOConfig
 

@@ -1,5 +1,5 @@
 """Several processes (`jax.distributed`, `bulbjax.distributed`) and seed groups
-(`bulbjax.experiment.groups`) on the CPU.
+(`bulbjax.epoch.groups`) on the CPU.
 
 Two `bulbjax run` processes on localhost (a local coordinator, one CPU device each, Gloo for the
 collectives) run a 2-seed CartPole experiment as two seed groups; process 0 writes metrics.jsonl;
@@ -25,7 +25,7 @@ import numpy as np
 import pytest
 
 from bulbjax.distributed import DistributedConfig
-from bulbjax.experiment.groups import group_count
+from bulbjax.epoch.groups import group_count
 
 # --small with one short PPO update per epoch (16 steps): the equality below does not depend on
 # how long PPO trains, and each of the test's ten process-epochs then takes ~6.5 s instead of ~14.5
@@ -65,7 +65,7 @@ def test_process_checkpoint_round_trip(tmp_path):
     import jax
     import jax.numpy as jnp
 
-    from bulbjax.experiment.checkpoint import Checkpointer
+    from bulbjax.run.checkpoint import Checkpointer
 
     state = {"a": jnp.arange(6.0).reshape(2, 3), "b": jnp.zeros((0,)), "k": jax.random.PRNGKey(3)}
     ck = Checkpointer(str(tmp_path), process=0)

@@ -4,7 +4,7 @@ Every `--flag` of a `bulbjax <cmd> ...` command in README.md, docs/*.md and benc
 (in a code block or an inline code span) must be an option of that subcommand's argparse parser
 in bulbjax/cli.py; a lone `--flag` code span in README.md or docs/*.md must be an option of the
 subcommand whose table row it sits in, or else of some subcommand; every `--preset NAME` and every code span that reads as a preset name (`fig2-...`)
-must be a preset of bulbjax.experiment.config. The parser is the CLI's own: `main` is called with
+must be a preset of bulbjax.config. The parser is the CLI's own: `main` is called with
 `ArgumentParser.parse_args` patched to hand back the parser it built, so nothing runs.
 """
 
@@ -63,7 +63,7 @@ def cli_flags() -> dict[str, set[str]]:
 
 
 def preset_names() -> set[str]:
-    from bulbjax.experiment import config
+    from bulbjax import config
 
     return set(config.PRESETS)
 
@@ -323,7 +323,7 @@ def test_preset_lists_name_every_preset(page, presets):
 
 
 def test_preset_table_matches_the_presets(presets):
-    from bulbjax.experiment.config import PRESETS
+    from bulbjax.config import PRESETS
 
     rows = _table_rows(_read("docs/experiments.md"), "| preset |")
     names = [r[0].strip("`") for r in rows]
@@ -496,7 +496,7 @@ def test_merged_folder_regenerates_as_the_docs_say(monkeypatch):
     """README's headline figure is a merged folder: it holds no metrics, and docs/experiments.md
     gives the `--merge-seeds` command over the halves it pooled (issue 65: the docs said every
     committed folder redraws with `bulbjax report DIR`)."""
-    from bulbjax.experiment import report
+    from bulbjax.report import report
 
     monkeypatch.chdir(ROOT)
     image = re.search(r"!\[[^\]]*\]\((docs/results/[^)]+)/fig2\.png\)", _read("README.md")).group(1)
@@ -519,8 +519,8 @@ def test_checkpoint_sizes_in_the_docs_are_the_states():
     import jax
     import numpy as np
 
-    from bulbjax.experiment.loop import Experiment
-    from bulbjax.experiment.resolve import resolve
+    from bulbjax.epoch.loop import Experiment
+    from bulbjax.run.settings import resolve
     from bulbjax.run_command import _settings
 
     def state_bytes(cfg) -> int:

@@ -11,11 +11,11 @@ import jax
 import numpy as np
 import pytest
 
+from bulbjax.epoch import Experiment, ExperimentConfig
+from bulbjax.epoch.seeds import buffer_key, learner_loop, update_groups, with_seed_loop
 from bulbjax.eval.probe import ProbeConfig
-from bulbjax.experiment import Experiment, ExperimentConfig
-from bulbjax.experiment import records, report
-from bulbjax.experiment.seeds import buffer_key, learner_loop, update_groups, with_seed_loop
 from bulbjax.learners import LearnerConfig, make_learner
+from bulbjax.report import records, report
 from bulbjax.rl.ppo import PPOConfig
 
 SEEDS = 2
@@ -184,8 +184,8 @@ def test_shared_updates_equal_separate_ones(run, held):
 
 
 def test_seed_loop_choice():
-    from bulbjax.experiment.devices import make_mesh
-    from bulbjax.experiment.seeds import resolve_seed_loop
+    from bulbjax.epoch.devices import make_mesh
+    from bulbjax.epoch.seeds import resolve_seed_loop
 
     mesh = make_mesh(jax.devices()[:1], 2, 4)
     assert resolve_seed_loop("auto", mesh) == ("vmap" if jax.default_backend() == "cpu" else "hybrid")
@@ -215,7 +215,7 @@ def test_split_programs_give_the_fused_epoch(run):
     programs' run state and metrics: the probing epoch from the same init
     and key as the fixture's first, then a non-probing one (no held-out rollouts, no `probes`)
     whose updates equal the fixture's second epoch's."""
-    from bulbjax.experiment.programs import Programs
+    from bulbjax.epoch.programs import Programs
 
     exp, _, rs2, m1, m2, _, rs1 = run
     progs = Programs(exp, (True, False), split=True)
@@ -246,8 +246,8 @@ def test_split_programs_give_the_fused_epoch(run):
 def test_program_form_choice():
     from types import SimpleNamespace
 
-    from bulbjax.experiment.devices import make_mesh
-    from bulbjax.experiment.programs import resolve_programs
+    from bulbjax.epoch.devices import make_mesh
+    from bulbjax.epoch.programs import resolve_programs
 
     mesh = make_mesh(jax.devices()[:1], 2, 4)
     assert tiny_config().programs == "fused"
@@ -387,7 +387,7 @@ def test_six_learners_in_one_epoch(run):
 
 def test_presets_and_cli_overrides():
     from bulbjax.cli import build_config, main
-    from bulbjax.experiment.config import PRESETS, preset
+    from bulbjax.config import PRESETS, preset
 
     cart = preset("fig2-cartpole")
     assert cart.learners == ALL and cart.seeds == 6 and cart.multicolour
@@ -502,8 +502,8 @@ def test_whole_window_latent_has_the_learners_window_size(run):
     """The window variant's latent is the learner's whole window: its L per-step latents in order,
     L x Z numbers, paired with the state at the window's last step; the held-out windows' per-step
     latents are recovered from the present probe's context latents."""
+    from bulbjax.epoch import probe_variants as pv
     from bulbjax.eval import probe
-    from bulbjax.experiment import probe_variants as pv
 
     exp, *_, rs1 = run
     buf = jax.tree.map(lambda x: x[0], rs1.windows[buffer_key(0.5)])

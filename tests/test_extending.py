@@ -14,11 +14,11 @@ import numpy as np
 import optax
 import pytest
 
+from bulbjax.epoch import Experiment, ExperimentConfig
 from bulbjax.eval.probe import ProbeConfig
-from bulbjax.experiment import Experiment, ExperimentConfig
-from bulbjax.experiment.records import epoch_records
 from bulbjax.learners import (FrameLearner, LearnerConfig, LearnerState, learner_names, make_learner,
                               register_learner, unregister_learner)
+from bulbjax.report.records import epoch_records
 from bulbjax.rl.ppo import PPOConfig
 
 NAME = "tiny_pca"

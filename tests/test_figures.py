@@ -1,4 +1,4 @@
-"""Tests of the learner figures (bulbjax/experiment/figures.py): the PNGs show the true frames
+"""Tests of the learner figures (bulbjax/report/figures.py): the PNGs show the true frames
 where the layout says, reconstructions below them, and SPAIR's present boxes (only those) in
 their cell's colour at the box's edges. Small sizes, CPU."""
 
@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 
 from bulbjax.data.sequence import Windows
-from bulbjax.experiment import figures
 from bulbjax.learners import LearnerConfig, make_learner
 from bulbjax.learners.spair import synthetic_scene
+from bulbjax.report import figures
 
 RES = 16
 

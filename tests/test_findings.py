@@ -1,4 +1,4 @@
-"""The Fig. 2 claim checks (`experiment.findings`) on synthetic records whose answers are known:
+"""The Fig. 2 claim checks (`report.findings`) on synthetic records whose answers are known:
 a clear gap holds, a reversed gap does not hold, noise around no gap is undecided."""
 
 from __future__ import annotations
@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 
 from bulbjax.envs.registry import env_class
-from bulbjax.experiment import findings
+from bulbjax.report import findings
 
 SPEC = env_class("InvertedPendulum").state_spec  # groups: position, velocity
 
@@ -87,7 +87,7 @@ def test_contrastive_rows_only_with_the_learner() -> None:
 
 
 # ---------------------------------------------------------------- Figs. 3 and 5 (issue 37)
-from bulbjax.experiment import findings_objects  # noqa: E402
+from bulbjax.report import findings_objects  # noqa: E402
 
 OBJS = ("obj0", "obj1", "obj2", "obj3")
 

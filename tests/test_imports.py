@@ -1,4 +1,5 @@
-"""The import graph of `bulbjax/`: no circles, and imports only run downward through the layers.
+"""The import graph of `bulbjax/`: no circles, imports only run downward through the layers, and
+the rooms of an experiment (`ROOMS`) are entered through their faces.
 
 Every module of the package is parsed with `ast` (nothing is imported): each `import` and
 `from ... import` anywhere in it (at module level, in functions, under `TYPE_CHECKING`) is an
@@ -7,10 +8,15 @@ module, else `pkg` itself). Importing `a.b.c` also runs the `__init__` of `a` an
 implicit edges are left out, as a package's `__init__` only hands names on.
 
 Layers, top to bottom (a module may import its own layer and the ones below, never above):
-  5. the command line and the commands it drives: `bulbjax.cli`, `bulbjax.__main__`,
+  8. the command line and the commands it drives: `bulbjax.cli`, `bulbjax.__main__`,
      `bulbjax.run_command` (`bulbjax run`), `bulbjax.reproduce.*` (the paper's plan of runs);
-  4. experiments: `bulbjax.experiment.*` (config and its resolution, the epoch's parts, runs,
-     reports);
+  7. the run: `bulbjax.run.*` (settings resolved, resume, the run loop, its folder, checkpoints,
+     console, provenance, figures drawn in a run, the offline fit's driver);
+  6. the report: `bulbjax.report.*` (records, report files, findings, figures of learners);
+  5. the epoch: `bulbjax.epoch.*` (the jitted epoch and its parts, seed groups, compiled programs,
+     the offline fit's programs);
+  4. what an experiment is built from: `bulbjax.config` (ExperimentConfig, RunOptions,
+     OfflineConfig, presets, config.json read back);
   3. what an experiment is made of: `bulbjax.learners.*`, `bulbjax.envs.*`, `bulbjax.interop.*`,
      `bulbjax.gym`, and the package root `bulbjax` (`bulbjax.make`);
   2. what those use: `bulbjax.data.*` (buffers, windows, synthetic data), `bulbjax.eval.*` (probes,
@@ -32,8 +38,8 @@ ROOT = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))),
 
 # module-name prefix -> layer (the longest matching prefix wins)
 LAYERS: dict[str, int] = {
-    "bulbjax.cli": 5, "bulbjax.__main__": 5, "bulbjax.run_command": 5, "bulbjax.reproduce": 5,
-    "bulbjax.experiment": 4,
+    "bulbjax.cli": 8, "bulbjax.__main__": 8, "bulbjax.run_command": 8, "bulbjax.reproduce": 8,
+    "bulbjax.run": 7, "bulbjax.report": 6, "bulbjax.epoch": 5, "bulbjax.config": 4,
     "bulbjax.learners": 3, "bulbjax.envs": 3, "bulbjax.interop": 3, "bulbjax.gym": 3, "bulbjax": 3,
     "bulbjax.data": 2, "bulbjax.eval": 2, "bulbjax.rl": 2,
     "bulbjax.assets": 1, "bulbjax.compile_cache": 1, "bulbjax.distributed": 1,
@@ -167,11 +173,13 @@ def graph() -> dict[str, dict[str, int]]:
 
 def test_graph_sees_the_package(graph):
     """The graph is the package's (so the checks below look at something): the CLI imports the
-    run loop, and the epoch's modules import the device layer."""
+    run's face, the run loop the faces of the epoch and the report, and the epoch's modules
+    import the device layer."""
     assert len(graph) > 40
-    assert "bulbjax.experiment.resolve" in graph["bulbjax.cli"]  # a function-level import
-    assert "bulbjax.experiment.devices" in graph["bulbjax.experiment.loop"]
-    assert "bulbjax.experiment.records" in graph["bulbjax.experiment.findings"]
+    assert "bulbjax.run" in graph["bulbjax.cli"]  # a function-level import
+    assert {"bulbjax.epoch", "bulbjax.report"} <= set(graph["bulbjax.run.loop"])
+    assert "bulbjax.epoch.devices" in graph["bulbjax.epoch.loop"]
+    assert "bulbjax.report.records" in graph["bulbjax.report.findings"]
 
 
 def test_every_module_has_a_layer(graph):
@@ -189,18 +197,44 @@ def test_imports_run_downward(graph):
     assert not bad, "imports from a lower layer to a higher one:\n" + "\n".join(bad)
 
 
+# the rooms of an experiment: each one's face (its `__init__.py`) is the door the others use
+ROOMS = ("bulbjax.epoch", "bulbjax.report", "bulbjax.run")
+
+
+def room(module: str) -> str | None:
+    return next((r for r in ROOMS if module == r or module.startswith(r + ".")), None)
+
+
+def behind_faces(graph: dict[str, dict[str, int]]) -> list[str]:
+    """Every import of a file inside a room from outside that room, as 'a -> b, line n'."""
+    return [f"{a} -> {b}, line {line}" for a, edges in sorted(graph.items()) for b, line in sorted(edges.items())
+            if room(b) and b != room(b) and room(a) != room(b)]
+
+
+def test_rooms_meet_at_their_faces(graph):
+    """The epoch, the report and the run import one another, and the command line and
+    `bulbjax.reproduce` import them, through their faces (`bulbjax.epoch`, ...), never through
+    the files behind them (tests and benchmarks may open any file)."""
+    bad = behind_faces(graph)
+    assert not bad, "imports past a room's face:\n" + "\n".join(bad)
+
+
 def test_checks_catch_what_they_look_for():
-    """The cycle finder and the layer check on a made-up graph: a three-module circle and an
-    upward import are reported (and nothing else); a diamond is no circle."""
-    g = {"bulbjax.experiment.a": {"bulbjax.experiment.b": 1}, "bulbjax.experiment.b": {"bulbjax.experiment.c": 2},
-         "bulbjax.experiment.c": {"bulbjax.experiment.a": 3, "bulbjax.data.x": 4},
-         "bulbjax.data.x": {"bulbjax.experiment.d": 5}, "bulbjax.experiment.d": {},
-         "bulbjax.cli": {"bulbjax.experiment.d": 6, "bulbjax.data.x": 7}}
+    """The cycle finder, the layer check and the face check on made-up graphs: a three-module
+    circle and an upward import are reported (and nothing else); a diamond is no circle; an
+    import past a room's face from outside it is reported, one inside the room or of a face is not."""
+    g = {"bulbjax.epoch.a": {"bulbjax.epoch.b": 1}, "bulbjax.epoch.b": {"bulbjax.epoch.c": 2},
+         "bulbjax.epoch.c": {"bulbjax.epoch.a": 3, "bulbjax.data.x": 4},
+         "bulbjax.data.x": {"bulbjax.epoch.d": 5}, "bulbjax.epoch.d": {},
+         "bulbjax.cli": {"bulbjax.epoch.d": 6, "bulbjax.data.x": 7}}
     found = cycles(g)
     assert len(found) == 1
     three = found[0]
-    assert len(three) == 4 and three[0] == three[-1] and set(three) == {"bulbjax.experiment.a", "bulbjax.experiment.b",
-                                                      "bulbjax.experiment.c"}
-    assert upward(g) == ["bulbjax.data.x (layer 2) -> bulbjax.experiment.d (layer 4), line 5"]
+    assert len(three) == 4 and three[0] == three[-1] and set(three) == {"bulbjax.epoch.a", "bulbjax.epoch.b",
+                                                      "bulbjax.epoch.c"}
+    assert upward(g) == ["bulbjax.data.x (layer 2) -> bulbjax.epoch.d (layer 5), line 5"]
     assert cycles({"bulbjax.cli": {"bulbjax.data.x": 1, "bulbjax.rl.y": 2}, "bulbjax.data.x": {"bulbjax.rl.y": 3},
                    "bulbjax.rl.y": {}}) == []
+    assert behind_faces({"bulbjax.cli": {"bulbjax.run": 1, "bulbjax.run.loop": 2},
+                         "bulbjax.run.loop": {"bulbjax.run.rundir": 3, "bulbjax.epoch": 4, "bulbjax.epoch.loop": 5}}) \
+        == ["bulbjax.cli -> bulbjax.run.loop, line 2", "bulbjax.run.loop -> bulbjax.epoch.loop, line 5"]

@@ -10,10 +10,10 @@ import jax.numpy as jnp
 import numpy as np
 
 from bulbjax.envs.registry import env_class
+from bulbjax.epoch.probing import fit_and_score
 from bulbjax.eval import linear, probe
-from bulbjax.experiment import findings, report
-from bulbjax.experiment.probing import fit_and_score
-from bulbjax.experiment.records import epoch_records
+from bulbjax.report import findings, report
+from bulbjax.report.records import epoch_records
 
 fit = jax.jit(linear.fit, static_argnames="lambdas")
 predict = jax.jit(linear.predict)

@@ -10,8 +10,8 @@ import os
 import numpy as np
 import pytest
 
-from bulbjax.experiment import records, report
-from bulbjax.experiment.config import preset, read_run_config
+from bulbjax.config import preset, read_run_config
+from bulbjax.report import records, report
 
 
 def _run_dir(path: str, seeds: int, base_seed: int, level: float, epochs: int = 3, **changes) -> str:

@@ -68,7 +68,7 @@ CHECKPOINT_WORKER = r"""
 import sys
 import jax, jax.numpy as jnp, numpy as np
 from bulbjax import distributed
-from bulbjax.experiment.checkpoint import Checkpointer
+from bulbjax.run.checkpoint import Checkpointer
 i, port, d = int(sys.argv[1]), int(sys.argv[2]), sys.argv[3]
 distributed.initialize(distributed.DistributedConfig(coordinator=f"127.0.0.1:{port}", num_processes=2, process_id=i))
 state = {"a": jnp.arange(6.0).reshape(2, 3) + 100 * i, "b": jnp.zeros((0,)), "k": jax.random.PRNGKey(3 + i)}
@@ -105,7 +105,7 @@ def test_process_files_keep_k_partial_and_dtypes(tmp_path):
     removed by the next writer, every dtype (bfloat16, uint32 keys, 0-d) back bit for bit."""
     import jax.numpy as jnp
 
-    from bulbjax.experiment.checkpoint import ProcessFiles
+    from bulbjax.run.checkpoint import ProcessFiles
 
     d = str(tmp_path / "p1")
     files = ProcessFiles(d, keep=2)
@@ -128,7 +128,7 @@ def test_process_files_background_write_and_its_error(tmp_path):
     """`ProcessFiles(background=True)`: `save` returns before the files exist, `wait` finishes
     them (the same bytes back); a write that fails is raised by the next `wait` as
     `CheckpointWriteError` naming its epoch, once, and leaves only a partial folder behind."""
-    from bulbjax.experiment.checkpoint import CheckpointWriteError, ProcessFiles
+    from bulbjax.run.checkpoint import CheckpointWriteError, ProcessFiles
 
     d = str(tmp_path / "p0")
     files = ProcessFiles(d, keep=2, background=True)

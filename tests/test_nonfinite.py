@@ -89,9 +89,10 @@ def test_discrete_actions_are_clipped_and_counted():
 def test_epoch_reports_nonfinite_resets_and_keeps_replay_finite():
     """An epoch whose PPO worlds start from a NaN world: that seed's record counts the reset,
     and no replay state (what the probes train on) is NaN."""
+    from bulbjax.epoch import Experiment, ExperimentConfig
     from bulbjax.eval.probe import ProbeConfig
-    from bulbjax.experiment import Experiment, ExperimentConfig, records
     from bulbjax.learners import LearnerConfig
+    from bulbjax.report import records
     from bulbjax.rl.ppo import PPOConfig
 
     cfg = ExperimentConfig(

@@ -13,6 +13,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from bulbjax.epoch import Experiment, ExperimentConfig
 from bulbjax.eval.objects import (
     comparison_table,
     object_names,
@@ -22,8 +23,8 @@ from bulbjax.eval.objects import (
     summary_of,
 )
 from bulbjax.eval.probe import ProbeConfig
-from bulbjax.experiment import Experiment, ExperimentConfig, records, report
 from bulbjax.learners import LearnerConfig, make_learner
+from bulbjax.report import records, report
 from bulbjax.rl.ppo import PPOConfig
 
 SEEDS = 2
@@ -113,7 +114,7 @@ def test_figures_of_a_rearrange_run_write_region_errors(rearrange, tmp_path) -> 
     """`RunFigures.draw` in a domain with objects also writes every seed's per-object
     reconstruction error (`regions_<epoch>.json`), which the YCB claim reads."""
     from bulbjax.eval import regions
-    from bulbjax.experiment.recon import REGION_FRAMES, RunFigures
+    from bulbjax.run.recon import REGION_FRAMES, RunFigures
 
     exp, _ = rearrange
     rs = exp.init(jax.random.PRNGKey(0))

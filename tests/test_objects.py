@@ -80,7 +80,7 @@ def test_rearrange_object_pixels_land_on_the_objects() -> None:
     import jax
 
     import bulbjax
-    from bulbjax.experiment.probing import object_pixels
+    from bulbjax.epoch.probing import object_pixels
 
     env = bulbjax.make("ReacherRearrangeGeom", num_envs=4, resolution=64)
     st = env.reset(jax.random.PRNGKey(0))

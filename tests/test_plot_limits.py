@@ -13,7 +13,7 @@ import pytest
 
 from bulbjax.eval.probe import summarise
 from bulbjax.eval.spec import StateEntry
-from bulbjax.experiment import plot_limits, report
+from bulbjax.report import plot_limits, report
 
 matplotlib.use("Agg")
 

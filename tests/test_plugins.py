@@ -231,8 +231,8 @@ def test_learners_flag_records_the_specs(plugin_dir, monkeypatch, tmp_path):
     """`--learners vae_rpl,MODULE:NAME` -> the registered names, and the specs in the config
     (a file's path absolute); `--rl-input latent:MODULE:NAME` names the learner; the config
     reads back from JSON, and one written before the field still loads."""
-    from bulbjax.experiment.config import config_from_dict
-    from bulbjax.experiment.resolve import resolve
+    from bulbjax.config import config_from_dict
+    from bulbjax.run.settings import resolve
 
     monkeypatch.chdir(plugin_dir)
     source = LEARNER_SOURCE.replace("tiny_registered", "tiny_file")
@@ -261,7 +261,7 @@ def test_learners_flag_records_the_specs(plugin_dir, monkeypatch, tmp_path):
 
 def test_installed_package_entry_point(plugin_dir):
     """An installed package's learners (entry point group `bulbjax.learners`) by name."""
-    from bulbjax.experiment.config import ExperimentConfig
+    from bulbjax.config import ExperimentConfig
 
     info = plugin_dir / "my_learners-0.1.dist-info"
     info.mkdir()
@@ -277,7 +277,7 @@ def test_installed_package_entry_point(plugin_dir):
 
 def _synthetic_run(path, learners: tuple[str, ...], modules: tuple[str, ...]) -> None:
     """A run folder as `bulbjax run` leaves it (config.json naming the specs, metrics.jsonl)."""
-    from bulbjax.experiment.config import ExperimentConfig
+    from bulbjax.config import ExperimentConfig
     from run_folders import write_synthetic_run
 
     write_synthetic_run(str(path), ExperimentConfig(env="CartPole", learners=learners,

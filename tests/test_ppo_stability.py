@@ -162,7 +162,7 @@ def test_config_checks_its_options():
 
 
 def test_presets_carry_the_domain_settings():
-    from bulbjax.experiment.resolve import resolve
+    from bulbjax.run.settings import resolve
 
     for name, anneal, freeze in (("fig2-cartpole", 2000, 400), ("fig2-invpend", 500, 100)):
         p = resolve(name).ppo
@@ -175,7 +175,7 @@ def test_presets_carry_the_domain_settings():
     assert (hc.lr, hc.num_steps, hc.min_log_std, hc.anneal_updates) == (3e-4, 128, -1.5, 2000)
     assert resolve("fig2-ant").ppo.min_log_std is None  # no measurements there: PPO's defaults
     # a run saved before the options reads back with them off (its config.json lacks them)
-    from bulbjax.experiment.config import config_from_dict
+    from bulbjax.config import config_from_dict
 
     saved = dataclasses.asdict(resolve("fig2-invpend"))
     for f in ("lr_schedule", "lr_floor", "min_log_std", "target_kl", "obs_norm_updates"):

@@ -12,11 +12,11 @@ import json
 import numpy as np
 import pytest
 
+from bulbjax.config import ExperimentConfig, config_from_dict, preset
 from bulbjax.envs.registry import env_class
 from bulbjax.eval.probe import summarise
-from bulbjax.experiment import findings, protocol, records, report
-from bulbjax.experiment.config import ExperimentConfig, config_from_dict, preset
-from bulbjax.experiment.resolve import resolve, resolve_offline
+from bulbjax.report import findings, protocol, records, report
+from bulbjax.run.settings import resolve, resolve_offline
 
 SPEC = env_class("InvertedPendulum").state_spec  # x, x_vel, theta_cos, theta_sin, theta_vel
 FIG2 = ("vae", "vae_rpl", "beta_vae", "svae", "pred", "dsa")

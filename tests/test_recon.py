@@ -11,12 +11,12 @@ import matplotlib.image as mpimg
 import numpy as np
 import pytest
 
+from bulbjax.config import RunOptions
+from bulbjax.epoch import Experiment, ExperimentConfig
 from bulbjax.eval.probe import ProbeConfig
-from bulbjax.experiment import Experiment, ExperimentConfig
-from bulbjax.experiment.recon import RunFigures, redraw
-from bulbjax.experiment.run import RunOptions, run
 from bulbjax.learners import LearnerConfig
 from bulbjax.rl.ppo import PPOConfig
+from bulbjax.run import RunFigures, redraw_figures, run
 
 
 def tiny() -> ExperimentConfig:
@@ -55,8 +55,8 @@ def test_recon_every_writes_figures(exp, runs) -> None:
     # drawing figures leaves the run alone: the metrics are those of the run without them
     assert open(os.path.join(plain, "metrics.jsonl")).read() == open(os.path.join(d, "metrics.jsonl")).read()
     # the recon grid's top row is the held-out frames it was drawn from; rows: true, vae_rpl, spair
-    from bulbjax.experiment import figures
-    from bulbjax.experiment.checkpoint import Checkpointer
+    from bulbjax.report import figures
+    from bulbjax.run.checkpoint import Checkpointer
 
     ck = Checkpointer(d)
     state, _, epoch = ck.restore({"run": exp.abstract_state(), "key": exp.abstract_key()}, 2)
@@ -70,7 +70,7 @@ def test_recon_every_writes_figures(exp, runs) -> None:
         y, x = lay.origin(0, j)
         np.testing.assert_allclose(png[y: y + 64: 2, x: x + 64: 2], frames[j] / 255.0, atol=1 / 255 + 1e-6)
     # a fresh run in the same folder is refused without --overwrite, and with it removes the old figures
-    from bulbjax.experiment.rundir import RunFolderExists
+    from bulbjax.run.rundir import RunFolderExists
     with pytest.raises(RunFolderExists):
         run(exp.config, RunOptions(stop_after=1), d, experiment=exp, progress=False, log=lambda s: None)
     assert [f for f in os.listdir(d) if f.startswith(("recon_", "boxes_"))]
@@ -85,24 +85,24 @@ def test_recon_redraws_from_checkpoint(exp, tmp_path) -> None:
     drawn = mpimg.imread(os.path.join(d, "recon_2.png"))
     boxes = mpimg.imread(os.path.join(d, "boxes_2.png"))
     out = str(tmp_path / "redrawn")
-    paths = redraw(d, out_dir=out, experiment=exp, log=lambda s: None)
+    paths = redraw_figures(d, out_dir=out, experiment=exp, log=lambda s: None)
     assert [os.path.basename(p) for p in paths] == ["recon_2.png", "boxes_2.png"]
     np.testing.assert_array_equal(mpimg.imread(paths[0]), drawn)  # the same figure, pixel for pixel
     np.testing.assert_array_equal(mpimg.imread(paths[1]), boxes)
     # an older checkpoint draws other reconstructions of the same kind of grid
-    p1 = redraw(d, epoch=1, learners=["vae_rpl"], out_dir=out, experiment=exp, log=lambda s: None)
+    p1 = redraw_figures(d, epoch=1, learners=["vae_rpl"], out_dir=out, experiment=exp, log=lambda s: None)
     assert [os.path.basename(p) for p in p1] == ["recon_1.png"]
     assert mpimg.imread(p1[0]).shape[0] < drawn.shape[0]  # two rows instead of three
     with pytest.raises(ValueError, match="not in this run; it has vae_rpl, spair"):
-        redraw(d, learners=["dsa"], experiment=exp, log=lambda s: None)
+        redraw_figures(d, learners=["dsa"], experiment=exp, log=lambda s: None)
     with pytest.raises(ValueError, match=r"no checkpoint of epoch 7 .* \[1, 2\]"):
-        redraw(d, epoch=7, experiment=exp, log=lambda s: None)
+        redraw_figures(d, epoch=7, experiment=exp, log=lambda s: None)
 
 
 def test_cli(tmp_path, monkeypatch) -> None:
     """`--recon-every` reaches the run options; `bulbjax recon` errors say what to do."""
+    import bulbjax.run as run_mod  # the face `bulbjax run` calls `run` through
     from bulbjax import cli
-    from bulbjax.experiment import run as run_mod
 
     got = {}
     monkeypatch.setattr(run_mod, "run", lambda cfg, opts, out, **kw: got.update(opts=opts))
@@ -118,5 +118,5 @@ def test_cli(tmp_path, monkeypatch) -> None:
     with open(tmp_path / "r" / "config.json", "w") as f:
         json.dump({"experiment": dataclasses.asdict(tiny()), "run": {"seed": 0, "probe_every": 1}}, f)
     with pytest.raises(ValueError, match="no checkpoint in .*--resume"):
-        redraw(str(tmp_path / "r"))
+        redraw_figures(str(tmp_path / "r"))
     assert not os.path.exists(tmp_path / "r" / "checkpoints")

@@ -14,9 +14,9 @@ import shutil
 import numpy as np
 import pytest
 
+from bulbjax.config import preset
 from bulbjax.envs.registry import env_class
-from bulbjax.experiment import records, report
-from bulbjax.experiment.config import preset
+from bulbjax.report import records, report
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 EPOCHS, SEEDS, PROBED = 12, 3, (0, 4, 8, 11)

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from bulbjax.eval import regions
-from bulbjax.experiment.findings_objects import reconstruction_clear
+from bulbjax.report.findings_objects import reconstruction_clear
 
 
 def scene(rng: np.random.Generator, frames: int = 16, size: int = 32, radius: float = 4.0):

@@ -13,8 +13,8 @@ import pytest
 
 from bulbjax.eval.probe import summarise
 from bulbjax.eval.spec import StateEntry
-from bulbjax.experiment import report
-from bulbjax.experiment.records import band, excluded_groups
+from bulbjax.report import report
+from bulbjax.report.records import band, excluded_groups
 
 SPEC = (StateEntry("j0_sin", "1", "robot"), StateEntry("j0_cos", "1", "robot"),
         StateEntry("obj0_mass", "[-1,1]", "object_static"), StateEntry("obj0_shape", "[-1,1]", "object_static"),
@@ -63,7 +63,7 @@ def test_a_one_seed_table_says_1_seed_not_plus_minus_zero():
 
 @pytest.mark.parametrize("seeds", [1, 3])
 def test_progress_bar_text_has_no_nan(seeds):
-    from bulbjax.experiment.run import _postfix
+    from bulbjax.run.loop import _postfix
 
     recs = _records(seeds)
     text = _postfix([r for r in recs if r["epoch"] == 10], recs)
@@ -84,10 +84,10 @@ def test_report_redraws_an_offline_fit_folder(tmp_path, capsys):
     import json
 
     from bulbjax.cli import main
+    from bulbjax.config import OfflineConfig, preset
     from bulbjax.data import synthetic
-    from bulbjax.experiment.config import OfflineConfig, preset
-    from bulbjax.experiment.probing import probe_targets
-    from bulbjax.experiment.records import write_jsonl
+    from bulbjax.epoch.probing import probe_targets
+    from bulbjax.report.records import write_jsonl
 
     base = preset("fig2-invpend").replace(env=synthetic.NAME, learners=("vae", "svae"), seeds=2,
                                           resolution=32)

@@ -14,7 +14,7 @@ import time
 
 import pytest
 
-from bulbjax.experiment.config import ExperimentConfig
+from bulbjax.config import ExperimentConfig
 from bulbjax.reproduce import estimate, plan
 from bulbjax.reproduce.estimate import Timing, simulate
 from bulbjax.reproduce.main import reproduce
@@ -203,7 +203,7 @@ def test_a_tiny_plan_on_two_slots(tmp_path) -> None:
     """The command itself on two CPU slots: two seeds side by side; seed 0 killed after its
     first checkpoint is reported, continued from that checkpoint and finished; the results page
     pools both seeds; a rerun finds everything done and starts nothing."""
-    from bulbjax.experiment import rundir
+    from bulbjax.run import rundir
 
     out = tmp_path / "paper"
     cmd = [sys.executable, "-m", "bulbjax", "reproduce", "--scale", "tiny", "--figures", "fig2-cartpole",
@@ -300,7 +300,7 @@ def test_fig2_runs_carry_the_probe_variants_and_the_page_their_table(tmp_path):
 
     from run_folders import write_synthetic_run
 
-    from bulbjax.experiment.protocol import probe_protocol_table
+    from bulbjax.report.protocol import probe_protocol_table
     from bulbjax.reproduce import results
 
     for scale in ("paper", "quick"):

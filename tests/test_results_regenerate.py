@@ -22,7 +22,7 @@ import subprocess
 
 import pytest
 
-from bulbjax.experiment import report
+from bulbjax.report import report
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 RESULT_ROOTS = ("docs/results", "benchmarks/results")
@@ -158,7 +158,7 @@ def test_committed_reports_regenerate(folder, tmp_path, monkeypatch):
 def test_probe_protocol_tables_regenerate(folder, monkeypatch):
     """A committed `bulbjax report --probe-protocol` table, drawn again from the runs it names
     (issue 59: docs/results/probe_protocol), is the committed file."""
-    from bulbjax.experiment.protocol import probe_protocol_table
+    from bulbjax.report.protocol import probe_protocol_table
 
     monkeypatch.chdir(ROOT)
     runs, fp32 = _protocol_sources(folder)

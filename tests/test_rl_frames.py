@@ -11,9 +11,9 @@ import jax
 import numpy as np
 import pytest
 
-from bulbjax.experiment import ExperimentConfig, small_config
-from bulbjax.experiment.loop import Experiment
-from bulbjax.experiment.state import PolicyHistory
+from bulbjax.epoch import ExperimentConfig, small_config
+from bulbjax.epoch.loop import Experiment
+from bulbjax.epoch.state import PolicyHistory
 
 
 def _config(rl_input: str, learner: str = "vae_rpl") -> ExperimentConfig:
@@ -114,8 +114,8 @@ def test_compare_names_the_frames(tmp_path) -> None:
     """`bulbjax report --compare-rl` says how many frames PPO observed."""
     import json
 
-    from bulbjax.experiment import records
-    from bulbjax.experiment.report import rl_compare
+    from bulbjax.report import records
+    from bulbjax.report.report import rl_compare
 
     runs = []
     for k in (1, 2):
@@ -136,11 +136,12 @@ def test_two_epochs_resume_with_the_frames_in_the_checkpoint(tmp_path) -> None:
     and resumed writes the same records as one run straight through, bit for bit."""
     import json
 
+    from bulbjax.config import RunOptions
     from bulbjax.eval.probe import ProbeConfig
-    from bulbjax.experiment.checkpoint import Checkpointer
-    from bulbjax.experiment.run import RunOptions, run
     from bulbjax.learners import LearnerConfig
     from bulbjax.rl.ppo import PPOConfig
+    from bulbjax.run import run
+    from bulbjax.run.checkpoint import Checkpointer
 
     cfg = ExperimentConfig(
         env="CartPole", learners=("vae_rpl",), seeds=2, epochs=2, num_envs=4, resolution=32,

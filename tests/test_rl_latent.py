@@ -11,15 +11,16 @@ import jax
 import numpy as np
 import pytest
 
-from bulbjax.experiment import ExperimentConfig, small_config
-from bulbjax.experiment.loop import Experiment
-from bulbjax.experiment.programs import Programs
-from bulbjax.experiment.state import Rendered
+from bulbjax.epoch import ExperimentConfig, small_config
+from bulbjax.epoch.loop import Experiment
+from bulbjax.epoch.programs import Programs
+from bulbjax.epoch.state import Rendered
 
 
 @pytest.mark.slow  # the slow tier (tests/conftest.py)
 def test_latent_fed_to_ppo_is_the_learners_encoding(tmp_path) -> None:
-    from bulbjax.experiment.run import RunOptions, run
+    from bulbjax.config import RunOptions
+    from bulbjax.run import run
 
     import dataclasses
 
@@ -111,7 +112,7 @@ def test_rl_compare_plot_and_epochs_to_solve(tmp_path) -> None:
     import dataclasses
 
     from bulbjax.cli import main
-    from bulbjax.experiment import records
+    from bulbjax.report import records
 
     ep = np.arange(5)
     np.testing.assert_equal(records.epochs_to_reach(np.array([[1., 5, 9, 9, 9], [1., 2, 3, np.nan, 4]]), ep, 8.0),

@@ -18,10 +18,10 @@ import numpy as np
 import pytest
 
 from bulbjax.data import sequence
+from bulbjax.epoch import Experiment, ExperimentConfig
+from bulbjax.epoch.policy import push_window
+from bulbjax.epoch.programs import Programs
 from bulbjax.eval.probe import ProbeConfig
-from bulbjax.experiment import Experiment, ExperimentConfig
-from bulbjax.experiment.policy import push_window
-from bulbjax.experiment.programs import Programs
 from bulbjax.learners import LearnerConfig
 from bulbjax.rl.ppo import PPOConfig
 
@@ -122,8 +122,9 @@ def _lines(d: str) -> list[str]:
 def test_two_epochs_and_exact_resume(exp: Experiment, tmp_path) -> None:
     """Two epochs of the run loop with PPO on DSA's latent: finite metrics, the worlds' windows
     in the checkpoint, the same records after a stop and a resume."""
-    from bulbjax.experiment.checkpoint import Checkpointer
-    from bulbjax.experiment.run import RunOptions, run
+    from bulbjax.config import RunOptions
+    from bulbjax.run import run
+    from bulbjax.run.checkpoint import Checkpointer
 
     d0 = str(tmp_path / "straight")
     run(exp.config, RunOptions(checkpoint_every=1), d0, experiment=exp, progress=False, log=lambda s: None)
@@ -140,7 +141,7 @@ def test_two_epochs_and_exact_resume(exp: Experiment, tmp_path) -> None:
     assert set(hist) == {"train", "curr"} and hist["train"].frames.shape[:3] == (2, 4, L)
     assert np.asarray(hist["train"].frames).any() and 1 <= int(hist["train"].count.min())
     # the figures' held-out rollout goes on from the current-policy worlds' windows
-    from bulbjax.experiment.recon import RunFigures
+    from bulbjax.run.recon import RunFigures
     w = RunFigures(exp).held_out(state["run"], 2)
     assert w.frames.shape[1] == L and w.valid[:, 0].all()
     # stopped after one epoch and resumed: the same records, bit for bit

@@ -1,4 +1,4 @@
-"""The run loop (`bulbjax.experiment.run`): checkpoints and exact resume, keep-K, SIGTERM,
+"""The run loop (`bulbjax.run.loop`): checkpoints and exact resume, keep-K, SIGTERM,
 config mismatches, provenance, TensorBoard events and `bulbjax report`, on a tiny CPU config
 with a frame learner that retains replay and a sequential learner (window buffers)."""
 
@@ -14,14 +14,16 @@ import jax
 import numpy as np
 import pytest
 
+from bulbjax.config import PRESETS, RunOptions, config_from_dict, small_config
+from bulbjax.epoch import Experiment, ExperimentConfig
+from bulbjax.epoch.programs import Programs
 from bulbjax.eval.probe import ProbeConfig
-from bulbjax.experiment import Experiment, ExperimentConfig, records, report
-from bulbjax.experiment.checkpoint import Checkpointer
-from bulbjax.experiment.config import PRESETS, config_from_dict, small_config
-from bulbjax.experiment.programs import Programs
-from bulbjax.experiment.run import RunOptions, check_resume, run, source_hash
 from bulbjax.learners import LearnerConfig
+from bulbjax.report import records, report
 from bulbjax.rl.ppo import PPOConfig
+from bulbjax.run import check_resume, run
+from bulbjax.run.checkpoint import Checkpointer
+from bulbjax.run.provenance import source_hash
 
 
 def tiny() -> ExperimentConfig:
@@ -142,7 +144,7 @@ def test_sigterm_stops_at_epoch_end_with_a_checkpoint(exp, tmp_path):
 
 def test_max_minutes_stops_after_the_epoch_that_ran_late(exp, tmp_path, monkeypatch):
     """--max-minutes: checked before the first epoch and after each; the last epoch is "done"."""
-    import bulbjax.experiment.run as run_module
+    import bulbjax.run.loop as run_module
 
     clock = [0.0]
     monkeypatch.setattr(run_module.time, "time", lambda: clock[0])
@@ -308,7 +310,7 @@ def test_source_hash_names_the_code(tmp_path):
     copy = str(tmp_path / "bulbjax")
     shutil.copytree(os.path.dirname(bulbjax.__file__), copy, ignore=shutil.ignore_patterns("__pycache__"))
     assert source_hash(copy) == source_hash()
-    with open(os.path.join(copy, "experiment", "run.py"), "a") as f:
+    with open(os.path.join(copy, "run", "loop.py"), "a") as f:
         f.write("\n")
     assert source_hash(copy) != source_hash()
 
@@ -335,8 +337,8 @@ import hashlib, json, sys
 sys.path.insert(0, {tests!r})
 import jax
 from warp._src.jax.ffi import _FFI_CALLABLE_REGISTRY
-from bulbjax.experiment import Experiment
-from bulbjax.experiment.programs import Programs
+from bulbjax.epoch import Experiment
+from bulbjax.epoch.programs import Programs
 from test_run import tiny
 exp = Experiment(tiny())
 mode = sys.argv[1]
@@ -390,7 +392,7 @@ def test_resumed_process_compiles_the_same_epoch_program():
 def test_overwrite_refused_then_starts_afresh(exp, straight, tmp_path):
     """A fresh run over a run folder is a ValueError naming it, touching nothing; `overwrite`
     deletes the earlier run's metrics and checkpoints and starts afresh."""
-    from bulbjax.experiment.rundir import RunFolderExists
+    from bulbjax.run.rundir import RunFolderExists
 
     d0, _ = straight
     d = str(tmp_path / "again")
@@ -439,7 +441,8 @@ def test_disk_full_while_appending_metrics_keeps_whole_records(exp, straight, tm
     checkpoint of epoch 2 stays, and a resume gives the straight run's records."""
     import errno
 
-    from bulbjax.experiment import rundir
+    from bulbjax.report import records as records_mod
+    from bulbjax.run import rundir
 
     d0, _ = straight
     d = str(tmp_path / "full")
@@ -448,13 +451,13 @@ def test_disk_full_while_appending_metrics_keeps_whole_records(exp, straight, tm
         os.write(fd, bytes(data[: len(data) // 2]))
         raise OSError(errno.ENOSPC, "No space left on device")
 
-    # calls of rundir._write_all: the folder's write probe, then one per epoch's metrics
-    _fail_on_call(monkeypatch, rundir, "_write_all", 4, half_then_enospc)
+    # calls of records._write_all: one per epoch's metrics
+    _fail_on_call(monkeypatch, records_mod, "_write_all", 3, half_then_enospc)
     with pytest.raises(ValueError, match=r"writing metrics.jsonl \(epoch 2\) in .* failed \(OSError: .*No space "
                                          r"left.*newest complete checkpoint is epoch 2; .*bulbjax run --resume"):
         run(exp.config, RunOptions(checkpoint_every=1), d, experiment=exp, progress=False, log=lambda s: None)
     monkeypatch.undo()
-    assert _lines(d) == _lines(d0)[:4] and not rundir.ends_mid_line(os.path.join(d, "metrics.jsonl"))
+    assert _lines(d) == _lines(d0)[:4] and not records_mod.ends_mid_line(os.path.join(d, "metrics.jsonl"))
     assert rundir.checkpoint_steps(d) == [1, 2]
     res = run(exp.config, RunOptions(), d, resume=True, experiment=exp, progress=False, log=lambda s: None)
     assert res.epochs_done == 4 and _lines(d) == _lines(d0)
@@ -468,7 +471,7 @@ def test_failed_checkpoint_write_keeps_the_last_one(exp, straight, tmp_path, mon
 
     from orbax.checkpoint._src.path import async_path
 
-    from bulbjax.experiment import rundir
+    from bulbjax.run import rundir
 
     d0, _ = straight
     d = str(tmp_path / "ckfail")

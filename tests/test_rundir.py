@@ -1,4 +1,4 @@
-"""Run folders (`bulbjax.experiment.rundir`, `console`): `bulbjax run` / `bulbjax fit` over a
+"""Run folders (`bulbjax.run.rundir`, `console`): `bulbjax run` / `bulbjax fit` over a
 folder that holds a run is a one-line error that deletes nothing, `--overwrite` starts afresh, an
 unwritable folder fails before anything is built, metrics appends are whole records or nothing,
 the start-up stages are named with a ticker, and C++ log lines go to the run's log.txt."""
@@ -14,8 +14,9 @@ import time
 import pytest
 
 from bulbjax.cli import main
-from bulbjax.experiment import report, rundir
-from bulbjax.experiment.console import StageLog, log_to_file
+from bulbjax.report import records
+from bulbjax.run import rundir
+from bulbjax.run.console import StageLog, log_to_file
 
 RUN_ARGS = ["run", "--env", "CartPole", "--learners", "vae", "--seeds", "1", "--epochs", "2", "--small"]
 
@@ -26,7 +27,7 @@ def _fake_run(d, epochs_done: int = 3, checkpoint: int | None = 2) -> dict[str, 
     os.makedirs(d, exist_ok=True)
     with open(os.path.join(d, "config.json"), "w") as f:
         json.dump({"experiment": {"env": "CartPole", "learners": ["vae", "vae_rpl"], "epochs": 6}}, f)
-    report.write_jsonl(os.path.join(d, "metrics.jsonl"),
+    records.write_jsonl(os.path.join(d, "metrics.jsonl"),
                        [{"epoch": e, "seed": s} for e in range(epochs_done) for s in range(2)])
     with open(os.path.join(d, "fig2.png"), "wb") as f:
         f.write(b"png")
@@ -58,8 +59,9 @@ def test_run_over_a_run_is_one_line_naming_it(tmp_path, capsys):
     assert f"--resume {d}" in err and "--overwrite" in err
     assert _snapshot(d) == before  # nothing deleted or written (no log.txt either)
     # the same for the Python API
-    from bulbjax.experiment.run import RunOptions, run
-    from bulbjax.experiment import ExperimentConfig
+    from bulbjax.config import ExperimentConfig, RunOptions
+    from bulbjax.run import run
+
     with pytest.raises(rundir.RunFolderExists, match="holds a run"):
         run(ExperimentConfig(), RunOptions(), d)
     assert _snapshot(d) == before
@@ -77,7 +79,7 @@ def test_run_over_a_run_is_one_line_naming_it(tmp_path, capsys):
 def test_overwrite_reaches_the_run(tmp_path, monkeypatch):
     """`--overwrite` is passed on (the run itself, deleting and starting afresh, is tested in
     test_run.py on a prebuilt experiment); the log file starts afresh too."""
-    import bulbjax.experiment.run as run_mod
+    import bulbjax.run as run_mod  # the face `bulbjax run` calls `run` through
 
     d = str(tmp_path / "demo")
     _fake_run(d)
@@ -145,20 +147,20 @@ def test_unwritable_out_folder_fails_before_the_run(tmp_path, monkeypatch, capsy
 def test_append_is_whole_records_or_nothing(tmp_path, monkeypatch):
     """A write that fails half-way (disk full) is cut back to the file's previous end."""
     p = str(tmp_path / "metrics.jsonl")
-    report.write_jsonl(p, [{"epoch": 0, "seed": 0}])
+    records.write_jsonl(p, [{"epoch": 0, "seed": 0}])
     before = open(p, "rb").read()
 
     def half_then_full(fd, data):
         os.write(fd, bytes(data[: len(data) // 2]))
         raise OSError(errno.ENOSPC, "No space left on device")
 
-    monkeypatch.setattr(rundir, "_write_all", half_then_full)
+    monkeypatch.setattr(records, "_write_all", half_then_full)
     with pytest.raises(OSError, match="No space"):
-        report.write_jsonl(p, [{"epoch": 1, "seed": 0, "x": "y" * 100}, {"epoch": 1, "seed": 1}])
-    assert open(p, "rb").read() == before and not rundir.ends_mid_line(p)
+        records.write_jsonl(p, [{"epoch": 1, "seed": 0, "x": "y" * 100}, {"epoch": 1, "seed": 1}])
+    assert open(p, "rb").read() == before and not records.ends_mid_line(p)
     with open(p, "a") as f:
         f.write('{"epoch": 1, "se')
-    assert rundir.ends_mid_line(p)
+    assert records.ends_mid_line(p)
 
 
 def test_stage_log_names_stages_and_ticks():

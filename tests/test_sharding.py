@@ -23,8 +23,8 @@ import textwrap
 SCRIPT = textwrap.dedent("""
     import dataclasses, json, sys
     import jax, numpy as np
+    from bulbjax.epoch import Experiment, ExperimentConfig
     from bulbjax.eval.probe import ProbeConfig
-    from bulbjax.experiment import Experiment, ExperimentConfig
     from bulbjax.learners import LearnerConfig
     from bulbjax.rl.ppo import PPOConfig
 

@@ -15,22 +15,23 @@ import pytest
 
 from bulbjax.data import sequence, synthetic
 from bulbjax.eval.probe import ProbeConfig, summarise
-from bulbjax.experiment import ExperimentConfig
-from bulbjax.experiment import offline
+from bulbjax.config import ExperimentConfig, OfflineConfig
+from bulbjax.epoch.offline import OfflineFit, reference_spread
+from bulbjax.run.offline import load_or_collect
 from bulbjax.learners import LearnerConfig
 
 UPDATES = 400
 SEQUENTIAL = ("svae", "pred", "dsa")
 
 
-def movers_config(learners=("vae",) + SEQUENTIAL, updates=UPDATES) -> offline.OfflineConfig:
+def movers_config(learners=("vae",) + SEQUENTIAL, updates=UPDATES) -> OfflineConfig:
     """16x16 frames of one square, small nets, lr 1e-3, 256-frame batches (32 windows of 8)."""
     base = ExperimentConfig(
         env=synthetic.NAME, learners=learners, seeds=1, resolution=16, sequence_length=8,
         learner=LearnerConfig(lr=1e-3, batch_size=256, conv_features=(16, 32), hidden=64,
                               pred_horizon=4, dsa_encoder="lstm"),
         probe_train_frames=2048, probe=ProbeConfig(hidden=(128, 128), steps=400))
-    return offline.OfflineConfig(
+    return OfflineConfig(
         base=base, updates=updates, probe_every=updates, data_worlds=64, data_steps=256,
         heldout_steps=48, updates_per_call=1,
         movers=synthetic.MoversConfig(resolution=16, num_objects=1, size=5.0, max_speed=1.0))
@@ -55,15 +56,15 @@ def test_movers_data() -> None:
 def fitted():
     """Four learners, UPDATES updates each on one cached-free dataset, probed once."""
     cfg = movers_config()
-    fit = offline.OfflineFit(cfg)
-    data, held_traj, _ = offline.load_or_collect(cfg, fit.source, None)
+    fit = OfflineFit(cfg)
+    data, held_traj, _ = load_or_collect(cfg, fit.source, None)
     held = sequence.consecutive_windows(held_traj, cfg.eval_length)
     states = fit.init(jax.random.PRNGKey(0))
     key = jax.random.PRNGKey(1)
     for _ in range(UPDATES):
         key, k = jax.random.split(key)
         states, m = fit.train(states, data, k, 1)
-    ref = offline._ref_spread(held)
+    ref = reference_spread(held)
 
     def scores(broken: bool):
         p = jax.device_get(fit.probe(states, data, held, jax.random.PRNGKey(2), np.bool_(broken)))

@@ -126,8 +126,8 @@ def case(name: str, rank: int | None = None) -> None:
         jax.block_until_ready(outs)
         print("per device", jax.device_get(outs))
     elif name == "epoch_mp":
-        from bulbjax.experiment import Experiment, small_config
-        from bulbjax.experiment.config import preset
+        from bulbjax.config import preset
+        from bulbjax.epoch import Experiment, small_config
 
         cfg = small_config(preset("fig2-invpend")).replace(seeds=2)
         exp = Experiment(cfg, devices=jax.devices())
@@ -142,8 +142,8 @@ def case(name: str, rank: int | None = None) -> None:
             m = jax.device_get(m)
             print(f"epoch {i} in {time.time() - t:.1f} s; returns", np.asarray(m["rl_return"]).tolist(), flush=True)
     elif name == "epoch_each":
-        from bulbjax.experiment import Experiment, small_config
-        from bulbjax.experiment.config import preset
+        from bulbjax.config import preset
+        from bulbjax.epoch import Experiment, small_config
 
         cfg = small_config(preset("fig2-invpend")).replace(seeds=2)
         exps = [Experiment(cfg, devices=[d]) for d in devs]

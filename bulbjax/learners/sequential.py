@@ -92,7 +92,7 @@ class SequentialVAE:
     # (`per_seed_loss`). Same numbers, another schedule.
     per_seed_frames: str = ""
     sequential: ClassVar[bool] = True
-    # Whether the "hybrid" seed loop vmaps this learner (`experiment.seeds.with_seed_loop`): worth
+    # Whether the "hybrid" seed loop vmaps this learner (`epoch.seeds.with_seed_loop`): worth
     # it where LSTMs are a large share of an update (DSA: three; H100, 6 seeds, 5.74 -> 5.03 ms
     # per seed-update), not for SVAE's one (4.25 -> 4.28 ms; the diagnostic bench_seed_axis.py,
     # benchmarks/diagnostics/README.md).

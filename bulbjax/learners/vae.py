@@ -110,7 +110,7 @@ class VAE:
     def update_key(self) -> "VAE":
         """This VAE up to what its update takes as an argument (`beta`) or does not use
         (`retain_fraction`, the caller's replay): VAEs with equal keys (vae, vae_rpl, beta_vae)
-        can share one compiled update (`update(..., beta=)`; experiment.seeds.update_groups)."""
+        can share one compiled update (`update(..., beta=)`; epoch.seeds.update_groups)."""
         return dataclasses.replace(
             self, config=dataclasses.replace(self.config, beta=1.0, retain_fraction=0.0))
 

@@ -8,8 +8,8 @@ import os
 import sys
 from typing import Sequence
 
-from bulbjax.experiment import rundir
 from bulbjax.reproduce.plan import Job, fig4_learners
+from bulbjax.run import checkpoint_steps
 
 # a periodic checkpoint about every this many seconds of epochs, so that a killed job loses
 # little; a job stopped by a signal or --max-minutes checkpoints as it stops anyway
@@ -25,7 +25,7 @@ def epochs_done(out: str, job: Job) -> int:
     counts its epochs once its figure is drawn."""
     if job.kind == "recon":
         return job.epochs if recon_done(out, job) else 0
-    steps = rundir.checkpoint_steps(job_dir(out, job))
+    steps = checkpoint_steps(job_dir(out, job))
     if steps:
         return max(steps)
     # a finished job brought back from another machine without its checkpoints (a shard of a
@@ -118,7 +118,7 @@ def command(out: str, job: Job, epoch_s: float, max_minutes: float = 0.0, source
     stretch = ["--epochs", str(job.epochs), "--checkpoint-every", str(every)]
     if max_minutes > 0:
         stretch += ["--max-minutes", f"{max_minutes:.2f}"]
-    if rundir.checkpoint_steps(d):
+    if checkpoint_steps(d):
         return [*base, "run", "--resume", d, *stretch]
     fresh = [*base, "run", "--preset", job.preset, "--seeds", str(job.seeds), "--seed", str(job.seed),
              "--probe-every", str(job.probe_every), "--out", d, *job.flags, *stretch]

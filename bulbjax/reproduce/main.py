@@ -17,14 +17,14 @@ import shutil
 import time
 from typing import Any, Callable, Sequence
 
-from bulbjax.experiment import rundir
-from bulbjax.experiment.config import PRESETS
+from bulbjax.config import PRESETS
 from bulbjax.reproduce import jobs as J
 from bulbjax.reproduce import results
 from bulbjax.reproduce.estimate import device_kind, fit_jobs, hms, hours_unit, job_cost, load_times, simulate
 from bulbjax.reproduce.plan import (PLAN_FILE, Job, parse_figures, parse_jobs, parse_shard, plan_differences,
                                     plan_jobs, plan_record, read_plan, shard_of)
 from bulbjax.reproduce.queue import Queue, Slot
+from bulbjax.run import checkpoint_steps
 
 
 def learner_names(specs: Sequence[str]) -> list[str]:
@@ -145,7 +145,7 @@ def reproduce(figures: str | Sequence[str] = "all", scale: str = "paper", out: s
             raise ValueError("--fit-minutes picks among the plan's unfinished jobs: drop --overwrite")
         left = [j for j in mine if not J.is_done(out, j)]
         lost = [j for j in left if j.after and J.is_done(out, _job(all_jobs, j.after))
-                and not rundir.checkpoint_steps(J.job_dir(out, _job(all_jobs, j.after)))]
+                and not checkpoint_steps(J.job_dir(out, _job(all_jobs, j.after)))]
         for j in lost:  # its run finished on a host whose disk (and the checkpoint) went with it
             log(f"{j.id} left out: its run {j.after} finished on another host and left no checkpoint here to "
                 f"draw from; delete {J.job_dir(out, _job(all_jobs, j.after))} to run both again")

@@ -17,7 +17,7 @@ import json
 from dataclasses import dataclass
 from typing import Any, Sequence
 
-from bulbjax.experiment.config import PRESETS
+from bulbjax.config import PRESETS
 
 SCALES = ("paper", "quick", "tiny")
 FIGURES = ("fig2", "fig3", "fig4", "fig5")

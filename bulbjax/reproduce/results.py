@@ -15,8 +15,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from bulbjax.experiment import report
-from bulbjax.experiment.records import band, ci90, last_returns, metrics_path, probed, read_jsonl
+from bulbjax.report import band, ci90, last_returns, merge_seeds, metrics_path, probed, read_jsonl, redraw
 from bulbjax.reproduce import jobs as J
 from bulbjax.reproduce.estimate import hms, hours_unit
 from bulbjax.reproduce.plan import PLAN_FILE, TITLES, Job, job_of, read_plan
@@ -55,9 +54,9 @@ def merge(out: str, figure: str, preset: str, seeds: Sequence[Job]) -> str | Non
     dest = merged_dir(out, figure, preset)
     dirs = [J.job_dir(out, j) for j in seeds]
     if len(dirs) > 1:
-        report.merge_seeds(dirs, dest)
+        merge_seeds(dirs, dest)
     else:
-        report.redraw(dirs[0])
+        redraw(dirs[0])
         os.makedirs(dest, exist_ok=True)
         for name in ("config.json", "fig2.png", "table.md", "findings.md", "objects.png"):
             if os.path.exists(os.path.join(dirs[0], name)):
@@ -164,8 +163,8 @@ def _preset_section(out: str, fig: str, preset: str, seeds: Sequence[Job]) -> li
 def _protocol_section(out: str, dirs: Sequence[str]) -> list[str]:
     """The Fig. 2 claims under each probe variant, over the merged runs that carry the variants
     (`bulbjax report --probe-protocol`), into OUT/probe_protocol/table.md; nothing without them."""
-    from bulbjax.experiment.config import read_run_config
-    from bulbjax.experiment.protocol import probe_protocol_table
+    from bulbjax.config import read_run_config
+    from bulbjax.report import probe_protocol_table
 
     runs = [d for d in dirs if os.path.exists(os.path.join(d, "config.json"))
             and read_run_config(d)[0].probe_variants]

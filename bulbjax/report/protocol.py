@@ -14,10 +14,10 @@ from __future__ import annotations
 import os
 from typing import Sequence
 
-from bulbjax.experiment import findings
-from bulbjax.experiment.config import read_run_config
-from bulbjax.experiment.records import metrics_path, probed, read_jsonl
-from bulbjax.experiment.report import report_spec
+from bulbjax.config import read_run_config
+from bulbjax.report import findings
+from bulbjax.report.records import metrics_path, probed, read_jsonl
+from bulbjax.report.report import report_spec
 
 
 def _load(run_dir: str) -> tuple[object, list[dict], tuple]:

@@ -23,13 +23,13 @@ from __future__ import annotations
 import dataclasses
 from typing import Any, Mapping, Sequence
 
+from bulbjax.config import ExperimentConfig, OfflineConfig, RunOptions, preset as named_preset, small_config
 from bulbjax.data import synthetic
 from bulbjax.envs import registry
-from bulbjax.experiment.config import (ExperimentConfig, OfflineConfig, RunOptions, preset as named_preset,
-                                       read_run_config, run_options_of, small_config)
 from bulbjax.learners import LearnerConfig, is_sequential_name, parse_learner_options
 from bulbjax.learners.plugins import load_learner_spec, parse_learner_list
 from bulbjax.rl.ppo_config import parse_ppo_options
+from bulbjax.run.resume import Resume, SavedRun
 
 # `bulbjax fit --small`: a CPU-sized dataset (worlds, steps per world, held-out steps per world).
 SMALL_DATASET: dict[str, int] = {"data_worlds": 32, "data_steps": 128, "heldout_steps": 32}
@@ -151,24 +151,43 @@ def resolve(preset: str | None = None, *, base: ExperimentConfig | None = None,
 def resolve_resume(run_dir: str, preset: str | None = None, *, overrides: Mapping[str, Any] | None = None,
                    learner: Mapping[str, Any] | None = None, learner_options: Sequence[str] = (),
                    small: bool = False, seed: int | None = None, probe_every: int | None = None,
-                   ppo_options: Sequence[str] = (), **stretch: Any) -> tuple[ExperimentConfig, RunOptions]:
-    """Config and options of a resumed run (`bulbjax run --resume RUN_DIR`): the run's own
-    config.json with what was given on top, as a fresh run would apply it to the saved
-    settings (a `preset` builds the config anew; the domain's PPO settings only with a new
-    `env`); its epochs unless `epochs` is overridden; its seed and probe_every unless given.
-    `stretch`: the RunOptions that may change between stretches (checkpoint_every, keep, ...).
-    `run.check_resume` then refuses whatever changes what the run computes."""
-    saved, raw = read_run_config(run_dir)
+                   ppo_options: Sequence[str] = (), **stretch: Any) -> Resume:
+    """A resumed run (`bulbjax run --resume RUN_DIR`), resolved once: its own config.json, read
+    here and only here (`Resume.saved`), with what was given on top, as a fresh run would apply
+    it to the saved settings (a `preset` builds the config anew; the domain's PPO settings only
+    with a new `env`); its epochs unless `epochs` is overridden; its seed and probe_every unless
+    given (`Resume.config`, `Resume.options`). `stretch`: the RunOptions that may change between
+    stretches (checkpoint_every, keep, ...). `Resume.check` (and `run`, handed the Resume) then
+    refuses whatever changes what the run computes."""
+    saved = SavedRun.read(run_dir)
     overrides = dict(overrides or {})
     kw = dict(overrides=overrides, learner=learner, learner_options=learner_options, small=small,
               ppo_options=ppo_options)
-    cfg = resolve(preset, **kw) if preset else resolve(base=saved, domain_ppo="env" in overrides, **kw)
+    cfg = resolve(preset, **kw) if preset else resolve(base=saved.config, domain_ppo="env" in overrides, **kw)
     if "epochs" not in overrides:
-        cfg = cfg.replace(epochs=saved.epochs)
-    ident = run_options_of(raw)
+        cfg = cfg.replace(epochs=saved.config.epochs)
+    ident = saved.identity
     opts = RunOptions(seed=ident["seed"] if seed is None else seed,
                       probe_every=ident["probe_every"] if probe_every is None else probe_every, **stretch)
-    return cfg, opts
+    return Resume(saved, cfg, opts)
+
+
+def resolve_run(preset: str | None = None, *, resume: str | None = None, seed: int | None = None,
+                probe_every: int | None = None, stretch: Mapping[str, Any] | None = None,
+                **settings: Any) -> tuple[ExperimentConfig, RunOptions, Resume | None]:
+    """`bulbjax run`'s settings, resolved once: a fresh run's config (`resolve`) and options (seed
+    0 and probe_every 1 unless given), or, with `resume` (a run folder), the resumed run's
+    (`resolve_resume`), whose `Resume` comes third: the checks and `run` take it and read the
+    run's config.json no more. `stretch`: the RunOptions that may change between stretches
+    (checkpoint_every, keep, ...); `settings`: `resolve`'s keyword arguments."""
+    stretch = dict(stretch or {})
+    if resume:
+        r = resolve_resume(resume, preset, seed=seed, probe_every=probe_every, **settings, **stretch)
+        return r.config, r.options, r
+    cfg = resolve(preset, **settings)
+    opts = RunOptions(seed=0 if seed is None else seed, probe_every=1 if probe_every is None else probe_every,
+                      **stretch)
+    return cfg, opts, None
 
 
 def resolve_offline(preset: str | None = None, *, overrides: Mapping[str, Any] | None = None,

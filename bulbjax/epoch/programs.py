@@ -14,10 +14,10 @@ import jax
 
 from jax.sharding import Mesh
 
-from bulbjax.experiment.config import PROGRAM_FORMS
-from bulbjax.experiment.loop import Experiment
-from bulbjax.experiment.probe_variants import common_set
-from bulbjax.experiment.state import RunState
+from bulbjax.config import PROGRAM_FORMS
+from bulbjax.epoch.loop import Experiment
+from bulbjax.epoch.probe_variants import common_set
+from bulbjax.epoch.state import RunState
 
 
 def resolve_programs(choice: str, mesh: Mesh) -> str:

@@ -15,8 +15,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from bulbjax.eval.spec import StateEntry
-from bulbjax.experiment.records import (STREAMS, VARIANT_SOURCES, ci90, excluded_groups, groups_of,
-                                        per_seed_error, probed)
+from bulbjax.report.records import STREAMS, VARIANT_SOURCES, ci90, excluded_groups, groups_of, per_seed_error, probed
 
 PENDULUMS = ("CartPole", "InvertedPendulum")
 LOCOMOTION = ("HalfCheetah", "Ant")
@@ -32,7 +31,7 @@ class Verdict:
     """One claim: `holds`, `does not hold`, `undecided` or `not tested`, and the numbers.
     `learners`: those the claim compares; `parts`: each paired difference that decides it, as
     `(what, mean, half-width of its 90% band)` (the variants' table shows them,
-    `bulbjax.experiment.protocol`)."""
+    `bulbjax.report.protocol`)."""
 
     claim: str
     verdict: str
@@ -237,7 +236,7 @@ def markdown(verdicts: Sequence[Verdict], epochs: Sequence[int], seeds: int) -> 
 
 # ------------------------------------------------------------------------- probe-protocol variants
 # Column heads of the variants' verdicts (`records.VARIANT_SOURCES`; "fp32": the present probe
-# of a second run in fp32, `bulbjax.experiment.protocol`).
+# of a second run in fp32, `bulbjax.report.protocol`).
 VARIANT_LABELS = {"present": "present probe", "common": "common probe set",
                   "window": "whole window (sequential)", "raw": "raw MAE", "fp32": "fp32 run"}
 
@@ -246,7 +245,7 @@ def variant_checks(records: Sequence[dict[str, Any]], spec: Sequence[StateEntry]
                    last: int = 3) -> tuple[dict[str, list[Verdict]], list[int]]:
     """The Fig. 2 claims under every probe variant the records carry (`records.variants_of`:
     the present probe first), on the same last `last` probed epochs."""
-    from bulbjax.experiment.records import variants_of
+    from bulbjax.report.records import variants_of
 
     out, epochs = {}, []
     for v in variants_of(records):

@@ -30,15 +30,15 @@ from typing import Any, Callable, Sequence
 import jax
 
 from bulbjax import distributed
-from bulbjax.experiment import report, rundir
-from bulbjax.experiment.checkpoint import CHECKPOINT_DIR, Checkpointer, CheckpointWriteError
-from bulbjax.experiment.console import StageLog
-from bulbjax.experiment.config import IDENTITY, ExperimentConfig, RunOptions, read_run_config, run_options_of
-from bulbjax.experiment.groups import SeedGroups
-from bulbjax.experiment.loop import Experiment
-from bulbjax.experiment.provenance import VERSIONED, git_state, provenance, source_hash  # noqa: F401
-from bulbjax.experiment.records import (epoch_records, last_returns, nanmean, read_jsonl, scalars, write_jsonl,
-                                        write_jsonl_atomic)
+from bulbjax.config import IDENTITY, ExperimentConfig, RunOptions
+from bulbjax.epoch import Experiment, SeedGroups
+from bulbjax.report import (ends_mid_line, epoch_records, last_returns, nanmean, read_jsonl, scalars, write_jsonl,
+                            write_jsonl_atomic, write_reports)
+from bulbjax.run import rundir
+from bulbjax.run.checkpoint import CHECKPOINT_DIR, Checkpointer, CheckpointWriteError
+from bulbjax.run.console import StageLog
+from bulbjax.run.provenance import provenance
+from bulbjax.run.resume import Resume, SavedRun, check_processes, check_resume
 
 TB_DIR = "tb"
 
@@ -57,51 +57,6 @@ def _write_json_atomic(path: str, obj: Any) -> None:
     with open(tmp, "w") as f:
         json.dump(obj, f, indent=1)
     os.replace(tmp, path)
-
-
-def config_differences(saved: ExperimentConfig, saved_run: dict[str, Any], cfg: ExperimentConfig,
-                       opts: RunOptions) -> list[str]:
-    """What a resume would change: every differing config field (nested ones by dotted path,
-    `epochs` excepted: a run may be extended) and identity option, as 'field: saved X, given Y'."""
-    out = []
-
-    def walk(prefix: str, a: Any, b: Any) -> None:
-        if isinstance(a, dict) and isinstance(b, dict):
-            for k in sorted(set(a) | set(b)):
-                walk(f"{prefix}{k}" if not prefix else f"{prefix}.{k}", a.get(k), b.get(k))
-        elif a != b and prefix != "epochs":
-            out.append(f"{prefix}: saved {a!r}, given {b!r}")
-
-    walk("", dataclasses.asdict(saved), dataclasses.asdict(cfg))
-    for k in IDENTITY:
-        if saved_run[k] != getattr(opts, k):
-            out.append(f"{k}: saved {saved_run[k]!r}, given {getattr(opts, k)!r}")
-    return out
-
-
-def check_resume(run_dir: str, cfg: ExperimentConfig, opts: RunOptions) -> None:
-    """Raise ValueError when `cfg`/`opts` would change what the run in `run_dir` computes."""
-    saved, raw = read_run_config(run_dir)
-    diff = config_differences(saved, run_options_of(raw), cfg, opts)
-    if diff:
-        raise ValueError(f"--resume {run_dir}: the given settings differ from the run's config.json: "
-                         + "; ".join(diff) + ". Resume without those flags (the run keeps its own "
-                         "settings; only --epochs may grow), or start a new run with another --out")
-
-
-def saved_processes(raw: dict[str, Any]) -> int:
-    """The process count a run was made with (its first stretch's provenance; 1 before it was recorded)."""
-    return int(raw.get("provenance", {}).get("processes", 1))
-
-
-def check_processes(run_dir: str, raw: dict[str, Any], processes: int | None = None) -> None:
-    """Raise ValueError when this resume runs with another process count (`processes`, default
-    this run's) than the run: each process's checkpoints hold its own seed groups."""
-    saved, now = saved_processes(raw), jax.process_count() if processes is None else processes
-    if saved != now:
-        raise ValueError(f"--resume {run_dir}: the run was made by {saved} process(es) and this resume has {now}; "
-                         f"each process checkpoints its own seeds, so resume with {saved} process(es) "
-                         "(the same --num-processes, or the same SLURM/MPI task count)")
 
 
 # ---------------------------------------------------------------------------- signals
@@ -150,7 +105,7 @@ def _start_fresh(run_dir: str, log: Callable[[str], None]) -> None:
         if os.path.isdir(p):
             log(f"starting afresh: removing {p} of an earlier run in {run_dir} (--overwrite)")
             rundir.remove_tree(p)
-    from bulbjax.experiment.recon import figure_files
+    from bulbjax.run.recon import figure_files
 
     for p in figure_files(run_dir):
         os.remove(p)
@@ -167,7 +122,7 @@ def _metrics_up_to(path: str, epoch: int, seeds: int) -> list[dict[str, Any]]:
         raise ValueError(f"{path} lacks the records of epochs {missing[:5]}{'...' if len(missing) > 5 else ''} "
                          f"that the checkpoint of epoch {epoch} has passed; the metrics cannot be continued "
                          "without a gap. Start a new run")
-    if len(keep) != len(records) or rundir.ends_mid_line(path):  # later epochs, or half a record
+    if len(keep) != len(records) or ends_mid_line(path):  # later epochs, or half a record
         write_jsonl_atomic(path, keep)
     return keep
 
@@ -192,7 +147,7 @@ class _TensorBoard:
         self.writer.close()
 
 
-def run(cfg: ExperimentConfig, opts: RunOptions, run_dir: str, *, resume: bool = False,
+def run(cfg: ExperimentConfig, opts: RunOptions, run_dir: str, *, resume: bool | Resume = False,
         overwrite: bool = False, devices: Sequence[jax.Device] | None = None,
         experiment: Experiment | None = None, argv: Sequence[str] | None = None,
         log: Callable[[str], None] = print, progress: bool = True,
@@ -200,6 +155,8 @@ def run(cfg: ExperimentConfig, opts: RunOptions, run_dir: str, *, resume: bool =
         compiler_options: dict[str, Any] | None = None, layout: str = "auto", t0: float | None = None,
         compile_only: bool = False) -> RunResult:
     """Run (or, with `resume`, continue) the experiment `cfg` in `run_dir`; see the module doc.
+    `resume`: True (the run's config.json is read here) or the `Resume` that `resolve_resume`
+    made of it (read there, not again).
     A fresh run refuses a folder that holds a run (ValueError naming it) unless `overwrite`,
     which deletes that run's metrics, checkpoints and plots first (`rundir.check_out_dir`).
     `devices` (default: every device of every process) carry the seeds as `SeedGroups` lays them
@@ -221,16 +178,17 @@ def run(cfg: ExperimentConfig, opts: RunOptions, run_dir: str, *, resume: bool =
     writer = distributed.is_writer()
     if not writer:
         progress = False
-    rundir.check_out_dir(run_dir, resume=resume, overwrite=overwrite)  # nothing lost by accident
+    rundir.check_out_dir(run_dir, resume=bool(resume), overwrite=overwrite)  # nothing lost by accident
     if writer:
         rundir.remove_stale_temporaries(run_dir)
     stages = StageLog(log, t0)
     metrics_path = os.path.join(run_dir, "metrics.jsonl")
     config_path = os.path.join(run_dir, "config.json")
-    if resume:
-        check_resume(run_dir, cfg, opts)
-        _, raw = read_run_config(run_dir)
-        check_processes(run_dir, raw)
+    if resume:  # the run's config.json as resolved (`resolve_resume`), or read here
+        saved_run = resume.saved if isinstance(resume, Resume) else SavedRun.read(run_dir)
+        check_resume(saved_run, cfg, opts)
+        check_processes(saved_run)
+        raw = saved_run.json()
     else:
         if writer:
             _start_fresh(run_dir, log)
@@ -316,7 +274,7 @@ def run(cfg: ExperimentConfig, opts: RunOptions, run_dir: str, *, resume: bool =
     tb = _TensorBoard(run_dir, purge_step=start if resume else None) if opts.tensorboard and writer else None
     figs, drawn = None, None
     if opts.recon_every and writer:
-        from bulbjax.experiment.recon import RunFigures
+        from bulbjax.run.recon import RunFigures
 
         figs = RunFigures(exp, run_seed=opts.seed)
 
@@ -399,7 +357,7 @@ def run(cfg: ExperimentConfig, opts: RunOptions, run_dir: str, *, resume: bool =
     timing = (f"wall time of the last stretch {wall:.1f} s (start-up: build, compile, init/restore "
               f"{t_init:.1f} s{first}) on {groups.describe()}")
     if records and writer:
-        tab = report.write_reports(run_dir, records, cfg, exp.spec, exp.env.solved_return, footer=timing)
+        tab = write_reports(run_dir, records, cfg, exp.spec, exp.env.solved_return, footer=timing)
         log(f"\n{tab}\n\n{timing}\nplot: {os.path.join(run_dir, 'fig2.png')}\nmetrics: {metrics_path}")
     groups.settle()  # no compile may still run in a daemon thread when the process exits
     # the other processes wait while process 0 writes the reports (else they would reach JAX's

@@ -21,17 +21,17 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from bulbjax.config import ExperimentConfig
 from bulbjax.envs.base import EnvState
+from bulbjax.epoch import probe_variants as pv
+from bulbjax.epoch.devices import Devices
+from bulbjax.epoch.learning import Learning
+from bulbjax.epoch.policy import Policy
+from bulbjax.epoch.probing import Probing, object_pixels, probe_targets
+from bulbjax.epoch.seeds import SeedGroup, Team, resolve_seed_loop, with_seed_loop
+from bulbjax.epoch.state import EnvStage, PolicyHistory, RunState
+from bulbjax.epoch.streams import Streams
 from bulbjax.eval import objects, probe
-from bulbjax.experiment.config import ExperimentConfig
-from bulbjax.experiment.devices import Devices
-from bulbjax.experiment.learning import Learning
-from bulbjax.experiment.policy import Policy
-from bulbjax.experiment import probe_variants as pv
-from bulbjax.experiment.probing import Probing, object_pixels, probe_targets
-from bulbjax.experiment.seeds import SeedGroup, Team, resolve_seed_loop, with_seed_loop
-from bulbjax.experiment.state import EnvStage, PolicyHistory, RunState
-from bulbjax.experiment.streams import Streams
 from bulbjax.learners import make_learner
 from bulbjax.rl.ppo import PPOState
 
@@ -47,7 +47,7 @@ class Experiment:
     them, how the program runs, not what it computes).
 
     `seed_group=(offset, total)`: this experiment runs seeds offset..offset+S-1 of a run of `total`
-    seeds (`bulbjax.experiment.groups`): every random draw is the one those seeds get in the whole
+    seeds (`bulbjax.epoch.groups`): every random draw is the one those seeds get in the whole
     run (`seeds.SeedGroup`), so a run's seeds spread over several experiments (devices, processes)
     compute what one experiment of all seeds computes."""
 
@@ -188,7 +188,7 @@ class Experiment:
     def reference_states(self, key: jax.Array) -> jax.Array:
         """The states `[reference_steps, S*N, D]` that init's reference spread is taken over (the
         random policy's held-out worlds, `init_env`), recomputed from the init key: a run of seed
-        groups pools them over all its groups (`bulbjax.experiment.groups`)."""
+        groups pools them over all its groups (`bulbjax.epoch.groups`)."""
         k_ppo, _, k_env, _, _ = jax.random.split(key, 5)
         ppo_state = jax.vmap(self.ppo.init)(self.team.seed_keys(k_ppo))
         ke = jax.random.split(k_env, 4)

@@ -1,6 +1,11 @@
 """A run's metrics as records: one JSON-able record per epoch and seed (`epoch_records`), the
 `metrics.jsonl` file they are kept in, and the statistics the reports and findings take of them
-(per-seed errors and returns, curves over epochs, 90% confidence bands over seeds)."""
+(per-seed errors and returns, curves over epochs, 90% confidence bands over seeds).
+
+Records are appended a whole epoch at a time with one `write` (`append_whole`: a failed write is
+cut back to the file's previous end), and a resume cuts a half-written last line (`ends_mid_line`:
+from a process killed in an older version's buffered append, or a disk that filled) before it
+appends again."""
 
 from __future__ import annotations
 
@@ -150,12 +155,45 @@ def angle_summary(angle: dict[str, Any], spec: Sequence[StateEntry]) -> dict[str
     return {o: {"mae": _f(mae[i]), "baseline": _f(base[i])} for i, o in enumerate(objs)}
 
 
-def write_jsonl(path: str, records: Sequence[dict[str, Any]]) -> None:
-    """Append `records` as JSON lines, all of them or none (`rundir.append_whole`: one write, cut
-    back if it fails), so a killed or failing run never leaves half a record."""
-    from bulbjax.experiment import rundir
+def _write_all(fd: int, data: bytes) -> None:
+    view = memoryview(data)
+    while view:
+        view = view[os.write(fd, view):]
 
-    rundir.append_whole(path, "".join(json.dumps(r, allow_nan=True) + "\n" for r in records).encode())
+
+def append_whole(path: str, data: bytes) -> None:
+    """Append `data` (whole lines) to `path` with one `write` call (a loop only if the kernel
+    writes less): a process killed around it leaves all of it or none. If the write fails (disk
+    full), the file is cut back to where it ended, so no half line stays behind."""
+    fd = os.open(path, os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o644)
+    try:
+        end = os.fstat(fd).st_size
+        try:
+            _write_all(fd, data)
+        except BaseException:
+            os.ftruncate(fd, end)
+            raise
+    finally:
+        os.close(fd)
+
+
+def ends_mid_line(path: str) -> bool:
+    """Whether `path` ends in a half-written line (no final newline)."""
+    try:
+        with open(path, "rb") as f:
+            f.seek(0, os.SEEK_END)
+            if f.tell() == 0:
+                return False
+            f.seek(-1, os.SEEK_END)
+            return f.read(1) != b"\n"
+    except OSError:
+        return False
+
+
+def write_jsonl(path: str, records: Sequence[dict[str, Any]]) -> None:
+    """Append `records` as JSON lines, all of them or none (`append_whole`: one write, cut back if
+    it fails), so a killed or failing run never leaves half a record."""
+    append_whole(path, "".join(json.dumps(r, allow_nan=True) + "\n" for r in records).encode())
 
 
 def read_jsonl(path: str, tolerate_partial: bool = False) -> list[dict[str, Any]]:

@@ -11,7 +11,7 @@ import jax
 import jax.numpy as jnp
 
 from bulbjax.data import replay, sequence
-from bulbjax.experiment.seeds import Team, stack_members, switch_buffer, unstack_members
+from bulbjax.epoch.seeds import Team, stack_members, switch_buffer, unstack_members
 
 
 def learner_unroll() -> bool | int:

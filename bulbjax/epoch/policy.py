@@ -18,11 +18,11 @@ from typing import Any
 import jax
 import jax.numpy as jnp
 
+from bulbjax.config import ExperimentConfig
 from bulbjax.envs.base import EnvState
-from bulbjax.experiment.config import ExperimentConfig
-from bulbjax.experiment.devices import Devices
-from bulbjax.experiment.seeds import Team
-from bulbjax.experiment.state import PolicyHistory, PolicyView, PolicyWindow, Rendered, history_of
+from bulbjax.epoch.devices import Devices
+from bulbjax.epoch.seeds import Team
+from bulbjax.epoch.state import PolicyHistory, PolicyView, PolicyWindow, Rendered, history_of
 from bulbjax.learners import is_sequential, registration
 from bulbjax.rl.ppo import PPO, PPOState, Transition
 

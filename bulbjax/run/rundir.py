@@ -1,13 +1,11 @@
-"""Run folders: what an earlier run left in one, refusing to start over it by accident, checking
-that it can be written before anything runs, and appends that never leave half a line.
+"""Run folders: what an earlier run left in one, refusing to start over it by accident, and
+checking that it can be written before anything runs.
 
 `bulbjax run --out DIR` (and `bulbjax fit --out DIR`) on a folder that holds a run stops with one
 line naming the run and the two ways on (`--resume`, or `--overwrite` to start afresh): one
 repeated command must not delete a long run's checkpoints. A folder that cannot be written
 (read-only, full) is an error before the environment is built, not after minutes of compiling.
-Metrics are appended a whole epoch at a time with one `write` (a failed write is cut back to the
-file's previous end), and a resume cuts a half-written last line (from a process killed in an
-older version's buffered append, or a disk that filled) before it appends again.
+The metrics in it are appended whole (`bulbjax.report.records.append_whole`).
 """
 
 from __future__ import annotations
@@ -18,7 +16,7 @@ import json
 import os
 from typing import Any, Sequence
 
-CHECKPOINT_DIR = "checkpoints"  # as `bulbjax.experiment.checkpoint.CHECKPOINT_DIR` (no orbax import here)
+CHECKPOINT_DIR = "checkpoints"  # as `bulbjax.run.checkpoint.CHECKPOINT_DIR` (no orbax import here)
 RUN_FILES = ("config.json", "metrics.jsonl", "metrics.jsonl.gz")  # a `bulbjax run`'s own files
 FIT_FILES = ("config.json", "curves.jsonl")  # a `bulbjax fit`'s own files
 LOG_FILE = "log.txt"
@@ -158,6 +156,12 @@ def _oserror(err: OSError) -> str:
     return f"{err.strerror or err}" + (f" ({code})" if code else "")
 
 
+def _write_all(fd: int, data: bytes) -> None:
+    view = memoryview(data)
+    while view:
+        view = view[os.write(fd, view):]
+
+
 def probe_writable(run_dir: str, size: int = 65536) -> None:
     """Create, write `size` bytes to, sync and remove a file in `run_dir`: a read-only or full
     folder is a clear error now rather than a lost epoch later."""
@@ -179,41 +183,6 @@ def probe_writable(run_dir: str, size: int = 65536) -> None:
             pass
         raise ValueError(f"cannot write to the run folder {run_dir}: {_oserror(err)}; "
                          "give a writable --out (or free space there)") from err
-
-
-def _write_all(fd: int, data: bytes) -> None:
-    view = memoryview(data)
-    while view:
-        view = view[os.write(fd, view):]
-
-
-def append_whole(path: str, data: bytes) -> None:
-    """Append `data` (whole lines) to `path` with one `write` call (a loop only if the kernel
-    writes less): a process killed around it leaves all of it or none. If the write fails (disk
-    full), the file is cut back to where it ended, so no half line stays behind."""
-    fd = os.open(path, os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o644)
-    try:
-        end = os.fstat(fd).st_size
-        try:
-            _write_all(fd, data)
-        except BaseException:
-            os.ftruncate(fd, end)
-            raise
-    finally:
-        os.close(fd)
-
-
-def ends_mid_line(path: str) -> bool:
-    """Whether `path` ends in a half-written line (no final newline)."""
-    try:
-        with open(path, "rb") as f:
-            f.seek(0, os.SEEK_END)
-            if f.tell() == 0:
-                return False
-            f.seek(-1, os.SEEK_END)
-            return f.read(1) != b"\n"
-    except OSError:
-        return False
 
 
 def remove_tree(path: str) -> None:

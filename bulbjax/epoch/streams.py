@@ -16,14 +16,14 @@ from typing import Any
 import jax
 import jax.numpy as jnp
 
+from bulbjax.config import ExperimentConfig
 from bulbjax.data import replay, sequence
 from bulbjax.data.sequence import Windows
 from bulbjax.envs.base import EnvState
-from bulbjax.experiment.config import ExperimentConfig
-from bulbjax.experiment.devices import Devices
-from bulbjax.experiment.policy import Policy
-from bulbjax.experiment.seeds import Team, buffer_key
-from bulbjax.experiment.state import PolicyHistory, Rendered
+from bulbjax.epoch.devices import Devices
+from bulbjax.epoch.policy import Policy
+from bulbjax.epoch.seeds import Team, buffer_key
+from bulbjax.epoch.state import PolicyHistory, Rendered
 from bulbjax.rl.ppo import PPOState
 
 

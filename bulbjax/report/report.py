@@ -11,16 +11,14 @@ from typing import Any, Sequence
 
 import numpy as np
 
+from bulbjax.config import read_run_config, run_options_of
 from bulbjax.eval import objects
 from bulbjax.eval.spec import StateEntry
-from bulbjax.experiment import findings
-from bulbjax.experiment.config import read_run_config, run_options_of
-from bulbjax.experiment.records import (STREAMS, VARIANT_SOURCES, band, ci90, epochs_to_reach,
-                                        excluded_groups, groups_of, has_linear, has_objects,
-                                        last_returns, metrics_path, per_seed_error, probed,
-                                        read_jsonl, rl_curve, variants_of, write_jsonl)
-from bulbjax.experiment.report_plots import (OLD_NORM_NOTE, has_reference_spread, norm_note, plot,
-                                             plot_objects, rl_band)
+from bulbjax.report import findings
+from bulbjax.report.records import (STREAMS, VARIANT_SOURCES, band, ci90, epochs_to_reach, excluded_groups, groups_of,
+                                    has_linear, has_objects, last_returns, metrics_path, per_seed_error, probed,
+                                    read_jsonl, rl_curve, variants_of, write_jsonl)
+from bulbjax.report.report_plots import OLD_NORM_NOTE, has_reference_spread, norm_note, plot, plot_objects, rl_band
 
 
 def table(records: Sequence[dict[str, Any]], spec: Sequence[StateEntry], last: int = 1,
@@ -178,7 +176,7 @@ def write_reports(run_dir: str, records: Sequence[dict[str, Any]], cfg: Any,
     with open(os.path.join(run_dir, "table.md"), "w") as f:
         f.write(f"# {title}\n\n{tab}\n" + (f"\n{footer}\n" if footer else ""))
     if "Rearrange" in cfg.env:  # the multi-object scenes of Figs. 3 and 5: their claims
-        from bulbjax.experiment import findings_objects
+        from bulbjax.report import findings_objects
 
         from bulbjax.eval import regions
 
@@ -223,7 +221,7 @@ def report_spec(state_spec: Sequence[StateEntry], records: Sequence[dict]) -> tu
     """The entries a run's probes regressed: the state and its derived targets
     (`probing.probe_targets`), or the state alone for records written before the derived
     targets existed (their `ref_spread` has one number per state entry)."""
-    from bulbjax.experiment.probing import probe_targets
+    from bulbjax.epoch import probe_targets
 
     spec = probe_targets(state_spec).spec
     widths = {len(r["ref_spread"]) for r in records if "ref_spread" in r}
@@ -292,9 +290,9 @@ def redraw_offline(run_dir: str, raw: dict[str, Any], figures: bool = True) -> s
     reconstruction grid needs the learners: `bulbjax fit --resume` draws it."""
     import dataclasses
 
+    from bulbjax.config import OfflineConfig, config_from_dict
     from bulbjax.data import synthetic
     from bulbjax.envs.registry import env_class
-    from bulbjax.experiment.config import OfflineConfig, config_from_dict
 
     base = config_from_dict(raw["base"])
     if base.env == synthetic.NAME:

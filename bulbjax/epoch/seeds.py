@@ -21,7 +21,7 @@ import jax
 import jax.numpy as jnp
 from jax.sharding import Mesh
 
-from bulbjax.experiment.config import SEED_LOOPS
+from bulbjax.config import SEED_LOOPS
 from bulbjax.learners import is_sequential
 
 
@@ -115,7 +115,7 @@ def switch_buffer(which: jax.Array, buffers: Sequence[Any], fn: Callable[[Any, j
 class SeedGroup:
     """The seeds an experiment computes: seeds `offset .. offset + seeds - 1` of a run of `total`
     seeds (default: all of them, `offset` 0), each with `worlds` worlds. A run's seeds spread over
-    several experiments (`bulbjax.experiment.groups`: one per device or process) each hold a share;
+    several experiments (`bulbjax.epoch.groups`: one per device or process) each hold a share;
     every random draw is the one those seeds get in the whole run (`seed_keys`, `world_keys`,
     `seed_columns`), so together they compute what one experiment of all seeds computes."""
 

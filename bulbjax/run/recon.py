@@ -2,12 +2,13 @@
 
 `RunFigures(exp)` draws, from a `RunState`, the paper's Fig. 4 grid (`recon_<epoch>.png`: true
 frames above every learner's reconstruction) and, when SPAIR is among the learners, Fig. 5
-(`boxes_<epoch>.png`), with `bulbjax.experiment.figures`. `<epoch>` is the number of epochs done,
+(`boxes_<epoch>.png`), with `bulbjax.report.figures`. `<epoch>` is the number of epochs done,
 as the checkpoints count them. The frames are held out: one window of `eval_length` steps from
 each of the current policy's held-out worlds, rolled out from `rs.curr_env` by a separate jitted
 call whose result is thrown away, so drawing figures leaves the run's state and key chain (and
 so its metrics and resumes) unchanged. The rollout's key depends only on the run's seed and the
-epoch: a figure redrawn from a checkpoint (`redraw`) is the figure the run drew at that epoch.
+epoch: a figure redrawn from a checkpoint (`redraw_figures`) is the figure the run drew at that
+epoch.
 
 In the domains with objects (Rearrange) each drawing also writes `regions_<epoch>.json`: every
 reconstructing learner's error per object region (`bulbjax.eval.regions`) on `REGION_FRAMES`
@@ -28,14 +29,12 @@ import jax.numpy as jnp
 
 import numpy as np
 
+from bulbjax.config import read_run_config
 from bulbjax.data.sequence import Windows
+from bulbjax.epoch import Experiment, RunState, object_pixels
 from bulbjax.eval import objects, regions
-from bulbjax.experiment import figures
-from bulbjax.experiment.checkpoint import CHECKPOINT_DIR, Checkpointer
-from bulbjax.experiment.config import read_run_config
-from bulbjax.experiment.loop import Experiment
-from bulbjax.experiment.probing import object_pixels
-from bulbjax.experiment.state import RunState
+from bulbjax.report import FigureConfig, boxes_figure, recon_figure, reconstructions, seed_params, spair_names
+from bulbjax.run.checkpoint import CHECKPOINT_DIR, Checkpointer
 
 RECON = "recon_{epoch}.png"
 BOXES = "boxes_{epoch}.png"
@@ -55,7 +54,7 @@ class RunFigures:
     learners named in `learners` (default all that have `reconstruct`; an unknown name, or one
     without `reconstruct`, is an error)."""
 
-    def __init__(self, exp: Experiment, run_seed: int = 0, config: figures.FigureConfig = figures.FigureConfig(),
+    def __init__(self, exp: Experiment, run_seed: int = 0, config: FigureConfig = FigureConfig(),
                  learners: Sequence[str] | None = None):
         self.exp, self.run_seed, self.config = exp, run_seed, config
         # learners without `reconstruct` (contrastive ones) have no row unless named
@@ -115,8 +114,8 @@ class RunFigures:
         frames_n = 0
         for s in range(seeds):
             w = jax.tree.map(lambda x: x[s], windows)
-            params = jax.device_get(figures.seed_params({n: rs.learners[n] for n in self.learners}, s))
-            frames, recons = figures.reconstructions(self.learners, params, w, REGION_FRAMES)
+            params = jax.device_get(seed_params({n: rs.learners[n] for n in self.learners}, s))
+            frames, recons = reconstructions(self.learners, params, w, REGION_FRAMES)
             frames_n = frames.shape[0]
             states = np.asarray(w.states).reshape((-1, w.states.shape[-1]))[:frames_n]
             pos = np.asarray(pixels(states))
@@ -132,18 +131,18 @@ class RunFigures:
         `out_dir`; returns their paths."""
         every = self._held_all(rs, epoch)
         w = jax.tree.map(lambda x: x[self.config.seed, : self._k_figure], every)
-        params = figures.seed_params({n: rs.learners[n] for n in self.learners}, self.config.seed)
+        params = seed_params({n: rs.learners[n] for n in self.learners}, self.config.seed)
         params = jax.device_get(params)
         what = f"{self.exp.config.env}, epoch {epoch}, seed {self.config.seed}: held-out frames (current policy)"
         os.makedirs(out_dir, exist_ok=True)
         path = os.path.join(out_dir, RECON.format(epoch=epoch))
-        figures.recon_figure(path, self.learners, params, w, self.config, title=what)
+        recon_figure(path, self.learners, params, w, self.config, title=what)
         paths = [path]
-        spairs = figures.spair_names(self.learners)
+        spairs = spair_names(self.learners)
         for name in spairs:
             suffix = "" if len(spairs) == 1 else f"_{name}"
             p = os.path.join(out_dir, BOXES.format(epoch=epoch).replace(".png", f"{suffix}.png"))
-            figures.boxes_figure(p, self.learners[name], params[name], w, self.config, title=f"{name}: {what}")
+            boxes_figure(p, self.learners[name], params[name], w, self.config, title=f"{name}: {what}")
             paths.append(p)
         if self.objects is not None:
             p = os.path.join(out_dir, REGIONS.format(epoch=epoch))
@@ -164,9 +163,9 @@ def _devices_of(raw: dict[str, Any], run_dir: str) -> list[jax.Device]:
     return local[:n]
 
 
-def redraw(run_dir: str, epoch: int | None = None, learners: Sequence[str] | None = None,
-           config: figures.FigureConfig = figures.FigureConfig(), out_dir: str | None = None,
-           experiment: Experiment | None = None, log: Callable[[str], None] = print) -> list[str]:
+def redraw_figures(run_dir: str, epoch: int | None = None, learners: Sequence[str] | None = None,
+                   config: FigureConfig = FigureConfig(), out_dir: str | None = None,
+                   experiment: Experiment | None = None, log: Callable[[str], None] = print) -> list[str]:
     """Redraw a run's figures from its newest checkpoint (or that of `epoch` epochs done) into
     `out_dir` (default `run_dir`); returns the paths written. `experiment` reuses a built
     `Experiment` of the run's config (tests)."""
@@ -185,7 +184,7 @@ def redraw(run_dir: str, epoch: int | None = None, learners: Sequence[str] | Non
         raise ValueError(f"no checkpoint of epoch {epoch} in {ck_dir}; there are {steps} "
                          "(older ones are dropped beyond --keep)")
     if experiment is not None and experiment.config != cfg:
-        raise ValueError("redraw(experiment=...) was built for another config than the run's")
+        raise ValueError("redraw_figures(experiment=...) was built for another config than the run's")
     exp = experiment or Experiment(cfg, devices=_devices_of(raw, run_dir))
     figs = RunFigures(exp, run_seed=int(raw.get("run", {}).get("seed", 0)), config=config, learners=learners)
     try:

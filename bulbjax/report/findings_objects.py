@@ -29,8 +29,8 @@ from typing import Any, Callable, Sequence
 import numpy as np
 
 from bulbjax.eval import regions as region_errors
-from bulbjax.experiment.findings import Verdict, _combine, paired_verdict, stream_label
-from bulbjax.experiment.records import ci90, nanmean, probed
+from bulbjax.report.findings import Verdict, _combine, paired_verdict, stream_label
+from bulbjax.report.records import ci90, nanmean, probed
 
 # Approximate YCB sizes (cm; the YCB object set's published dimensions) before bulb's scale:
 # ("cyl", diameter, height), ("box", a, b, c) or ("ell", a, b, c) (ellipsoid diameters).

@@ -1,6 +1,6 @@
 """Where and how a stretch of a run was made (its `config.json` provenance): command line,
 package versions, the bulbjax source (git commit, dirty flag, a hash of the sources), devices and
-layout, host, time. Split from `bulbjax.experiment.run`, which re-exports these names."""
+layout, host, time. The run loop (`loop.py`) records it for every stretch."""
 
 from __future__ import annotations
 
@@ -16,8 +16,7 @@ from typing import Any, Sequence
 
 import jax
 
-from bulbjax.experiment.groups import SeedGroups
-from bulbjax.experiment.loop import Experiment
+from bulbjax.epoch import Experiment, SeedGroups
 
 VERSIONED = ("jax", "jaxlib", "flax", "optax", "orbax-checkpoint", "mujoco", "mujoco-mjx",
              "mujoco-warp", "warp-lang", "numpy", "bulbjax")

@@ -20,11 +20,11 @@ import numpy as np
 from bulbjax.data import replay, sequence
 from bulbjax.data.sequence import Windows
 from bulbjax.envs import rearrange
+from bulbjax.epoch import probe_variants as pv
+from bulbjax.epoch.probe_variants import ProbeSet
+from bulbjax.epoch.seeds import Team, over_seeds, stack_members, switch_buffer, unstack_members
 from bulbjax.eval import angles, linear, objects, probe
 from bulbjax.eval.spec import StateEntry
-from bulbjax.experiment import probe_variants as pv
-from bulbjax.experiment.probe_variants import ProbeSet
-from bulbjax.experiment.seeds import Team, over_seeds, stack_members, switch_buffer, unstack_members
 from bulbjax.learners import is_sequential
 
 

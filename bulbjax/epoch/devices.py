@@ -20,11 +20,11 @@ from jax.sharding import Mesh, NamedSharding
 from jax.sharding import PartitionSpec as P
 
 import bulbjax
+from bulbjax.config import ExperimentConfig
 from bulbjax.envs.base import EnvState, MjxPixelEnv
 from bulbjax.envs.render import warp_devices
-from bulbjax.experiment.config import ExperimentConfig
-from bulbjax.experiment.seeds import SeedGroup
-from bulbjax.experiment.state import RunState
+from bulbjax.epoch.seeds import SeedGroup
+from bulbjax.epoch.state import RunState
 
 SEED_AXIS, WORLD_AXIS = "seeds", "worlds"
 

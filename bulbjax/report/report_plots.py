@@ -10,9 +10,9 @@ from typing import Any, Sequence
 import numpy as np
 
 from bulbjax.eval.spec import StateEntry
-from bulbjax.experiment.plot_limits import OFF_AXIS_NOTE, Curve, limit_axis
-from bulbjax.experiment.records import (NORM_NOTE, STREAMS, ci90, curves, excluded_groups, groups_of,
-                                        has_linear, nanmean, object_curves, probed, rl_curve)
+from bulbjax.report.plot_limits import OFF_AXIS_NOTE, Curve, limit_axis
+from bulbjax.report.records import (NORM_NOTE, STREAMS, ci90, curves, excluded_groups, groups_of, has_linear, nanmean,
+                                    object_curves, probed, rl_curve)
 
 # What the errors of runs made before issue 12 (records without `ref_spread`) divide by.
 OLD_NORM_NOTE = ("normalised error = MAE / spread of the stream being scored (mean absolute deviation "

@@ -35,11 +35,11 @@ import jax.numpy as jnp
 import numpy as np
 
 from bulbjax import compile_cache, distributed
+from bulbjax.config import ExperimentConfig
+from bulbjax.epoch.loop import Experiment
+from bulbjax.epoch.programs import Programs, in_thread
+from bulbjax.epoch.state import RunState
 from bulbjax.eval import probe
-from bulbjax.experiment.config import ExperimentConfig
-from bulbjax.experiment.loop import Experiment
-from bulbjax.experiment.programs import Programs, in_thread
-from bulbjax.experiment.state import RunState
 
 FORMS = ("auto", "groups", "sharded", "single")
 
