@@ -60,7 +60,7 @@ def probe(name: str, worlds: int, steps: int = 50, repeats: int = 5, resolution:
         d.qvel.assign(np.asarray(state.data.qvel, np.float32))
         restart = None
         if pushed:
-            from bulbjax.envs.incline import Incline, _quat_mat
+            from bulbjax.envs.objects.incline import Incline, _quat_mat
 
             if not isinstance(env, Incline):
                 raise ValueError(f"pushed=True is for the Incline domains (their push), not {name}")

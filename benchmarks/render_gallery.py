@@ -17,7 +17,7 @@ import numpy as np
 from PIL import Image
 
 import bulbjax
-from bulbjax.envs.rearrange import Rearrange
+from bulbjax.envs.objects.rearrange import Rearrange
 
 
 def gallery(name: str, steps: int, every: int, scale: int, seed: int) -> np.ndarray:

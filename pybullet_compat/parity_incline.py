@@ -1,4 +1,4 @@
-"""Parity of the Incline domains: bulbjax's MJX mirror (`bulbjax.envs.incline`) against the
+"""Parity of the Incline domains: bulbjax's MJX mirror (`bulbjax.envs.objects.incline`) against the
 PyBullet original (`pybullet_compat.incline`), from the same episode parameters and states.
 
 Comparisons (each side keeps stepping after an episode would end; errors are only taken while

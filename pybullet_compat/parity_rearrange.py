@@ -1,5 +1,5 @@
 """Rearrange parity: where the objects lie after bulb's reset, in the PyBullet original
-(`pybullet_compat.rearrange_env`) and in bulbjax's MJX mirror (`bulbjax.envs.rearrange`).
+(`pybullet_compat.rearrange_env`) and in bulbjax's MJX mirror (`bulbjax.envs.objects.rearrange`).
 
 Both run bulb's reset (objects dropped at random poses, 20 settle steps, 10 steps of random
 torques) from the SAME draws: `--resets` PyBullet resets (seeds 0..R-1) record their draws (robot

@@ -1,7 +1,7 @@
 """PyBullet originals of bulb's Rearrange domains (ReacherRearrange*, FrankaRearrange* in the Geom,
 OneGeom, Ycb and OneYcb variants), built here from the facts of bulb's `RearrangeEnv`
 (`../shared/reference/bulb-multiobject.md`) with the numbers bulbjax's MJX mirror uses
-(`bulbjax.envs.rearrange`; copied in `pybullet_compat.rearrange_scene` so that worker processes
+(`bulbjax.envs.objects.rearrange`; copied in `pybullet_compat.rearrange_scene` so that worker processes
 never import JAX, and tested equal). bulb has no licence: every line is ours, only its numbers and behaviour are taken.
 
 The scene:

@@ -1,5 +1,5 @@
 """The Rearrange domains' scene for the PyBullet originals (`pybullet_compat.rearrange_env`): bulb's
-numbers (the same values as bulbjax's MJX mirror, `bulbjax.envs.rearrange`, copied so that worker
+numbers (the same values as bulbjax's MJX mirror, `bulbjax.envs.objects.rearrange`, copied so that worker
 processes never import JAX; tests/test_pybullet_rearrange.py checks them equal), the domains'
 specs, and the objects as PyBullet builds them (picklable, prepared in the parent process).
 bulb has no licence: every line is ours, only its numbers and behaviour are taken."""
@@ -15,7 +15,7 @@ from typing import Any, Sequence
 import numpy as np
 
 # ---------------------------------------------------------------------------------- bulb's numbers
-# (the same values as bulbjax.envs.rearrange; tests/test_pybullet_rearrange.py checks them)
+# (the same values as bulbjax.envs.objects.rearrange; tests/test_pybullet_rearrange.py checks them)
 NUM_VERSIONS = 12
 NUM_LISTS = 6
 EPISODE_STEPS = 200

@@ -12,7 +12,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from bulbjax.envs.rearrange_scene import (GEOM_COLOURS, GEOM_INFO, OBJECT_LISTS, PROP_MAX, PROP_MIN, _normalise,
+from bulbjax.envs.objects.rearrange_scene import (GEOM_COLOURS, GEOM_INFO, OBJECT_LISTS, PROP_MAX, PROP_MIN, _normalise,
                                           rearrange_state_spec)
 from bulbjax.epoch.probing import fit_and_score, probe_targets
 from bulbjax.eval import angles

@@ -30,7 +30,7 @@ def test_presets_resolve_with_their_domain_ppo():
 def test_multi_object_presets_fix_the_papers_black_background_scene():
     """Issue 37: fig3/fig5 run on one fixed black-background version (bulb's 6-11), the random
     setting is its own named preset, and fig5 puts SPAIR 4x4 and 6x6 beside VAE_rpl on YCB."""
-    from bulbjax.envs.rearrange_scene import GEOM_INFO, OBJECT_LISTS, NUM_LISTS, NUM_VERSIONS
+    from bulbjax.envs.objects.rearrange_scene import GEOM_INFO, OBJECT_LISTS, NUM_LISTS, NUM_VERSIONS
 
     fixed, rand, ycb = (resolve(n) for n in ("fig3-rearrange-geom", "fig3-rearrange-geom-random",
                                              "fig5-rearrange-ycb"))

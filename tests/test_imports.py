@@ -24,6 +24,11 @@ Layers, top to bottom (a module may import its own layer and the ones below, nev
   1. utilities: `bulbjax.assets.*` (model assets and their cache), `bulbjax.compile_cache`,
      `bulbjax.distributed` (multi-process settings).
 A new module or package must be given a layer here (the test says which one has none).
+
+Inside a layer, a folder of a package (`FOLDERS`: the multi-object scenes `bulbjax.envs.objects`,
+the SPAIR learner `bulbjax.learners.spair`) is entered from its package by the modules named for
+it only, and imports none of the package's modules named as out of its reach (its siblings, the
+package's registry and face), as its `__init__.py` says.
 """
 
 from __future__ import annotations
@@ -219,6 +224,47 @@ def test_rooms_meet_at_their_faces(graph):
     assert not bad, "imports past a room's face:\n" + "\n".join(bad)
 
 
+# a folder inside a package -> (the modules of that package, outside the folder, that may import
+# it; the modules of that package it never imports)
+FOLDERS: dict[str, tuple[set[str], set[str]]] = {
+    "bulbjax.envs.objects": ({"bulbjax.envs.registry"},
+                             {"bulbjax.envs", "bulbjax.envs.registry", "bulbjax.envs.pendulum",
+                              "bulbjax.envs.locomotion"}),
+    "bulbjax.learners.spair": ({"bulbjax.learners"},
+                               {"bulbjax.learners", "bulbjax.learners.registry", "bulbjax.learners.plugins",
+                                "bulbjax.learners.vae", "bulbjax.learners.sequential",
+                                "bulbjax.learners.contrastive"}),
+}
+
+
+def _inside(module: str, package: str) -> bool:
+    return module == package or module.startswith(package + ".")
+
+
+def folder_crossings(graph: dict[str, dict[str, int]]) -> list[str]:
+    """Every import into a folder of `FOLDERS` from a module of its package not named as its
+    entrance, and every import from the folder of a module of its package out of its reach,
+    as 'a -> b, line n'."""
+    out = []
+    for folder, (entrances, never) in FOLDERS.items():
+        package = folder.rpartition(".")[0]
+        for a, edges in sorted(graph.items()):
+            for b, line in sorted(edges.items()):
+                into = _inside(b, folder) and not _inside(a, folder) and _inside(a, package)
+                if (into and a not in entrances) or (_inside(a, folder) and b in never):
+                    out.append(f"{a} -> {b}, line {line}")
+    return out
+
+
+def test_folders_keep_to_their_package(graph):
+    """The multi-object scenes are imported in `bulbjax.envs` by the registry alone and import
+    only the envs' core (no single-body domain, not the registry); SPAIR is imported in
+    `bulbjax.learners` by the face alone and imports no other learner, nor the registry."""
+    assert all(f in graph for f in FOLDERS), "a folder of FOLDERS is not in the package"
+    bad = folder_crossings(graph)
+    assert not bad, "imports across a folder's edge:\n" + "\n".join(bad)
+
+
 def test_checks_catch_what_they_look_for():
     """The cycle finder, the layer check and the face check on made-up graphs: a three-module
     circle and an upward import are reported (and nothing else); a diamond is no circle; an
@@ -238,3 +284,9 @@ def test_checks_catch_what_they_look_for():
     assert behind_faces({"bulbjax.cli": {"bulbjax.run": 1, "bulbjax.run.loop": 2},
                          "bulbjax.run.loop": {"bulbjax.run.rundir": 3, "bulbjax.epoch": 4, "bulbjax.epoch.loop": 5}}) \
         == ["bulbjax.cli -> bulbjax.run.loop, line 2", "bulbjax.run.loop -> bulbjax.epoch.loop, line 5"]
+    assert folder_crossings({"bulbjax.envs.registry": {"bulbjax.envs.objects.incline": 1},
+                             "bulbjax.envs.base": {"bulbjax.envs.objects.incline": 2},
+                             "bulbjax.envs.objects.incline": {"bulbjax.envs.locomotion": 3, "bulbjax.envs.base": 4},
+                             "bulbjax.epoch.probing": {"bulbjax.envs.objects.rearrange": 5}}) \
+        == ["bulbjax.envs.base -> bulbjax.envs.objects.incline, line 2",
+            "bulbjax.envs.objects.incline -> bulbjax.envs.locomotion, line 3"]

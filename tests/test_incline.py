@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 import bulbjax
-from bulbjax.envs.incline import NUM_VERSIONS, START_POS
+from bulbjax.envs.objects.incline import NUM_VERSIONS, START_POS
 
 YCB_DIR = os.path.normpath(os.path.join(os.path.dirname(__file__), "..", "..", "shared", "ycb"))
 N = 12

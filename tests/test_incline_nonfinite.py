@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 import bulbjax
-from bulbjax.envs.incline import NUM_VERSIONS, START_X
+from bulbjax.envs.objects.incline import NUM_VERSIONS, START_X
 
 N = NUM_VERSIONS  # one world per version
 HEAVY = 0.45  # kg: every version's first step was NaN at this mass before the fix

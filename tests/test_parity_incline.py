@@ -174,7 +174,7 @@ def test_bad_input_is_a_clear_error():
 
 def test_same_facts_as_the_mirror():
     """bulb's numbers here equal bulbjax's (copied so that worker processes need no JAX)."""
-    from bulbjax.envs import incline as mj
+    from bulbjax.envs.objects import incline as mj
 
     for name in ("NUM_VERSIONS", "EPISODE_STEPS", "BULLET_DT", "BULLET_SUBSTEPS", "STEPS_PER_ACTION", "MAX_FORCE",
                  "INCLINE_POS", "INCLINE_HALF", "START_POS", "START_EPS", "START_X", "FALL_STEPS", "MASS",

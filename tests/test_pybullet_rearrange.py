@@ -27,7 +27,7 @@ def env(request):
 
 def test_same_facts_as_the_mirror():
     """bulb's numbers here equal bulbjax's (copied so that worker processes need no JAX)."""
-    from bulbjax.envs import rearrange as mj
+    from bulbjax.envs.objects import rearrange as mj
 
     for name in ("NUM_VERSIONS", "NUM_LISTS", "EPISODE_STEPS", "BULLET_DT", "BULLET_SUBSTEPS", "SETTLE_STEPS",
                  "RANDOM_TORQUE_STEPS", "EE_XY_MAX", "EE_ABOVE_OBJECTS", "INIT_XY", "INIT_Z_MAX", "TRAY_SCALE",

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 import bulbjax
-from bulbjax.envs import rearrange as R
+from bulbjax.envs.objects import rearrange as R
 from bulbjax.envs.registry import _REGISTRY
 
 YCB_DIR = os.path.normpath(os.path.join(os.path.dirname(__file__), "..", "..", "shared", "ycb"))

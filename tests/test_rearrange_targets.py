@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 import bulbjax
-from bulbjax.envs import rearrange as R
+from bulbjax.envs.objects import rearrange as R
 from bulbjax.eval.objects import project_points, world_camera
 
 N = 2

@@ -1,4 +1,4 @@
-"""Tests of the SPAIR learner (bulbjax/learners/spair.py) and the object probe (eval/objects.py).
+"""Tests of the SPAIR learner (bulbjax/learners/spair/) and the object probe (eval/objects.py).
 
 Geometry, compositing and the count prior are checked exactly; one small SPAIR (32x32 frames,
 4x4 grid, 12 px glimpses) is trained for a few hundred updates on one fixed batch of synthetic
@@ -18,7 +18,7 @@ import pytest
 from bulbjax.eval.objects import object_scores, summarise
 from bulbjax.learners import SPAIR, FrameLearner, LearnerConfig, check_finite, make_learner
 from bulbjax.learners.spair import synthetic_scene
-from bulbjax.learners.spair_parts import (
+from bulbjax.learners.spair.parts import (
     composite,
     count_prior_kl,
     count_prior_log_odds,

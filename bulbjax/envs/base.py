@@ -57,6 +57,17 @@ def asset_dir() -> str:
                             f"reinstall bulbjax, or set {ASSET_DIR_ENV} to a folder holding them")
 
 
+def quiet_solver_limits(mx: mjx.Model) -> mjx.Model:
+    """Turn off Warp's in-kernel prints for solver / line-search iteration limits (a capped
+    iteration count is the intended setting here, and on a GPU every world that hits the cap
+    would print each substep); warnings of real overflows (constraints, contacts) stay on."""
+    from mujoco_warp import OverflowType  # the Warp backend is what `impl="warp"` runs
+
+    impl = mx.opt._impl
+    mask = impl.warn_overflow & ~int(OverflowType.ITERATIONS | OverflowType.LS_ITERATIONS)
+    return mx.replace(opt=mx.opt.replace(_impl=impl.replace(warn_overflow=mask)))
+
+
 @struct.dataclass
 class RenderInput:
     """What is needed to render a stored step later: joint positions, colour scheme and the
@@ -222,7 +233,7 @@ class MjxPixelEnv:
         """Hook to edit the model before compiling (e.g. add a floor)."""
 
     def _post_put(self, mx: mjx.Model) -> mjx.Model:
-        """Hook to adjust the device model (e.g. solver warnings)."""
+        """Hook to adjust the device model (e.g. solver warnings: `quiet_solver_limits`)."""
         return mx
 
     def _scheme_colours(self) -> tuple[np.ndarray, np.ndarray]:

@@ -61,7 +61,7 @@ import mujoco
 import numpy as np
 from mujoco import mjx
 
-from bulbjax.envs.base import MjxPixelEnv
+from bulbjax.envs.base import MjxPixelEnv, quiet_solver_limits
 from bulbjax.envs.camera import CameraConfig
 from bulbjax.envs.env_config import EnvConfig
 from bulbjax.eval.spec import StateEntry
@@ -95,17 +95,6 @@ def locomotion_state_spec(num_joints: int, num_feet: int, raw: bool = False) -> 
                  StateEntry(f"j{i}_vel", "rad/s" if raw else "0.1 rad/s", "velocity")]
     spec += [StateEntry(f"ft{k}_contact", "1", "contact") for k in range(num_feet)]
     return tuple(spec)
-
-
-def _quiet_solver_limits(mx: mjx.Model) -> mjx.Model:
-    """Turn off Warp's in-kernel prints for solver / line-search iteration limits (a capped
-    iteration count is the intended setting here, and on a GPU every world that hits the cap
-    would print each substep); warnings of real overflows (constraints, contacts) stay on."""
-    from mujoco_warp import OverflowType  # the Warp backend is what `impl="warp"` runs
-
-    impl = mx.opt._impl
-    mask = impl.warn_overflow & ~int(OverflowType.ITERATIONS | OverflowType.LS_ITERATIONS)
-    return mx.replace(opt=mx.opt.replace(_impl=impl.replace(warn_overflow=mask)))
 
 
 def quat_to_rpy(q: jax.Array) -> jax.Array:
@@ -177,7 +166,7 @@ class Walker(MjxPixelEnv):
         self._part_com = jnp.asarray(use_com)[:, None]
         self._num_parts = len(bodies) + self.floor_parts
         self._qpos0 = jnp.asarray(m.qpos0, jnp.float32)
-        self.mx = _quiet_solver_limits(self.mx)
+        self.mx = quiet_solver_limits(self.mx)
 
     # ----- model edits -----
     def _edit_spec(self, spec: mujoco.MjSpec) -> None:

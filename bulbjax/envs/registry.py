@@ -7,11 +7,11 @@ from typing import Any
 
 from bulbjax.envs.base import MjxPixelEnv
 from bulbjax.envs.env_config import OBSERVATIONS, EnvConfig
-from bulbjax.envs.incline import (GeomOnIncline, GeomOnInclineMd, GeomOnInclineSm, YcbOnIncline,
-                                  YcbOnInclineMd, YcbOnInclineSm)
 from bulbjax.envs.locomotion import Ant, HalfCheetah
+from bulbjax.envs.objects.incline import (GeomOnIncline, GeomOnInclineMd, GeomOnInclineSm, YcbOnIncline,
+                                          YcbOnInclineMd, YcbOnInclineSm)
+from bulbjax.envs.objects.rearrange import REARRANGE_CLASSES
 from bulbjax.envs.pendulum import CartPole, CartPoleContinuous, InvertedPendulum
-from bulbjax.envs.rearrange import REARRANGE_CLASSES
 
 _REGISTRY: dict[str, type[MjxPixelEnv]] = {
     cls.name: cls for cls in (CartPole, CartPoleContinuous, InvertedPendulum, HalfCheetah, Ant,

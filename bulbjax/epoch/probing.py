@@ -19,7 +19,7 @@ import numpy as np
 
 from bulbjax.data import replay, sequence
 from bulbjax.data.sequence import Windows
-from bulbjax.envs import rearrange
+from bulbjax.envs.objects import rearrange
 from bulbjax.epoch import probe_variants as pv
 from bulbjax.epoch.probe_variants import ProbeSet
 from bulbjax.epoch.seeds import Team, over_seeds, stack_members, switch_buffer, unstack_members

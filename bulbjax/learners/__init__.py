@@ -11,7 +11,7 @@ or one of the sequential learners (train on windows, one latent per step; sequen
 - `svae`, `pred`, `dsa`: each with the 50% initial-replay retention, as the paper applied the
   fix to every learner after VAE_v0;
 or the structured frame learner
-- `spair`: SPAIR with a learned background (spair.py), 64 frames per batch (the paper's
+- `spair`: SPAIR with a learned background (spair/), 64 frames per batch (the paper's
   equalised compute) and the 50% retention; its latent size follows from its config
   (G*G cells of 6 + spair_what_dim), not from `latent_dim`; its grid is 4x4 (`spair_grid`);
 - `spair6`: the same with a 6x6 grid (the paper reports both; the two can train side by side).

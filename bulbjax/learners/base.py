@@ -93,7 +93,7 @@ class LearnerConfig:
     # 10-360 nats after ~700 epochs); > 0, scores of L2-normalised vectors over this temperature
     # (cosine / T, bounded by 1/T). The other learners ignore it.
     stdim_temperature: float = 0.0
-    # SPAIR only (spair.py); the other learners ignore these. Defaults follow the original
+    # SPAIR only (spair/); the other learners ignore these. Defaults follow the original
     # (Crawford & Pineau 2019) where it says, and the bulb paper (28 px glimpses, 4x4 grid).
     spair_grid: int = 4  # G: cells per side of the grid (paper: 4 or 6)
     spair_glimpse: int = 28  # side in pixels of the glimpse an object encoder sees

@@ -56,7 +56,7 @@ def early_epochs(epochs: Sequence[int], last: int = 3) -> list[int]:
 
 def object_volume(name: str) -> float:
     """Volume (m^3) of a Rearrange object: geoms exactly (bulb's dims), YCB approximately."""
-    from bulbjax.envs.rearrange_scene import GEOM_INFO, SHAPE_BOX, SHAPE_CYLINDER
+    from bulbjax.envs.objects.rearrange_scene import GEOM_INFO, SHAPE_BOX, SHAPE_CYLINDER
 
     if name in GEOM_INFO:
         g = GEOM_INFO[name]
@@ -82,7 +82,7 @@ def object_volume(name: str) -> float:
 def largest_object(env: str, version: int | str) -> tuple[int, str] | None:
     """Index and name of the largest object (by volume) of a fixed Rearrange scene; None for a
     random version or another domain."""
-    from bulbjax.envs.rearrange_scene import NUM_LISTS, OBJECT_LISTS
+    from bulbjax.envs.objects.rearrange_scene import NUM_LISTS, OBJECT_LISTS
 
     variant = next((v for v in ("OneGeom", "OneYcb", "Geom", "Ycb") if env.endswith(f"Rearrange{v}")), None)
     if variant is None or not isinstance(version, int):

@@ -45,16 +45,15 @@ import mujoco
 import numpy as np
 from mujoco import mjx
 
-from bulbjax.envs.base import EnvState, MjxPixelEnv
+from bulbjax.envs.base import EnvState, MjxPixelEnv, quiet_solver_limits
 from bulbjax.envs.batch import finite_rows, where_tree
 from bulbjax.envs.env_config import EnvConfig
-from bulbjax.envs.incline_scene import (  # noqa: F401  (the domain's constants, one import away)
+from bulbjax.envs.objects.incline_scene import (  # noqa: F401  (the domain's constants, one import away)
     BULLET_DT, BULLET_SUBSTEPS, CAMERA, CLIP_DIST, CLIP_SPEED, EPISODE_STEPS, FALL_STEPS, FRICTION,
     GEOM_COLOURS, GEOM_PLANE_COLOUR, INCLINE_COLOURS, INCLINE_HALF, INCLINE_POS, MASS, MAX_FORCE, MAX_X,
     MAX_Y, MIN_X, NAN_RETRIES, NUM_TEXTURES, NUM_VERSIONS, PARK_HEIGHT, PITCH, SCALES, START_EPS, START_POS,
     START_X, STEPS_PER_ACTION, TARGET_X, YCB_INCLINE_COLOURS, YCB_OBJECTS, YCB_PLANE_COLOURS, build_scene,
     geom_object, incline_state_spec)
-from bulbjax.envs.locomotion import _quiet_solver_limits
 from bulbjax.eval.spec import StateEntry
 
 if TYPE_CHECKING:
@@ -152,7 +151,7 @@ class Incline(MjxPixelEnv):
         return geom_object(version, self.scale)
 
     def _post_put(self, mx: mjx.Model) -> mjx.Model:
-        return _quiet_solver_limits(mx)
+        return quiet_solver_limits(mx)
 
     def _scheme_colours(self) -> tuple[np.ndarray, np.ndarray]:
         plane, incline = (YCB_PLANE_COLOURS, YCB_INCLINE_COLOURS) if self.variant == "Ycb" else (

@@ -11,12 +11,12 @@ from mujoco import mjx
 
 from bulbjax.envs.camera import CameraConfig
 from bulbjax.envs.env_config import EnvConfig
-from bulbjax.envs.incline import _quat_mat
+from bulbjax.envs.objects.incline import _quat_mat
 
 os.environ.setdefault("MUJOCO_GL", "disable")  # dm_control needs no GL context to build models
 from dm_control import mjcf  # noqa: E402
 
-from bulbjax.envs.rearrange_base import Rearrange, _VARIANT_DOCS, _variant_class
+from bulbjax.envs.objects.rearrange_base import Rearrange, _VARIANT_DOCS, _variant_class
 
 
 FRANKA_CAMERA = CameraConfig(distance=0.44, yaw=90.0, pitch=-65.0, body="world", target_offset=(0.05, 0.0, 0.0),

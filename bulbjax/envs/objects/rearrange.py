@@ -81,14 +81,14 @@ Known differences from bulb:
 
 from __future__ import annotations
 
-from bulbjax.envs.franka_rearrange import (  # noqa: F401
+from bulbjax.envs.objects.franka_rearrange import (  # noqa: F401
     EE_POS_MAX, EE_POS_MIN, FRANKA_BASE, FRANKA_CAMERA, FRANKA_EFFORTS, FRANKA_REST, FrankaRearrange,
     FrankaRearrangeGeom, FrankaRearrangeOneGeom, FrankaRearrangeOneYcb, FrankaRearrangeYcb)
-from bulbjax.envs.reacher_rearrange import (  # noqa: F401
+from bulbjax.envs.objects.reacher_rearrange import (  # noqa: F401
     REACHER_CAMERA, REACHER_LIMITS, ReacherRearrange, ReacherRearrangeGeom, ReacherRearrangeOneGeom,
     ReacherRearrangeOneYcb, ReacherRearrangeYcb)
-from bulbjax.envs.rearrange_base import Rearrange
-from bulbjax.envs.rearrange_scene import (  # noqa: F401  (the domain's constants, one import away)
+from bulbjax.envs.objects.rearrange_base import Rearrange
+from bulbjax.envs.objects.rearrange_scene import (  # noqa: F401  (the domain's constants, one import away)
     SHAPE_BOX, SHAPE_CYLINDER, SHAPE_MESH, SHAPE_SPHERE,
     NUM_VERSIONS,
     NUM_LISTS,

@@ -63,7 +63,7 @@ h, w its size as fractions of the frame (from the posterior means), pres the pre
 probability, depth in [0, 4], what the posterior mean; `encode` returns the cells flattened in
 row-major order, so latent_dim = G*G * (6 + spair_what_dim) whatever latent_dim is asked for.
 
-The parts (constants, glimpse geometry, networks, priors and KLs) are in `spair_parts.py`.
+The parts (constants, glimpse geometry, networks, priors and KLs) are in `parts.py`.
 """
 
 from __future__ import annotations
@@ -78,7 +78,7 @@ import optax
 
 from bulbjax.learners.base import LearnerConfig, LearnerState, Metrics
 from bulbjax.learners.networks import check_frame_shape
-from bulbjax.learners.spair_parts import (
+from bulbjax.learners.spair.parts import (
     ALPHA_LOGIT_BIAS, ALPHA_LOGIT_SCALE, CELL_FEATURES, CELL_LATENT, HW_PRIOR, HW_RANGE, LATERAL,
     LOGIT_CLIP, MAX_DEPTH, MLP, OBJ_DECODER, OBJ_ENCODER, OBJ_LOGIT_SCALE, WHERE_BIAS, YX_PRIOR,
     YX_RANGE, Backbone, BackgroundDecoder, BackgroundEncoder, Cells, composite, count_prior_kl,

@@ -11,7 +11,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from bulbjax.envs.incline_scene import geom_object
+from bulbjax.envs.objects.incline_scene import geom_object
 from bulbjax.eval.spec import StateEntry
 
 os.environ.setdefault("MUJOCO_GL", "disable")  # dm_control needs no GL context to build models

@@ -1,4 +1,4 @@
-"""SPAIR's parts (`spair.py` assembles them into the learner): the original's constants and
+"""SPAIR's parts (`learner.py` assembles them into the learner): the original's constants and
 network sizes; the glimpse geometry (bilinear sampling of boxes out of frames and back in,
 separable interpolation matrices) and depth compositing; the networks (backbone, per-cell MLP
 heads, object encoder/decoder, background VAE); and the distributions (posterior stds, normal

@@ -1,6 +1,6 @@
 """The Rearrange domain on MJX: the scene (floor, tray, robot, objects, target discs), per-world
 versions, bulb's torque control and joint limits, the reset (placement, settle, random torques), the
-state, reward and termination. What is mirrored from bulb and what differs: `bulbjax.envs.rearrange`.
+state, reward and termination. What is mirrored from bulb and what differs: `rearrange`.
 Robots: `reacher_rearrange`, `franka_rearrange`."""
 
 from __future__ import annotations
@@ -13,17 +13,16 @@ import mujoco
 import numpy as np
 from mujoco import mjx
 
-from bulbjax.envs.base import EnvState, MjxPixelEnv
+from bulbjax.envs.base import EnvState, MjxPixelEnv, quiet_solver_limits
 from bulbjax.envs.batch import finite_rows, where_tree
 from bulbjax.envs.env_config import EnvConfig
-from bulbjax.envs.incline import _quat_mat
-from bulbjax.envs.locomotion import _quiet_solver_limits
+from bulbjax.envs.objects.incline import _quat_mat
 from bulbjax.envs.render import SCENERY_GROUP
 from bulbjax.eval.spec import StateEntry
 
 os.environ.setdefault("MUJOCO_GL", "disable")  # dm_control needs no GL context to build models
 from dm_control import mjcf  # noqa: E402
-from bulbjax.envs.rearrange_scene import (  # noqa: F401
+from bulbjax.envs.objects.rearrange_scene import (  # noqa: F401
     SHAPE_MESH,
     BULLET_DT,
     BULLET_SUBSTEPS,
@@ -256,7 +255,7 @@ class Rearrange(MjxPixelEnv):
         return ycb_mjcf(asset, "object", origin="com")
 
     def _post_put(self, mx: mjx.Model) -> mjx.Model:
-        return _quiet_solver_limits(mx)
+        return quiet_solver_limits(mx)
 
     def _scheme_colours(self) -> tuple[np.ndarray, np.ndarray]:
         """Colour scheme = version: the tray's colour, and each geom object's colour where the

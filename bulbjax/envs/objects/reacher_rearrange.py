@@ -16,7 +16,7 @@ from bulbjax.envs.camera import CameraConfig
 os.environ.setdefault("MUJOCO_GL", "disable")  # dm_control needs no GL context to build models
 from dm_control import mjcf  # noqa: E402
 
-from bulbjax.envs.rearrange_base import Rearrange, _VARIANT_DOCS, _variant_class
+from bulbjax.envs.objects.rearrange_base import Rearrange, _VARIANT_DOCS, _variant_class
 
 
 REACHER_CAMERA = CameraConfig(distance=0.40, yaw=90.0, pitch=-89.0, body="world", fovy=90.0)
