@@ -1,7 +1,7 @@
-"""Command line: `bulbjax run | report | fit | recon | envs | render | reproduce` (parsing only: the flags map
-to the arguments of `bulbjax.run`'s `resolve`, `resolve_resume` and `resolve_offline`, which resolve
-the settings; the run loop is `bulbjax.run.run`, the offline fit `bulbjax.run.fit`, the reports
-`bulbjax.report`)."""
+"""Command line: `bulbjax run | report | fit | recon | envs | render | reproduce` (parsing only:
+the flags map to the arguments of `bulbjax.run`'s `resolve`, `resolve_resume` and
+`resolve_offline`, which resolve the settings; the run loop is `bulbjax.run.run`, the offline fit
+`bulbjax.run.fit`, the reports `bulbjax.report`)."""
 
 from __future__ import annotations
 
@@ -17,12 +17,13 @@ from bulbjax.run_command import cmd_run as _cmd_run
 # What `bulbjax --help` opens with: for a user, what the tool is and which command does what (the
 # module's docstring above is for whoever reads the code).
 DESCRIPTION = (
-    "bulbjax: the bulb benchmark of unsupervised representation learning for continuous control, "
-    "on batched MuJoCo (MJX, Warp) environments. Does a learned latent hold the true state of a "
-    "robot scene? `run` trains PPO and unsupervised learners side by side and probes their latents; "
-    "`fit` trains learners on one cached random-policy dataset; `report` and `recon` redraw a run's "
-    "figures and tables; `envs` lists the environments and `render` saves frames of one; `reproduce` "
-    "runs the paper's figures. `bulbjax COMMAND --help` gives a command's flags.")
+    "bulbjax: the bulb benchmark of unsupervised representation learning for continuous "
+    "control, on batched MuJoCo (MJX, Warp) environments. Does a learned latent hold the true "
+    "state of a robot scene? `run` trains PPO and unsupervised learners side by side and probes "
+    "their latents; `fit` trains learners on one cached random-policy dataset; `report` and "
+    "`recon` redraw a run's figures and tables; `envs` lists the environments and `render` saves "
+    "frames of one; `reproduce` runs the paper's figures. `bulbjax COMMAND --help` gives a "
+    "command's flags.")
 
 
 def build_config(args: argparse.Namespace):
@@ -54,7 +55,8 @@ def cmd_report(args: argparse.Namespace) -> int:
     if args.compare_rl:
         out = args.out or os.path.dirname(os.path.normpath(args.run_dirs[0])) or "."
         tab = report.rl_compare(args.run_dirs, out)
-        print(f"{tab}\nplot: {os.path.join(out, 'rl_compare.png')}\ntable: {os.path.join(out, 'rl_compare.md')}")
+        print(f"{tab}\nplot: {os.path.join(out, 'rl_compare.png')}\n"
+              f"table: {os.path.join(out, 'rl_compare.md')}")
         return 0
     if getattr(args, "probe_protocol", False):
         if not args.out:
@@ -68,14 +70,16 @@ def cmd_report(args: argparse.Namespace) -> int:
         if not args.out:
             raise ValueError("--merge-seeds writes a new run folder: give it with --out DIR")
         tab = report.merge_seeds(args.run_dirs, args.out)
-        print(f"{tab}\nplot: {os.path.join(args.out, 'fig2.png')}\ntable: {os.path.join(args.out, 'table.md')}")
+        print(f"{tab}\nplot: {os.path.join(args.out, 'fig2.png')}\n"
+              f"table: {os.path.join(args.out, 'table.md')}")
         return 0
     if len(args.run_dirs) != 1:
         raise ValueError("`bulbjax report` redraws one run; to compare PPO returns of several runs "
                          "add --compare-rl, to pool the seeds of runs of one configuration "
                          "--merge-seeds --out DIR")
     run_dir = args.run_dirs[0]
-    if os.path.exists(os.path.join(run_dir, "claims.json")):  # a results folder: its page's claims tables
+    # a results folder: its page's claims tables
+    if os.path.exists(os.path.join(run_dir, "claims.json")):
         from bulbjax.reproduce import claims
 
         print(f"claims tables rewritten: {claims.write_page(run_dir)}")
@@ -107,7 +111,8 @@ def cmd_fit(args: argparse.Namespace) -> int:
 
     cfg = build_offline_config(args)
     if args.seed < 0:
-        raise ValueError(f"--seed must be a non-negative integer (the learners' base PRNG seed), got {args.seed}")
+        raise ValueError("--seed must be a non-negative integer (the learners' base PRNG seed), "
+                         f"got {args.seed}")
     check_out_dir(args.out, resume=args.resume, overwrite=args.overwrite, fit=True)
     with log_to_file(os.path.join(args.out, LOG_FILE), fresh=args.overwrite,
                      header=" ".join(["bulbjax", *getattr(args, "argv", [])])):
@@ -157,7 +162,8 @@ def cmd_render(args: argparse.Namespace) -> int:
     import bulbjax
     from bulbjax.run import parse_version
 
-    for flag, value, least in (("--frames", args.frames, 1), ("--steps", args.steps, 0), ("--seed", args.seed, 0)):
+    for flag, value, least in (("--frames", args.frames, 1), ("--steps", args.steps, 0),
+                               ("--seed", args.seed, 0)):
         if value < least:
             raise ValueError(f"{flag} must be >= {least}, got {value}")
     version = parse_version(args.version)
@@ -175,7 +181,8 @@ def cmd_render(args: argparse.Namespace) -> int:
         state = step(state, a)
     strip = np.concatenate(list(np.asarray(state.pixels)), axis=1)
     _save_png(args.out, strip)
-    print(f"saved {env.num_envs} frames of {args.env} after {args.steps} random steps to {args.out}")
+    print(f"saved {env.num_envs} frames of {args.env} after {args.steps} random steps to "
+          f"{args.out}")
     return 0
 
 
@@ -241,10 +248,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     from bulbjax.config import PRESETS
     from bulbjax.learners import learner_names
 
-    t_main = time.time()  # the end of Python's start-up and imports (`bulbjax run` says how long they took)
+    # the end of Python's start-up and imports (`bulbjax run` says how long they took)
+    t_main = time.time()
 
     presets = ", ".join(PRESETS)
-    p = argparse.ArgumentParser(prog="bulbjax", description=DESCRIPTION, formatter_class=HelpFormatter)
+    p = argparse.ArgumentParser(prog="bulbjax", description=DESCRIPTION,
+                                formatter_class=HelpFormatter)
     sub = p.add_subparsers(dest="cmd", required=True)
     r = sub.add_parser("run", help="train PPO + unsupervised learners and probe their latents",
                        formatter_class=HelpFormatter)
@@ -256,25 +265,29 @@ def main(argv: Sequence[str] | None = None) -> int:
     r.add_argument("--seeds", type=int, default=None, help="seeds run side by side (default 3)")
     r.add_argument("--epochs", type=int, default=None, help="epochs (default 50)")
     r.add_argument("--sequence-length", type=int, default=None,
-                   help="window length of the sequential learners (default 24 pendulums, 16 locomotion)")
+                   help="window length of the sequential learners (default 24 pendulums, "
+                        "16 locomotion)")
     r.add_argument("--seed", type=int, default=None, help="base PRNG seed (default 0)")
     r.add_argument("--out", default=None, help="run folder (default runs/latest)")
     r.add_argument("--multicolour", action="store_true", help="bulb's multicolour variant")
     r.add_argument("--version", default=None,
-                   help="object version of the multi-object domains (Incline 0-5, Rearrange 0-11), or random "
-                        "(one per world and episode); default 0, fig3/fig5 presets 6 (black background), "
-                        "fig3-rearrange-geom-random random")
+                   help="object version of the multi-object domains (Incline 0-5, Rearrange "
+                        "0-11), or random (one per world and episode); default 0, fig3/fig5 "
+                        "presets 6 (black background), fig3-rearrange-geom-random random")
     r.add_argument("--seed-loop", default=None, choices=("auto", "vmap", "map", "hybrid"),
-                   help="learner work over the seed axis: vmap, map (one seed at a time: ~1.9x faster "
-                        "conv updates on a GPU), hybrid (map, but DSA vmapped with its convolutions one "
-                        "seed at a time: its LSTMs batched), auto (hybrid on one GPU, else vmap; default)")
+                   help="learner work over the seed axis: vmap, map (one seed at a time: ~1.9x "
+                        "faster conv updates on a GPU), hybrid (map, but DSA vmapped with its "
+                        "convolutions one seed at a time: its LSTMs batched), auto (hybrid on one "
+                        "GPU, else vmap; default)")
     r.add_argument("--programs", default=None, choices=("fused", "split"),
-                   help="init and the epoch as one program each (fused, default) or as several compiled "
-                        "side by side (split, one device); the same numbers either way")
-    r.add_argument("--overlap", default=None, choices=("none", "pipeline"),
-                   help="pipeline: one program does this epoch's learner updates and the next epoch's PPO "
-                        "rollouts and updates (the same numbers, as fast on one GPU; a checkpoint resumes in its "
-                        "own mode; not with PPO on a latent) (default: none)")
+                   help="init and the epoch as one program each (fused, default) or as several "
+                        "compiled side by side (split, one device); the same numbers either way")
+    r.add_argument("--overlap", default=None, choices=("none", "pipeline", "apart"),
+                   help="pipeline: one program does this epoch's learner updates and the next "
+                        "epoch's PPO rollouts and updates (as fast on one GPU); apart: the "
+                        "learners on a GPU of their own beside them (two GPUs a process). The "
+                        "same numbers; a checkpoint resumes in its own mode; not with PPO on a "
+                        "latent (default: none)")
     r.add_argument("--small", action="store_true", help="CPU-sized settings (not the paper's)")
     r.add_argument("--bf16", action="store_true", help="bf16 compute in the learners (GPU)")
     r.add_argument("--rnn-unroll", type=int, default=None, metavar="N",
@@ -282,87 +295,107 @@ def main(argv: Sequence[str] | None = None) -> int:
                         "default 1; on the GPU the sequence length, see benchmarks/README)")
     r.add_argument("--learner-option", action="append", default=None, metavar="KEY=VALUE",
                    help="set a LearnerConfig field (repeatable), e.g. lr=3e-4, or the conv forms "
-                        "channel_pad=1 / bias_grad=reduce / edge_layers=strided (same network, other kernels: "
-                        "benchmarks/README)")
+                        "channel_pad=1 / bias_grad=reduce / edge_layers=strided (same network, "
+                        "other kernels: benchmarks/README)")
     r.add_argument("--rl-input", default=None,
-                   help="what PPO observes: state (default), latent:<learner> (the learner's latent of "
-                        "the current frame, its current parameters, no gradient into it; for svae, pred, "
-                        "dsa: of the current step in the window of the last L steps ending at it), or "
-                        "pixels (the frame through a conv encoder PPO trains end to end)")
+                   help="what PPO observes: state (default), latent:<learner> (the learner's "
+                        "latent of the current frame, its current parameters, no gradient into "
+                        "it; for svae, pred, dsa: of the current step in the window of the last L "
+                        "steps ending at it), or pixels (the frame through a conv encoder PPO "
+                        "trains end to end)")
     r.add_argument("--rl-frames", type=int, default=None, metavar="K",
-                   help="with --rl-input pixels or latent:<frame learner or stdim>: PPO observes the last K frames "
-                        "(stacked) or their latents (concatenated), so that it can see velocities (default 1)")
+                   help="with --rl-input pixels or latent:<frame learner or stdim>: PPO observes "
+                        "the last K frames (stacked) or their latents (concatenated), so that it "
+                        "can see velocities (default 1)")
     r.add_argument("--graph-mode", default=None,
-                   help="how MJX-Warp's calls use CUDA graphs on a GPU: warp (MJX's default), jax (left to "
-                        "XLA's command buffers), warp_staged, warp_staged_ex or none; the same numbers, "
-                        "another speed; jax and warp_staged fail with mujoco-warp 4.0 (docs/performance.md)")
+                   help="how MJX-Warp's calls use CUDA graphs on a GPU: warp (MJX's default), jax "
+                        "(left to XLA's command buffers), warp_staged, warp_staged_ex or none; the "
+                        "same numbers, another speed; jax and warp_staged fail with mujoco-warp "
+                        "4.0 (docs/performance.md)")
     r.add_argument("--ppo-updates", type=int, default=None, help="PPO updates per epoch")
     r.add_argument("--ppo-option", action="append", default=None, metavar="KEY=VALUE",
-                   help="set a PPOConfig field (repeatable; applied last, over the preset's and the "
-                        "domain's PPO settings), e.g. ent_coef=0.01 or min_log_std=none")
-    r.add_argument("--lr", type=float, default=None, help="learners' Adam learning rate (paper: 1e-4)")
+                   help="set a PPOConfig field (repeatable; applied last, over the preset's and "
+                        "the domain's PPO settings), e.g. ent_coef=0.01 or min_log_std=none")
+    r.add_argument("--lr", type=float, default=None,
+                   help="learners' Adam learning rate (paper: 1e-4)")
     r.add_argument("--max-minutes", type=float, default=0.0,
-                   help="stop after this wall time, checkpoint and report the epochs done (0: no limit)")
+                   help="stop after this wall time, checkpoint and report the epochs done "
+                        "(0: no limit)")
     r.add_argument("--probe-every", type=int, default=None,
-                   help="probe every k epochs (and at the first and last; default 1); plots keep epochs on the x axis")
+                   help="probe every k epochs (and at the first and last; default 1); plots keep "
+                        "epochs on the x axis")
     r.add_argument("--probe-variants", default=None, metavar="LIST",
                    help="probe-protocol variants computed beside the present probe, "
                         "comma-separated: common (one probe set for every learner), window "
                         "(sequential learners' whole window), raw (raw MAE per group), or none "
                         "(default none; docs/probes.md)")
     r.add_argument("--resume", default=None, metavar="RUN_DIR",
-                   help="continue the run in RUN_DIR from its newest checkpoint with its own config.json "
-                        "(flags that would change it are an error; --epochs may extend it)")
+                   help="continue the run in RUN_DIR from its newest checkpoint with its own "
+                        "config.json (flags that would change it are an error; --epochs may "
+                        "extend it)")
     r.add_argument("--overwrite", action="store_true",
-                   help="start afresh in an --out folder that holds a run, deleting its metrics, checkpoints "
-                        "and plots (without it such a folder is an error that names the run)")
+                   help="start afresh in an --out folder that holds a run, deleting its metrics, "
+                        "checkpoints and plots (without it such a folder is an error that names "
+                        "the run)")
     r.add_argument("--checkpoint-every", type=int, default=0, metavar="N",
-                   help="checkpoint every N epochs (0, default: only when the run stops: at the end, "
-                        "--max-minutes, --stop-after, SIGINT/SIGTERM)")
+                   help="checkpoint every N epochs (0, default: only when the run stops: at the "
+                        "end, --max-minutes, --stop-after, SIGINT/SIGTERM)")
     r.add_argument("--keep", type=int, default=2, metavar="K", help="checkpoints kept (default 2)")
     r.add_argument("--stop-after", type=int, default=0, metavar="E",
                    help="stop this stretch after E epochs and checkpoint (0: no limit)")
     r.add_argument("--devices", type=int, default=None,
-                   help="use the first D local devices of each process (default all): the seeds are split "
-                        "into one group per device (see --layout)")
-    r.add_argument("--layout", default="auto", choices=("auto", "processes", "groups", "sharded", "single"),
-                   help="how the seeds lie over several devices: processes (one process per GPU of this host, "
-                        "joined by jax.distributed on localhost; auto's choice with several GPUs), groups (one "
-                        "program per device in this process, each on its share of the seeds; auto's choice "
-                        "elsewhere), sharded (one program over a mesh: CPU host devices only, refused on GPUs, "
-                        "where it does not compile with MJX-Warp) or single (the first device)")
+                   help="use the first D local devices of each process (default all): the seeds "
+                        "are split into one group per device (see --layout)")
+    r.add_argument("--layout", default="auto",
+                   choices=("auto", "processes", "groups", "sharded", "single"),
+                   help="how the seeds lie over several devices: processes (one process per GPU "
+                        "of this host, joined by jax.distributed on localhost; auto's choice with "
+                        "several GPUs), groups (one program per device in this process, each on "
+                        "its share of the seeds; auto's choice elsewhere), sharded (one program "
+                        "over a mesh: CPU host devices only, refused on GPUs, where it does not "
+                        "compile with MJX-Warp) or single (the first device)")
     r.add_argument("--coordinator", default=None, metavar="HOST:PORT",
-                   help="multi-process run (jax.distributed): process 0's address, the same on every process "
-                        "(or JAX_COORDINATOR_ADDRESS); with --num-processes and --process-id")
+                   help="multi-process run (jax.distributed): process 0's address, the same on "
+                        "every process (or JAX_COORDINATOR_ADDRESS); with --num-processes and "
+                        "--process-id")
     r.add_argument("--num-processes", type=int, default=None, metavar="P",
                    help="processes of a multi-process run (or JAX_NUM_PROCESSES)")
     r.add_argument("--process-id", type=int, default=None, metavar="I",
-                   help="this process's index in [0, P) (or JAX_PROCESS_ID); process 0 writes the run's files")
+                   help="this process's index in [0, P) (or JAX_PROCESS_ID); process 0 writes the "
+                        "run's files")
     r.add_argument("--local-devices", default=None, metavar="IDS",
-                   help="a multi-process run's GPUs for this process, e.g. 0 or 0,1 (or JAX_LOCAL_DEVICE_IDS; "
-                        "default all it sees): one process per GPU of a host is the fastest layout")
+                   help="a multi-process run's GPUs for this process, e.g. 0 or 0,1 (or "
+                        "JAX_LOCAL_DEVICE_IDS; default all it sees): one process per GPU of a "
+                        "host is the fastest layout")
     r.add_argument("--distributed", action="store_true",
-                   help="multi-process run with the process count and index taken from SLURM / Open MPI "
-                        "(jax.distributed's cluster detection)")
+                   help="multi-process run with the process count and index taken from SLURM / "
+                        "Open MPI (jax.distributed's cluster detection)")
     r.add_argument("--xla-option", action="append", metavar="KEY=VALUE",
-                   help="an XLA compile option for the jitted init and epoch (repeatable; how the program "
-                        "runs, not what it computes), e.g. xla_gpu_enable_command_buffer=FUSION,CUBLAS,WHILE")
+                   help="an XLA compile option for the jitted init and epoch (repeatable; how the "
+                        "program runs, not what it computes), e.g. "
+                        "xla_gpu_enable_command_buffer=FUSION,CUBLAS,WHILE")
     r.add_argument("--tensorboard", action="store_true",
-                   help="also write the metrics as TensorBoard events under RUN_DIR/tb (needs tensorboardX)")
+                   help="also write the metrics as TensorBoard events under RUN_DIR/tb (needs "
+                        "tensorboardX)")
     r.add_argument("--compile-only", action="store_true",
-                   help="a warm-up: build, trace and compile init and the epoch of these settings into the "
-                        "compile cache, run nothing and write no run folder (the next run of the same "
-                        "settings, and its resumes, load them)")
+                   help="a warm-up: build, trace and compile init and the epoch of these settings "
+                        "into the compile cache, run nothing and write no run folder (the next "
+                        "run of the same settings, and its resumes, load them)")
     r.add_argument("--recon-every", type=int, default=0, metavar="N",
-                   help="write recon_<epoch>.png (held-out frames above every learner's reconstruction, "
-                        "seed 0) and, with spair, boxes_<epoch>.png every N epochs and at the end (0: none)")
+                   help="write recon_<epoch>.png (held-out frames above every learner's "
+                        "reconstruction, seed 0) and, with spair, boxes_<epoch>.png every N "
+                        "epochs and at the end (0: none)")
     r.set_defaults(fn=cmd_run)
     rc = sub.add_parser("recon", formatter_class=HelpFormatter,
-                        help="redraw a run's reconstruction (and SPAIR box) figures from a checkpoint")
+                        help="redraw a run's reconstruction (and SPAIR box) figures from a "
+                             "checkpoint")
     rc.add_argument("run_dir", metavar="RUN_DIR")
-    rc.add_argument("--epoch", type=int, default=None, help="the checkpoint of E epochs done (default the newest)")
-    rc.add_argument("--learners", default=None, help="comma-separated subset of the run's learners (default all)")
-    rc.add_argument("--seed", type=int, default=0, help="whose learners (seed index of the run, default 0)")
+    rc.add_argument("--epoch", type=int, default=None,
+                    help="the checkpoint of E epochs done (default the newest)")
+    rc.add_argument("--learners", default=None,
+                    help="comma-separated subset of the run's learners (default all)")
+    rc.add_argument("--seed", type=int, default=0,
+                    help="whose learners (seed index of the run, default 0)")
     rc.add_argument("--frames", type=int, default=8, help="frames per row (default 8)")
     rc.add_argument("--out", default=None, help="folder of the PNGs (default RUN_DIR)")
     rc.set_defaults(fn=cmd_recon)
@@ -370,8 +403,9 @@ def main(argv: Sequence[str] | None = None) -> int:
                         help="redraw fig2.png and table.md of a run folder from its metrics.jsonl")
     rp.add_argument("run_dirs", metavar="RUN_DIR", nargs="+")
     rp.add_argument("--compare-rl", action="store_true",
-                    help="PPO return of several runs (state / pixels / latent:<learner>) in one plot, "
-                         "rl_compare.png and rl_compare.md, with the epochs each seed needed to solve")
+                    help="PPO return of several runs (state / pixels / latent:<learner>) in one "
+                         "plot, rl_compare.png and rl_compare.md, with the epochs each seed "
+                         "needed to solve")
     rp.add_argument("--merge-seeds", action="store_true",
                     help="one report over the seeds of several runs of one configuration made with "
                          "different --seed (e.g. half the seeds on each of two GPUs), into --out")
@@ -397,27 +431,38 @@ def main(argv: Sequence[str] | None = None) -> int:
     o.add_argument("--updates", type=int, default=5000, help="learner updates")
     o.add_argument("--probe-every", type=int, default=250, help="probe every M updates")
     o.add_argument("--seeds", type=int, default=None, help="learner seeds, vmapped (default 3)")
-    o.add_argument("--sequence-length", type=int, default=None, help="window length L of sequential learners")
-    o.add_argument("--resolution", type=int, default=None, help="frame size (default 64; SyntheticMovers 32)")
+    o.add_argument("--sequence-length", type=int, default=None,
+                   help="window length L of sequential learners")
+    o.add_argument("--resolution", type=int, default=None,
+                   help="frame size (default 64; SyntheticMovers 32)")
     o.add_argument("--multicolour", action="store_true", help="bulb's multicolour variant")
-    o.add_argument("--small", action="store_true", help="CPU-sized learners and dataset (not the paper's)")
+    o.add_argument("--small", action="store_true",
+                   help="CPU-sized learners and dataset (not the paper's)")
     o.add_argument("--bf16", action="store_true", help="bf16 compute in the learners (GPU)")
-    o.add_argument("--lr", type=float, default=None, help="learners' Adam learning rate (paper: 1e-4)")
-    o.add_argument("--data-worlds", type=int, default=None, help="worlds of the dataset (default 256)")
-    o.add_argument("--data-steps", type=int, default=None, help="steps per world of the dataset (default 200)")
-    o.add_argument("--heldout-steps", type=int, default=None, help="steps per world held out (default 48)")
-    o.add_argument("--data-seed", type=int, default=0, help="seed of the dataset (part of its cache key)")
+    o.add_argument("--lr", type=float, default=None,
+                   help="learners' Adam learning rate (paper: 1e-4)")
+    o.add_argument("--data-worlds", type=int, default=None,
+                   help="worlds of the dataset (default 256)")
+    o.add_argument("--data-steps", type=int, default=None,
+                   help="steps per world of the dataset (default 200)")
+    o.add_argument("--heldout-steps", type=int, default=None,
+                   help="steps per world held out (default 48)")
+    o.add_argument("--data-seed", type=int, default=0,
+                   help="seed of the dataset (part of its cache key)")
     o.add_argument("--cache-dir", default=None, help="dataset cache (default OUT/data)")
     o.add_argument("--seed", type=int, default=0, help="base PRNG seed of the learners")
     o.add_argument("--max-minutes", type=float, default=0.0,
-                   help="stop cleanly before this wall time, probe and write the plots (0: no limit)")
+                   help="stop cleanly before this wall time, probe and write the plots "
+                        "(0: no limit)")
     o.add_argument("--out", default="runs/fit",
                    help="folder of the fit's curves, table, checkpoints and dataset cache")
     o.add_argument("--resume", action="store_true",
-                   help="continue the fit in --out from its checkpoint (same flags; a larger --updates extends it)")
+                   help="continue the fit in --out from its checkpoint (same flags; a larger "
+                        "--updates extends it)")
     o.add_argument("--overwrite", action="store_true",
-                   help="start afresh in an --out folder that holds a fit, replacing its curves and checkpoints "
-                        "(without it such a folder is an error that names the fit)")
+                   help="start afresh in an --out folder that holds a fit, replacing its curves "
+                        "and checkpoints (without it such a folder is an error that names the "
+                        "fit)")
     o.set_defaults(fn=cmd_fit)
     e = sub.add_parser("envs", help="list the environments", formatter_class=HelpFormatter)
     e.set_defaults(fn=cmd_envs)
@@ -430,9 +475,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     d.add_argument("--resolution", type=int, default=64, help="frame size in pixels (square)")
     d.add_argument("--seed", type=int, default=0, help="PRNG seed of the reset and the actions")
     d.add_argument("--version", default="0",
-                   help="object version of the multi-object domains (Incline 0-5, Rearrange 0-11), or random (one per frame)")
+                   help="object version of the multi-object domains (Incline 0-5, Rearrange "
+                        "0-11), or random (one per frame)")
     d.add_argument("--show-targets", action="store_true",
-                   help="Rearrange: draw the targets as discs on the tray floor (bulb's frames have none)")
+                   help="Rearrange: draw the targets as discs on the tray floor (bulb's frames "
+                        "have none)")
     d.set_defaults(fn=cmd_render)
     from bulbjax.reproduce.cli import add_parser as add_reproduce
 
@@ -442,7 +489,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     args.argv, args.t_main = argv, t_main
     from bulbjax import compile_cache
 
-    compile_cache.enable()  # reruns of a configuration load its executables ($BULBJAX_COMPILE_CACHE=off: no cache)
+    # reruns of a configuration load its executables ($BULBJAX_COMPILE_CACHE=off: no cache)
+    compile_cache.enable()
     try:
         code = args.fn(args)
         sys.stdout.flush()  # a reader gone from stdout shows here, not in Python's flush at exit
@@ -452,7 +500,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         leave_failed_run(2)
         return 2
     except (Exception, KeyboardInterrupt) as err:
-        if isinstance(err, BrokenPipeError) and _stdout_gone():  # `| head`; another pipe's is an error
+        # `| head`; another pipe's is an error
+        if isinstance(err, BrokenPipeError) and _stdout_gone():
             return _leave_quietly()
         from bulbjax import distributed
 

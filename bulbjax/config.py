@@ -22,7 +22,7 @@ SEED_LOOPS = ("auto", "vmap", "map", "hybrid")
 # How init and the epoch are compiled (`ExperimentConfig.programs`).
 PROGRAM_FORMS = ("fused", "split")
 # How an epoch's PPO work and its learners' updates are laid out (`ExperimentConfig.overlap`).
-OVERLAP_MODES = ("none", "pipeline")
+OVERLAP_MODES = ("none", "pipeline", "apart")
 # Probe-protocol variants computed beside the present probe (`ExperimentConfig.probe_variants`,
 # docs/probes.md "Variants of the protocol"): a common probe set for every learner of a seed,
 # the whole window's latent for the sequential learners, raw MAE per state group.
@@ -127,8 +127,9 @@ class ExperimentConfig:
     # pipelined epoch"): "none" (an epoch's PPO, then its learners) or "pipeline" (one program
     # does epoch t's learner updates and probes and epoch t+1's rollouts, PPO updates and replay
     # inserts, which do not depend on them when PPO observes the true state or pixels: the layout
-    # in which the two sides can run at once, once they run on different streams or devices; on
-    # one stream it runs them one after the other, as "none"). Each epoch computes what it
+    # in which the two sides can run at once; on one GPU stream it runs them one after the other,
+    # as "none") or "apart" (the same as three programs, the learners', their probes and replay on
+    # a device of their own beside the environment's: `bulbjax.epoch.apart`). Each epoch computes what it
     # computes with "none", from the same keys and inputs (the same numbers up to floating-point
     # reassociation); the run state carries the next epoch's environment work done
     # (`RunState.pending`), so a checkpoint resumes only in the mode that wrote it. Fused

@@ -76,17 +76,19 @@ class SeedGroups:
             log("one program sharded over several GPUs does not compile with MJX-Warp (XLA segfaults; "
                 "benchmarks/diagnostics/diag_multigpu.py): running one seed group per GPU instead")
             form = "groups"
+        # a group's devices: one, or two with the learners apart (the environment's, the learners')
+        k = 2 if cfg.overlap == "apart" else 1
         if form == "auto":
-            form = "groups" if len(devices) > 1 else "single"
+            form = "groups" if len(devices) > k else "single"
         self.form = form
         self.processes = processes
         self.config = cfg
         if form in ("sharded", "single"):
-            devs = local if form == "sharded" else local[:1]
+            devs = local if form == "sharded" else local[:k]
             self.exps = [Experiment(cfg, devices=devs, compiler_options=compiler_options)]
             self.groups, self.offsets = 1, [0]
         else:
-            per_process = {p: sum(d.process_index == p for d in devices) for p in range(processes)}
+            per_process = {p: sum(d.process_index == p for d in devices) // k for p in range(processes)}
             g = group_count(cfg.seeds, min(per_process.values()) * processes, processes)
             self.groups = g
             sg, gl = cfg.seeds // g, g // processes
@@ -94,7 +96,7 @@ class SeedGroups:
             first = rank * gl
             self.offsets = [(first + i) * sg for i in range(gl)]
             sub = cfg if g == 1 else dataclasses.replace(cfg, seeds=sg)
-            self.exps = [Experiment(sub, devices=[local[i]], compiler_options=compiler_options,
+            self.exps = [Experiment(sub, devices=local[k * i:k * (i + 1)], compiler_options=compiler_options,
                                     seed_group=None if g == 1 else (self.offsets[i], cfg.seeds))
                          for i in range(gl)]
         self.exp = self.exps[0]
@@ -115,8 +117,10 @@ class SeedGroups:
     # ------------------------------------------------------------------ description
     @property
     def devices(self) -> list[jax.Device]:
-        """This process's devices that compute (one per local group, or the sharded mesh's)."""
-        return [d for e in self.exps for d in e.devices.local_mesh_devices()]
+        """This process's devices that compute (one per local group, or the sharded mesh's; and each
+        group's learners' device with the learners apart)."""
+        return [d for e in self.exps
+                for d in [*e.devices.local_mesh_devices(), *([e.apart.learner_device] if e.apart else [])]]
 
     def describe(self) -> str:
         """One line: how the seeds lie over devices and processes."""
@@ -128,7 +132,7 @@ class SeedGroups:
             return where
         if self.form == "sharded":
             return f"one program sharded over {self.exp.mesh.size} x {kind} (mesh {dict(self.exp.mesh.shape)})"
-        return f"1 x {kind}"
+        return f"1 x {kind}" + (" and 1 for the learners (--overlap apart)" if self.exp.apart else "")
 
     def provenance(self) -> dict[str, Any]:
         return {"layout": self.form, "seed_groups": self.groups, "processes": self.processes,
@@ -139,6 +143,10 @@ class SeedGroups:
         """Trace every group's init and epoch (group by group, in one fixed order: see `Programs`)."""
         self._programs = [Programs.of(e, probes) for e in self.exps]
         return self
+
+    def startup(self, resume: bool) -> tuple[str, ...]:
+        """The programs a stretch compiles before its first epoch (`Programs.startup`)."""
+        return self._programs[0].startup(resume)
 
     def prepare(self, *which: str) -> "SeedGroups":
         for p in self._programs:

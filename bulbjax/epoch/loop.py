@@ -15,6 +15,7 @@ physics launch and one render context for all seeds, which is what makes the GPU
 
 from __future__ import annotations
 
+import functools
 from typing import Any, Mapping, Sequence
 
 import jax
@@ -24,12 +25,13 @@ import numpy as np
 from bulbjax.config import ExperimentConfig
 from bulbjax.envs.base import EnvState
 from bulbjax.epoch import probe_variants as pv
+from bulbjax.epoch.apart import Apart
 from bulbjax.epoch.devices import Devices
 from bulbjax.epoch.learning import Learning
 from bulbjax.epoch.policy import Policy
 from bulbjax.epoch.probing import Probing, object_pixels, probe_targets
 from bulbjax.epoch.seeds import SeedGroup, Team, resolve_seed_loop, with_seed_loop
-from bulbjax.epoch.state import EnvStage, PolicyHistory, RunState
+from bulbjax.epoch.state import EnvBatch, EnvStage, PolicyHistory, RunState
 from bulbjax.epoch.streams import Streams
 from bulbjax.eval import objects, probe
 from bulbjax.learners import make_learner
@@ -57,6 +59,9 @@ class Experiment:
         self.compiler_options = dict(compiler_options or {})
         offset, total = seed_group or (0, c.seeds)
         self.group = group = SeedGroup(c.seeds, c.num_envs, offset, total)
+        # the learners apart (`ExperimentConfig.overlap` "apart", `bulbjax.epoch.apart`): the
+        # first device is the environment's, the second the learners'
+        devices, learner_device = apart_devices(c, devices)
         self.devices = dev = Devices(c, devices, group)
         self.env, self.mesh, self.sharded = dev.env, dev.mesh, dev.sharded
         # what the probes regress: the env's state and targets derived from it (`probe_targets`)
@@ -82,10 +87,13 @@ class Experiment:
         # the pipelined epoch (`ExperimentConfig.overlap`): its state carries the next epoch's
         # environment work (`RunState.pending`), which `prime` does once after init
         self.pipelined = c.overlap != "none"
+        opts = self.compiler_options or None
+        self.apart = (Apart(self, learner_device, functools.partial(jax.jit, compiler_options=opts))
+                      if learner_device is not None else None)
         init_shapes = jax.eval_shape(self._init, jax.random.PRNGKey(0))
         shapes = (jax.eval_shape(self._prime, init_shapes, jax.random.PRNGKey(0)) if self.pipelined
                   else init_shapes)
-        self._state_sh = dev.state_shardings(shapes)
+        self._state_sh = self.apart.state_shardings(shapes) if self.apart else dev.state_shardings(shapes)
         self._init_sh = dev.state_shardings(init_shapes)
         rep = dev.replicated
         # what `programs.Programs.of` keeps of this experiment's programs (per `probes`)
@@ -97,7 +105,6 @@ class Experiment:
                                             shapes, self._state_sh)
         self._abstract_init = jax.tree.map(lambda x, sh: jax.ShapeDtypeStruct(x.shape, x.dtype, sharding=sh),
                                            init_shapes, self._init_sh)
-        opts = self.compiler_options or None
         self.init = jax.jit(self._init, out_shardings=self._init_sh, compiler_options=opts)
         # `prime(rs, key)`: the first epoch's environment work on init's state (pipelined runs)
         self.prime = jax.jit(self._prime, donate_argnums=0, out_shardings=self._state_sh, compiler_options=opts)
@@ -203,7 +210,16 @@ class Experiment:
         """An epoch's environment work, before any learner updates: PPO (rollouts and updates),
         frames of its rollouts into replay, windows into the window buffers; the epoch's
         metrics of it, its counter moved on, and the keys of the later phases. `learners`: the
-        states PPO's policy reads (`Policy.rl_learners`)."""
+        states PPO's policy reads (`Policy.rl_learners`). `env_data`, then `insert_data`."""
+        ppo_state, train_env, train_hist, batch = self.env_data(ppo_state, train_env, train_hist, learners, key)
+        buffers, windows, pending = self.insert_data(buffers, windows, batch, ref_spread)
+        return EnvStage(ppo_state, train_env, buffers, windows, train_hist, pending["metrics"], epoch + 1,
+                        batch.k_learn, batch.k_eval, batch.k_probe, pending.get("fresh"))
+
+    def env_data(self, ppo_state: PPOState, train_env: EnvState, train_hist: PolicyHistory | None,
+                 learners: dict | None, key: jax.Array) -> tuple[PPOState, EnvState, PolicyHistory | None, EnvBatch]:
+        """The environment's half of `env_stage`: PPO's rollouts and updates, then the epoch's
+        new frames and windows rendered (`EnvBatch`, with the keys of the later phases)."""
         k_rl, k_rep, k_learn, k_eval, k_probe = jax.random.split(key, 5)
         resets_before = train_env.counts["nonfinite_resets"]
         # named scopes label each phase's ops in a profiler trace (benchmarks/trace_summary.py)
@@ -214,30 +230,44 @@ class Experiment:
         nonfinite = self.devices.per_seed(train_env.counts["nonfinite_resets"] - resets_before).sum(1)
         with jax.named_scope("bj.replay"):
             frames, states = self.streams.epoch_frames(steps, k_rep)
-            buffers = self.streams.insert_frames(buffers, frames, states, k_rep)
+        new = index = None
+        if self.window_length:
+            with jax.named_scope("bj.windows"):
+                new, index = self.streams.epoch_windows(steps, jax.random.fold_in(k_rep, 1))
+        rl = {"rl_return": jnp.where(count > 0, ret_sum / jnp.maximum(count, 1), jnp.nan),
+              "rl_episodes": count, "nonfinite_resets": nonfinite, "ppo": ppo_m}
+        return ppo_state, train_env, train_hist, EnvBatch(frames, states, new, index, k_rep, k_learn, k_eval,
+                                                          k_probe, rl)
+
+    def insert_data(self, buffers: dict, windows: dict, batch: EnvBatch, ref_spread: jax.Array
+                    ) -> tuple[dict, dict, dict[str, Any]]:
+        """The learners' half of `env_stage`: the epoch's frames and windows into the buffers.
+        Returns the buffers, the window buffers and what the epoch's learning and probing read
+        of it (`RunState.pending`'s form: the epoch's metrics, its keys, the common probe set's
+        new part)."""
+        with jax.named_scope("bj.replay"):
+            buffers = self.streams.insert_frames(buffers, batch.frames, batch.states, batch.k_rep)
         fresh = None  # the epoch's new steps: the common probe set's current-policy part
         if self.common_probes and not windows:  # frames (as windows of one step)
+            frames = batch.frames
             index = jnp.broadcast_to(jnp.arange(frames.shape[1]), frames.shape[:2])
-            new = pv.frames_as_windows(frames, states, self.action_dim)
+            new = pv.frames_as_windows(frames, batch.states, self.action_dim)
             fresh = pv.fresh_part(new, index, self.N, 1)
         if windows:
             with jax.named_scope("bj.windows"):
-                k_win = jax.random.fold_in(k_rep, 1)
-                new, index = self.streams.epoch_windows(steps, k_win)
-                windows = self.streams.insert_windows(windows, new, k_win)
+                windows = self.streams.insert_windows(windows, batch.windows, jax.random.fold_in(batch.k_rep, 1))
                 if self.common_probes:
-                    fresh = pv.fresh_part(new, index, self.N, self.eval_length)
+                    fresh = pv.fresh_part(batch.windows, batch.index, self.N, self.eval_length)
         metrics = {
-            "rl_return": jnp.where(count > 0, ret_sum / jnp.maximum(count, 1), jnp.nan),
-            "rl_episodes": count,
-            "nonfinite_resets": nonfinite,
-            "ppo": ppo_m,
+            **batch.rl,
             "ref_spread": jnp.broadcast_to(ref_spread, (self.S,) + ref_spread.shape),
             "replay_dropped": {**{k: b.num_dropped for k, b in buffers.items()},
                                **{f"windows_{k}": b.num_dropped for k, b in windows.items()}},
         }
-        return EnvStage(ppo_state, train_env, buffers, windows, train_hist, metrics, epoch + 1,
-                        k_learn, k_eval, k_probe, fresh)
+        out = {"metrics": metrics, "k_learn": batch.k_learn, "k_eval": batch.k_eval, "k_probe": batch.k_probe}
+        if fresh is not None:
+            out["fresh"] = fresh
+        return buffers, windows, out
 
     def eval_stage(self, ppo_state: PPOState, curr_env: EnvState, rand_env: EnvState,
                    rl_learners: dict | None, curr_hist: PolicyHistory | None, key: jax.Array) -> tuple:
@@ -367,6 +397,21 @@ class Experiment:
             if curr_hist is not None:
                 hist["curr"] = curr_hist
         return curr_env, rand_env
+
+
+def apart_devices(config: ExperimentConfig, devices: Sequence[jax.Device] | None
+                  ) -> tuple[Sequence[jax.Device] | None, jax.Device | None]:
+    """(the environment's devices, the learners' device) of an experiment: with overlap "apart"
+    the first two of `devices` (default this process's first two), else `devices` and None. One
+    line when there are fewer than two."""
+    if config.overlap != "apart":
+        return devices, None
+    devs = list(devices) if devices is not None else jax.local_devices()
+    if len(devs) < 2:
+        raise ValueError(f"--overlap apart puts the learners on a device of their own: this process has "
+                         f"{len(devs)} ({devs[0].device_kind if devs else 'none'}); give it two GPUs "
+                         "(CUDA_VISIBLE_DEVICES), or use --overlap pipeline")
+    return devs[:1], devs[1]
 
 
 def _pending(env: EnvStage) -> dict[str, Any]:

@@ -200,12 +200,15 @@ class Programs:
             self._traced: dict[str, Any] = self._stages.trace(True in self.probes)
         else:
             self._traced = {"init": exp.init.trace(key)}
-            if exp.pipelined:  # the first epoch's environment work on init's state (`Experiment.prime`)
-                self._traced["prime"] = exp.prime.trace(exp.abstract_init_state(), key)
-            if self.flag:
-                self._traced["epoch"] = exp.epoch_flag.trace(rs, key, exp.abstract_flag())
+            if exp.apart is not None:  # the learners apart: three programs on two devices (`apart.Apart`)
+                self._traced.update({f"epoch/{n}": t for n, t in exp.apart.trace().items()})
             else:
-                self._traced["epoch"] = exp.epoch.trace(rs, key, probe=next(iter(self.probes)))
+                if exp.pipelined:  # the first epoch's environment work on init's state (`Experiment.prime`)
+                    self._traced["prime"] = exp.prime.trace(exp.abstract_init_state(), key)
+                if self.flag:
+                    self._traced["epoch"] = exp.epoch_flag.trace(rs, key, exp.abstract_flag())
+                else:
+                    self._traced["epoch"] = exp.epoch.trace(rs, key, probe=next(iter(self.probes)))
         self._lowered: dict[str, Any] = {}
         self._compiled: dict[str, Future] = {}
         self._chain: Future | None = None  # the compile started last (`prepare`)
@@ -294,8 +297,20 @@ class Programs:
 
     def prime(self, rs: RunState, key: jax.Array) -> RunState:
         """`Experiment.prime` (`rs`, init's state, donated): a pipelined run's first epoch's
-        environment work; the key, that epoch's, is placed on the mesh here."""
+        environment work; the key, that epoch's, is placed on the mesh here. With the learners
+        apart, `Apart.prime` from the epoch's programs."""
+        if self._exp.apart is not None:
+            return self._exp.apart.prime(rs, key, self._apart_program)
         return self.compiled("prime")(rs, self._exp.put_key(key))
+
+    def _apart_program(self, name: str) -> Any:
+        return self.compiled(f"epoch/{name}")
+
+    def startup(self, resume: bool) -> tuple[str, ...]:
+        """The programs (or groups) a run compiles before its first epoch: init (a fresh run), a
+        pipelined run's `prime`, the epoch."""
+        prime = ("prime",) if "prime" in self._traced and not resume else ()
+        return (*(() if resume else ("init",)), *prime, "epoch")
 
     def epoch(self, rs: RunState, key: jax.Array, probe: bool = True) -> tuple[RunState, Any]:
         """`Experiment.epoch` (`rs` donated); the key is placed on the mesh here. The metrics of
@@ -307,6 +322,9 @@ class Programs:
         if self._stages is not None:
             self.prepare("epoch")
             return self._stages.epoch(self.compiled, rs, self._exp.put_key(key), probe)
+        if self._exp.apart is not None:
+            self.prepare("epoch")
+            return self._exp.apart.epoch(rs, key, probe, self._apart_program)
         if not self.flag:
             return self.compiled("epoch")(rs, self._exp.put_key(key))
         rs, m = self.compiled("epoch")(rs, self._exp.put_key(key), self._exp.put_flag(probe))

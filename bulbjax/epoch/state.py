@@ -109,6 +109,23 @@ class RunState:
     pending: dict[str, Any] = struct.field(default_factory=dict)
 
 
+class EnvBatch(NamedTuple):
+    """An epoch's new data for the learners' side (`Experiment.env_data`): the frames of its
+    rollouts and their states, its windows (and their start steps), the keys of its replay
+    insert, learning, held-out rollouts and probes, and the metrics of its PPO phase. What moves
+    to the learners' device in a run with the learners apart (`bulbjax.epoch.apart`)."""
+
+    frames: jax.Array
+    states: jax.Array
+    windows: Any  # `Windows` of the epoch, or None without sequential learners
+    index: Any  # the windows' start steps, or None
+    k_rep: jax.Array
+    k_learn: jax.Array
+    k_eval: jax.Array
+    k_probe: jax.Array
+    rl: dict  # rl_return, rl_episodes, nonfinite_resets, ppo
+
+
 class EnvStage(NamedTuple):
     """What `Experiment.env_stage` hands on to the rest of an epoch."""
 

@@ -13,7 +13,7 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
     summary = reproduce(args.figures, args.scale, args.out, gpus=args.gpus, shard=args.shard,
                         add_learners=args.add_learner or (), dry_run=args.dry_run, overwrite=args.overwrite,
                         max_minutes=args.max_minutes, progress_every=args.progress_every, jobs=args.jobs,
-                        fit_minutes=args.fit_minutes)
+                        fit_minutes=args.fit_minutes, learners_apart=args.learners_apart)
     return 1 if summary.get("failed") else 0
 
 
@@ -49,6 +49,9 @@ def add_parser(sub: argparse._SubParsersAction,
                     help="of the unfinished jobs left, run those the estimate fits in M minutes on this host "
                          "(longest first): for a host held for a limited time whose disk goes with it "
                          "(default: 0, every job)")
+    rp.add_argument("--learners-apart", action="store_true",
+                    help="each job on two GPUs, its learners on the second beside its PPO work on the first "
+                         "(bulbjax run --overlap apart: the same numbers)")
     rp.add_argument("--add-learner", action="append", metavar="SPEC",
                     help="a learner of your own (pkg.module:Name, docs/extending.md) run beside the paper's in "
                          "every figure; repeatable (default: none)")

@@ -101,11 +101,12 @@ def _last_epoch(path: str) -> int:
 
 
 def command(out: str, job: Job, epoch_s: float, max_minutes: float = 0.0, source: Job | None = None,
-            learners: Sequence[str] = ()) -> list[str]:
+            learners: Sequence[str] = (), run_flags: Sequence[str] = ()) -> list[str]:
     """The `bulbjax` command line that starts `job`, or continues it from its newest checkpoint
     (a folder without one, from a job killed while starting, starts afresh over it).
     `max_minutes` > 0: the run stops itself (checkpointing) after that long. A recon job draws
-    the Fig. 4 columns among `learners`, the learners of its `source` run."""
+    the Fig. 4 columns among `learners`, the learners of its `source` run. `run_flags`: how a
+    fresh run job runs on its slot, not what it computes (e.g. `--overlap apart`)."""
     base = [sys.executable, "-m", "bulbjax"]
     d = job_dir(out, job)
     if job.kind == "recon":
@@ -121,7 +122,7 @@ def command(out: str, job: Job, epoch_s: float, max_minutes: float = 0.0, source
     if checkpoint_steps(d):
         return [*base, "run", "--resume", d, *stretch]
     fresh = [*base, "run", "--preset", job.preset, "--seeds", str(job.seeds), "--seed", str(job.seed),
-             "--probe-every", str(job.probe_every), "--out", d, *job.flags, *stretch]
+             "--probe-every", str(job.probe_every), "--out", d, *job.flags, *run_flags, *stretch]
     if job.recon_every:
         fresh += ["--recon-every", str(job.recon_every)]
     if os.path.exists(os.path.join(d, "config.json")):

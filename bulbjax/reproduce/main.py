@@ -48,9 +48,10 @@ def learner_names(specs: Sequence[str]) -> list[str]:
     return out
 
 
-def slots_of(gpus: int | None) -> tuple[list[Slot], str]:
-    """This host's slots: one per visible GPU (the first `gpus` of them), or `gpus` CPU workers
-    (default 1) on a host without one; and the device kind."""
+def slots_of(gpus: int | None, per_slot: int = 1) -> tuple[list[Slot], str]:
+    """This host's slots: one per visible GPU (the first `gpus` of them), or per `per_slot` GPUs
+    (the learners apart: 2), or `gpus` CPU workers (default 1) on a host without one, each
+    showing `per_slot` CPU devices; and the device kind."""
     from bulbjax import local_processes
 
     visible = local_processes.visible_gpus()
@@ -61,8 +62,14 @@ def slots_of(gpus: int | None) -> tuple[list[Slot], str]:
             raise ValueError(f"--gpus {gpus}: this host has {len(visible)} GPU(s) "
                              f"({', '.join(visible)}; CUDA_VISIBLE_DEVICES / nvidia-smi)")
         use = visible[: gpus or None]
+        if per_slot > 1:
+            groups = [",".join(use[i:i + per_slot]) for i in range(0, len(use) - per_slot + 1, per_slot)]
+            if not groups:
+                raise ValueError(f"--learners-apart runs each job on {per_slot} GPUs and this host has "
+                                 f"{len(use)} to use ({', '.join(use)}): leave it out, or give more GPUs")
+            return [Slot(f"GPUs {g}", g) for g in groups], device_kind(use)
         return [Slot(f"GPU {g}", g) for g in use], device_kind(use)
-    return [Slot(f"cpu{i}", None) for i in range(gpus or 1)], "cpu"
+    return [Slot(f"cpu{i}", None, per_slot) for i in range(gpus or 1)], "cpu"
 
 
 def _check_ycb(jobs: Sequence[Job]) -> None:
@@ -110,7 +117,8 @@ def reproduce(figures: str | Sequence[str] = "all", scale: str = "paper", out: s
               gpus: int | None = None, shard: str | None = None, add_learners: Sequence[str] = (),
               dry_run: bool = False, overwrite: bool = False, max_minutes: float = 0.0,
               progress_every: float = 30.0, log: Callable[[str], None] = print,
-              jobs: str | Sequence[str] | None = None, fit_minutes: float = 0.0) -> dict[str, Any]:
+              jobs: str | Sequence[str] | None = None, fit_minutes: float = 0.0,
+              learners_apart: bool = False) -> dict[str, Any]:
     """Run (or with `dry_run`, only plan) the paper's `figures` at `scale` into `out`; returns the
     summary (also `out/summary.json`). Rerunning with the same arguments continues unfinished
     jobs and skips finished ones. `shard` "K/N": this host's share of a plan split over N hosts.
@@ -118,7 +126,9 @@ def reproduce(figures: str | Sequence[str] = "all", scale: str = "paper", out: s
     these jobs of the plan (ids, with their Fig. 4 partners); `fit_minutes`: of the unfinished
     jobs left, those that fit this many minutes on this host (`estimate.fit_jobs`), for a host
     held for a limited time. A stretch that selects jobs writes `summary_<UTC time>.json`, so the
-    stretches of one plan folder (several hosts, several allocations) each keep theirs."""
+    stretches of one plan folder (several hosts, several allocations) each keep theirs.
+    `learners_apart`: every job on two GPUs, its learners on the second (`bulbjax run --overlap
+    apart`: the same numbers; its epochs beside its PPO work)."""
     figs = parse_figures(figures)
     share = parse_shard(shard)
     if share is not None and overwrite:
@@ -128,7 +138,7 @@ def reproduce(figures: str | Sequence[str] = "all", scale: str = "paper", out: s
         raise ValueError(f"--max-minutes must be >= 0 (0: no limit), got {max_minutes}")
     names = learner_names(add_learners)
     all_jobs = plan_jobs(figs, scale, list(add_learners))
-    slots, kind = slots_of(gpus)
+    slots, kind = slots_of(gpus, 2 if learners_apart else 1)
     times, times_kind = load_times(kind)
     costs = {j.id: job_cost(j, times) for j in all_jobs}
     mine = all_jobs
@@ -173,7 +183,8 @@ def reproduce(figures: str | Sequence[str] = "all", scale: str = "paper", out: s
         f"(utilisation {est.utilisation:.0%})")
     summary: dict[str, Any] = {"gpus": len(slots), "device_kind": kind, "times_of": times_kind,
                                "estimated_wall_s": est.wall_s, "estimated_gpu_s": est.gpu_s,
-                               "shard": list(share) if share else None, "jobs_planned": len(mine)}
+                               "shard": list(share) if share else None, "jobs_planned": len(mine),
+                               "learners_apart": learners_apart}
     if dry_run:
         return summary
     os.makedirs(out, exist_ok=True)
@@ -185,7 +196,8 @@ def reproduce(figures: str | Sequence[str] = "all", scale: str = "paper", out: s
     selected = fit_minutes or named is not None
     status = (f"status_shard{share[0]}of{share[1]}.json" if share and not selected
               else f"status_{stamp}.json" if selected else "status.json")
-    q = Queue(out, mine, all_jobs, slots, times, deadline, progress_every, learners_of, log, status)
+    q = Queue(out, mine, all_jobs, slots, times, deadline, progress_every, learners_of, log, status,
+              run_flags=("--overlap", "apart") if learners_apart else ())
     ran = q.run()
     summary.update(measured_wall_s=ran["wall_s"], utilisation=ran["utilisation"], busy_s=ran["busy_s"],
                    gpu_hours=ran["busy_s"] / 3600, failed=ran["failed"], unfinished=ran["unfinished"],

@@ -32,15 +32,20 @@ STOP_GRACE_S = 180.0  # after SIGTERM, time for a job to checkpoint before it is
 
 @dataclass
 class Slot:
-    """Where a job runs: a GPU (`gpu`, a CUDA_VISIBLE_DEVICES entry) or a CPU worker (None)."""
+    """Where a job runs: its GPUs (`gpu`, a CUDA_VISIBLE_DEVICES value: one GPU, or two, "0,1",
+    with the learners apart) or a CPU worker (None) showing `cpu_devices` devices to JAX."""
 
     name: str
     gpu: str | None
+    cpu_devices: int = 1
 
     def env(self) -> dict[str, str]:
         env = dict(os.environ, PYTHONUNBUFFERED="1")
         if self.gpu is None:
             env.update(JAX_PLATFORMS="cpu", CUDA_VISIBLE_DEVICES="")
+            if self.cpu_devices > 1:
+                flag = f"--xla_force_host_platform_device_count={self.cpu_devices}"
+                env["XLA_FLAGS"] = f"{env.get('XLA_FLAGS', '')} {flag}".strip()
         else:
             env["CUDA_VISIBLE_DEVICES"] = self.gpu
         return env
@@ -80,13 +85,14 @@ class Queue:
     def __init__(self, out: str, jobs: Sequence[Job], all_jobs: Sequence[Job], slots: Sequence[Slot],
                  times: dict[str, Timing], deadline: float | None = None, progress_every: float = 30.0,
                  learners_of: Callable[[Job], Sequence[str]] = lambda j: (), log: Callable[[str], None] = print,
-                 status_file: str = "status.json", poll_s: float = 1.0):
+                 status_file: str = "status.json", poll_s: float = 1.0, run_flags: Sequence[str] = ()):
         self.out, self.slots, self.times, self.deadline = out, list(slots), times, deadline
         self.by_id = {j.id: j for j in all_jobs}
         self.tracks = {j.id: Track(j) for j in queue_order(jobs, times)}
         self.progress_every, self.learners_of, self.log = progress_every, learners_of, log
         self.status_path = os.path.join(out, status_file)
         self.poll_s = poll_s
+        self.run_flags = tuple(run_flags)  # `J.command`'s: how a fresh run job runs on its slot
         self.stopping: str | None = None
         self.t0 = time.monotonic()
         for t in self.tracks.values():
@@ -175,7 +181,7 @@ class Queue:
             minutes = max(0.5, (self.deadline - time.monotonic()) / 60.0)
         source = self.by_id.get(job.after) if job.after else None
         cmd = J.command(self.out, job, self.times[key].epoch_s, minutes, source,
-                        self.learners_of(source) if source else ())
+                        self.learners_of(source) if source else (), self.run_flags)
         os.makedirs(os.path.join(self.out, "logs"), exist_ok=True)
         logf = open(self._log_path(job), "a")
         logf.write(f"\n=== attempt {t.attempts + 1}, slot {slot.name}: {' '.join(cmd)}\n")

@@ -221,7 +221,7 @@ def run(cfg: ExperimentConfig, opts: RunOptions, run_dir: str, *, resume: bool |
         programs = groups.programs((True,) if opts.probe_every == 1 else (True, False))
         # compiles (or compile-cache loads) in background threads: init's and the epoch's overlap,
         # and a resume's restore overlaps the epoch's
-        programs.prepare(*(("epoch",) if resume else ("init", *(("prime",) if exp.pipelined else ()), "epoch")))
+        programs.prepare(*programs.startup(resume))
     # MuJoCo Warp's kernels built (or loaded) beside the compiles, so init finds them ready. Not
     # on a resume: the one resume that ran it beside the checkpoint's restore and a compile
     # ended in a SIGSEGV of process 1 (two H200s; the same resume without it ran), and a resume
@@ -231,10 +231,8 @@ def run(cfg: ExperimentConfig, opts: RunOptions, run_dir: str, *, resume: bool |
                 + " in the background (or loading them from the compile cache)")
     if compile_only:
         with stages("compiling init and the epoch"):
-            programs.compiled("init")
-            if exp.pipelined:
-                programs.compiled("prime")
-            programs.compiled("epoch")
+            for name in programs.startup(False):
+                programs.compiled(name)
         warming = _physics_ready(warming, stages)
         log("compiled init and the epoch into the compile cache (--compile-only: no epoch ran)")
         distributed.barrier("bulbjax-run-end")

@@ -79,15 +79,17 @@ class RunFigures:
         self._k = max(self._k_figure, min(exp.N, math.ceil(REGION_FRAMES / le)) if self.objects else 0)
         self._held = jax.jit(self._held_out)
 
-    def _held_out(self, rs: RunState, key: jax.Array) -> Windows:
+    def _held_out(self, ppo: Any, curr_env: Any, learners: dict | None, history: Any, key: jax.Array) -> Windows:
         """One window of `eval_length` steps per held-out world of the current policy (from
-        `rs.curr_env`, which is not updated), every seed's first few windows `[S, k, ...]`."""
+        the run state's `curr_env`, which is not updated), every seed's first few windows
+        `[S, k, ...]`. Only the parts it reads: with the learners apart (`--overlap apart`) the
+        state lies on two devices."""
         exp, le = self.exp, self.exp.eval_length
         # Experiment's own rollout and window cutting (as its eval phase), one round only.
-        extra = {"learners": rs.learners} if exp.policy.rl_learner else {}  # PPO on a latent
-        if rs.policy_history:  # ... of a sequential learner: the worlds' windows go on from the run's
-            extra["history"] = rs.policy_history["curr"]
-        _, steps = exp.policy.rollout(rs.ppo, rs.curr_env, key, le, random=False, **extra)
+        extra = {"learners": learners} if exp.policy.rl_learner else {}  # PPO on a latent
+        if history is not None:  # ... of a sequential learner: the worlds' windows go on from the run's
+            extra["history"] = history
+        _, steps = exp.policy.rollout(ppo, curr_env, key, le, random=False, **extra)
         starts = jnp.zeros((1, exp.S * exp.N), jnp.int32)
         w = exp.streams.windows(steps, starts, le)  # [S, N, L, ...]
         return jax.tree.map(lambda x: x[:, : self._k], w)
@@ -100,7 +102,10 @@ class RunFigures:
         return jax.tree.map(lambda x: x[self.config.seed, : self._k_figure], self._held_all(rs, epoch))
 
     def _held_all(self, rs: RunState, epoch: int) -> Windows:
-        return jax.device_get(self._held(rs, self.exp.put_key(self.key(epoch))))
+        learners = rs.learners if self.exp.policy.rl_learner else None
+        history = rs.policy_history["curr"] if rs.policy_history else None
+        key = self.exp.put_key(self.key(epoch))
+        return jax.device_get(self._held(rs.ppo, rs.curr_env, learners, history, key))
 
     def regions(self, rs: RunState, windows: Windows) -> dict[str, Any]:
         """Each learner's reconstruction error per object region (`bulbjax.eval.regions`) on the
@@ -156,6 +161,8 @@ def _devices_of(raw: dict[str, Any], run_dir: str) -> list[jax.Device]:
     """As many local devices as the run's mesh had (a checkpoint restores on that count only)."""
     mesh = raw.get("provenance", {}).get("mesh")
     n = math.prod(mesh.values()) if mesh else 1
+    if raw.get("experiment", {}).get("overlap") == "apart":  # and the learners' device
+        n += 1
     local = jax.local_devices()
     if n > len(local):
         raise ValueError(f"{run_dir} ran on {n} devices ({mesh}); its checkpoints restore on as many, "

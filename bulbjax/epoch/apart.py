@@ -1,0 +1,167 @@
+"""The learners apart: the pipelined epoch as programs on two devices, so that they run at once.
+
+With `ExperimentConfig.overlap` "apart" an experiment uses two devices of its process: the
+environment's (PPO, the worlds, their rendering) and the learners' (the learners' states, the
+replay and window buffers, the probes). Epoch t is three programs:
+
+- "learn", on the learners' device: epoch t's learner updates on the buffers as epoch t's frames
+  left them (`Learning.learn_phase`);
+- "env", on the environment's device, beside it: epoch t's held-out rollouts (in an epoch that
+  probes) and epoch t+1's environment work up to its new frames and windows
+  (`Experiment.env_data`: PPO's rollouts and updates, the frames rendered);
+- "finish", on the learners' device, once both are done and the new frames and held-out windows
+  have moved over (~12 MB of frames an epoch of 1,024): epoch t's probes, then epoch t+1's frames
+  and windows into the buffers (`Experiment.insert_data`).
+
+Each part takes the inputs and keys it takes in the plain epoch (`loop.Experiment._epoch`), so an
+epoch's numbers are the plain epoch's (tested); the state is the pipelined run's
+(`RunState.pending` holds epoch t's metrics and keys), each array on the device of the side that
+owns it (`state_shardings`). Why: on one GPU XLA runs a program's work on one stream, and PPO's
+phase of a locomotion epoch (0.66 s of 1.8 s on an H200) keeps the GPU busy only half its time
+(MuJoCo Warp's chains of small kernels) while the learners' updates (1.09 s) fill it; on two
+devices an epoch should take about the longer side (docs/performance.md, "The locomotion epoch").
+"env" and "learn" are dispatched from two threads: a program with MJX-Warp holds the thread that
+runs it until its last kernel is launched (`groups._side_by_side`).
+"""
+
+from __future__ import annotations
+
+from concurrent.futures import ThreadPoolExecutor
+from typing import Any, Callable
+
+import jax
+import jax.numpy as jnp
+from jax.sharding import SingleDeviceSharding
+
+from bulbjax.epoch import probe_variants as pv
+from bulbjax.epoch.state import EnvBatch, RunState
+
+# the parts of the run state on the learners' device; the rest lie on the environment's
+LEARNER_SIDE = ("learners", "buffers", "windows", "ref_spread", "probe_set", "pending")
+PROGRAMS = ("env", "learn", "finish")  # in trace order (`programs.Programs`)
+
+
+class Apart:
+    """The three programs of an apart epoch of `exp` (an `Experiment` with overlap "apart", whose
+    mesh is its environment's device) and how the run state lies over the two devices. `jit`:
+    how each program is jitted (the experiment's compiler options)."""
+
+    def __init__(self, exp: Any, learner_device: jax.Device, jit: Callable[..., Any]):
+        self.exp = exp
+        self.env_device = exp.mesh.devices.flat[0]
+        self.learner_device = learner_device
+        self.on_env = SingleDeviceSharding(self.env_device)
+        self.on_learners = SingleDeviceSharding(learner_device)
+        # donated: what a program replaces (the environment's state; the buffers inserted into)
+        self.jits = {"env": jit(self._env_side, donate_argnums=(0, 1, 2, 3, 4, 5), out_shardings=self.on_env),
+                     "learn": jit(self._learn_side, out_shardings=self.on_learners),
+                     "finish": jit(self._finish, donate_argnums=(1, 2), out_shardings=self.on_learners)}
+
+    # ------------------------------------------------------------------ the state's layout
+    def state_shardings(self, rs: RunState) -> RunState:
+        """The shardings of `rs` (a state or its shapes): `LEARNER_SIDE` on the learners' device,
+        the rest on the environment's."""
+        return RunState(**{f: jax.tree.map(lambda _, s=(self.on_learners if f in LEARNER_SIDE else self.on_env): s,
+                                           getattr(rs, f)) for f in RunState.__dataclass_fields__})
+
+    def trace(self) -> dict[str, Any]:
+        """The three programs traced on the abstract state, in `PROGRAMS` order."""
+        exp = self.exp
+        rs, hist = exp.abstract_state(), exp.abstract_state().policy_history
+        k_env, k_learn = (jax.ShapeDtypeStruct((2,), jnp.uint32, sharding=s) for s in (self.on_env, self.on_learners))
+        f_env, f_learn = (jax.ShapeDtypeStruct((), jnp.bool_, sharding=s) for s in (self.on_env, self.on_learners))
+        env = self.jits["env"].trace(rs.ppo, rs.train_env, rs.curr_env, rs.rand_env, hist.get("train"),
+                                     hist.get("curr"), k_env, k_env, f_env)
+        learn = self.jits["learn"].trace(rs.learners, rs.buffers, rs.windows, k_learn)
+        held, batch = (_on(x, self.on_learners) for x in (env.out_info[4], env.out_info[6]))
+        finish = self.jits["finish"].trace(rs.learners, rs.buffers, rs.windows, held, rs.pending, rs.probe_set,
+                                           batch, rs.ref_spread, f_learn)
+        return {"env": env, "learn": learn, "finish": finish}
+
+    # ------------------------------------------------------------------ the programs
+    def _env_side(self, ppo: Any, train_env: Any, curr_env: Any, rand_env: Any, train_hist: Any, curr_hist: Any,
+                  key: jax.Array, k_eval: jax.Array, flag: jax.Array) -> tuple:
+        """Epoch t's held-out rollouts where `flag` (`lax.cond`; blanks and the worlds unmoved
+        else), with PPO's state of epoch t; then epoch t+1's environment work (`key`: its key)
+        up to its frames: (ppo, train_env, curr_env, rand_env, held_out, histories, batch)."""
+        exp = self.exp
+
+        def evaluate(ops: tuple) -> tuple:
+            return exp.eval_stage(ppo, ops[0], ops[1], None, ops[2], k_eval)
+
+        ops = (curr_env, rand_env, curr_hist)
+        shapes = jax.eval_shape(evaluate, ops)
+        curr_env, rand_env, held_out, curr_hist = jax.lax.cond(
+            flag, evaluate, lambda ops: (ops[0], ops[1], jax.tree.map(_blank, shapes[2]), ops[2]), ops)
+        ppo, train_env, train_hist, batch = exp.env_data(ppo, train_env, train_hist, None, key)
+        return ppo, train_env, curr_env, rand_env, held_out, {"train": train_hist, "curr": curr_hist}, batch
+
+    def _learn_side(self, learners: dict, buffers: dict, windows: dict, k_learn: jax.Array) -> tuple:
+        return self.exp.learning.learn_phase(learners, buffers, k_learn, windows)
+
+    def _finish(self, learners: dict, buffers: dict, windows: dict, held_out: Any, pending: dict, probe_set: Any,
+                batch: EnvBatch, ref_spread: jax.Array, flag: jax.Array) -> tuple:
+        """Epoch t's probes where `flag` (blanks else), then epoch t+1's frames and windows into
+        the buffers: (probes, buffers, windows, epoch t+1's `pending`)."""
+        exp = self.exp
+        common = pv.common_set(probe_set, pending.get("fresh")) if exp.common_probes else None
+
+        def probes(_: Any) -> Any:
+            return exp.probing.probe_phase(learners, buffers, held_out, pending["k_probe"], windows, common)
+
+        shapes = jax.eval_shape(probes, None)
+        out = jax.lax.cond(flag, probes, lambda _: jax.tree.map(_blank, shapes), None)
+        buffers, windows, nxt = exp.insert_data(buffers, windows, batch, ref_spread)
+        return out, buffers, windows, nxt
+
+    # ------------------------------------------------------------------ running
+    def prime(self, rs: RunState, key: jax.Array, run: Callable[[str], Callable]) -> RunState:
+        """Init's state (all on the environment's device) over both devices, with the first
+        epoch's environment work done and inserted (`key`: that epoch's key). `run(name)`: the
+        named executable (`PROGRAMS`)."""
+        rs = rs.replace(**{f: jax.device_put(getattr(rs, f), self.on_learners) for f in LEARNER_SIDE if f != "pending"})
+        blank = jax.device_put(jax.tree.map(_blank, self.exp.abstract_state().pending), self.on_learners)
+        return self._step(rs.replace(pending=blank), key, False, run, learn=False)[0]
+
+    def epoch(self, rs: RunState, key: jax.Array, probe: bool, run: Callable[[str], Callable]
+              ) -> tuple[RunState, dict[str, Any]]:
+        """Epoch t of an apart run (`rs`: epoch t's environment work done, `key`: epoch t+1's):
+        the state after it and epoch t's metrics (no `probes` where it does not probe)."""
+        return self._step(rs, key, probe, run, learn=True)
+
+    def _step(self, rs: RunState, key: jax.Array, probe: bool, run: Callable[[str], Callable], learn: bool
+              ) -> tuple[RunState, dict[str, Any]]:
+        p, hist = rs.pending, dict(rs.policy_history)
+        flag_env, flag_learn = (jax.device_put(jnp.asarray(bool(probe)), s) for s in (self.on_env, self.on_learners))
+        env_args = (rs.ppo, rs.train_env, rs.curr_env, rs.rand_env, hist.get("train"), hist.get("curr"),
+                    jax.device_put(key, self.on_env), jax.device_put(p["k_eval"], self.on_env), flag_env)
+        if learn:
+            with ThreadPoolExecutor(2, thread_name_prefix="bulbjax-apart") as pool:
+                learned = pool.submit(run("learn"), rs.learners, rs.buffers, rs.windows, p["k_learn"])
+                env = pool.submit(run("env"), *env_args)
+                learners, learn_m = learned.result()
+                ppo, train_env, curr_env, rand_env, held, hists, batch = env.result()
+        else:  # prime: the first epoch's environment work alone
+            learners, learn_m = rs.learners, {}
+            ppo, train_env, curr_env, rand_env, held, hists, batch = run("env")(*env_args)
+        probes, buffers, windows, pending = run("finish")(
+            learners, rs.buffers, rs.windows, jax.device_put(held, self.on_learners), p, rs.probe_set,
+            jax.device_put(batch, self.on_learners), rs.ref_spread, flag_learn)
+        metrics = {**p["metrics"], "learners": learn_m}
+        if probe:
+            metrics["probes"] = probes
+        hist = {k: v for k, v in hists.items() if v is not None}
+        new = RunState(ppo=ppo, learners=learners, buffers=buffers, windows=windows, train_env=train_env,
+                       curr_env=curr_env, rand_env=rand_env, policy_history=hist, ref_spread=rs.ref_spread,
+                       epoch=rs.epoch + 1 if learn else rs.epoch, probe_set=rs.probe_set, pending=pending)
+        return new, metrics
+
+
+def _on(tree: Any, sharding: SingleDeviceSharding) -> Any:
+    """Abstract arrays of `tree` as they lie after a move to `sharding`."""
+    return jax.tree.map(lambda x: jax.ShapeDtypeStruct(x.shape, x.dtype, sharding=sharding), tree)
+
+
+def _blank(s: Any) -> jax.Array:
+    """NaN (floats) or 0 of a shape: what a program that did not probe returns in its place."""
+    return jnp.full(s.shape, jnp.nan if jnp.issubdtype(s.dtype, jnp.inexact) else 0, s.dtype)
