@@ -1,6 +1,6 @@
 """Does the stream's PPO keep what it learned? PPO alone, from the true state, as a preset runs it.
 
-Runs the experiment's own policy phase (`bulbjax.epoch.policy.Policy.rl_phase`: the
+Runs the experiment's own policy phase (`bulbjax.epoch.rollouts.policy.Policy.rl_phase`: the
 preset's worlds per seed, PPO updates per epoch and PPO settings, all seeds' worlds stepped at
 once) with no representation learners, S seeds for E epochs, in jitted chunks of `--chunk`
 epochs (a `lax.scan`; the host syncs only between chunks to print and check `--max-minutes`).
@@ -94,7 +94,7 @@ class Variant:
     compiled chunk of `chunk` epochs, and the per-epoch records so far."""
 
     def __init__(self, name: str, cfg: Any, dev: Any, seed: int, chunk: int):
-        from bulbjax.epoch.policy import Policy
+        from bulbjax.epoch.rollouts.policy import Policy
         from bulbjax.epoch.seeds import Team
 
         self.name, self.cfg, self.chunk = name, cfg, chunk

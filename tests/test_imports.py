@@ -26,7 +26,7 @@ Layers, top to bottom (a module may import its own layer and the ones below, nev
 A new module or package must be given a layer here (the test says which one has none).
 
 Inside a layer, a folder of a package (`FOLDERS`: the multi-object scenes `bulbjax.envs.objects`,
-the SPAIR learner `bulbjax.learners.spair`) is entered from its package by the modules named for
+the SPAIR learner `bulbjax.learners.spair`, the epoch's environment side `bulbjax.epoch.rollouts`) is entered from its package by the modules named for
 it only, and imports none of the package's modules named as out of its reach (its siblings, the
 package's registry and face), as its `__init__.py` says.
 """
@@ -230,6 +230,11 @@ FOLDERS: dict[str, tuple[set[str], set[str]]] = {
     "bulbjax.envs.objects": ({"bulbjax.envs.registry"},
                              {"bulbjax.envs", "bulbjax.envs.registry", "bulbjax.envs.pendulum",
                               "bulbjax.envs.locomotion"}),
+    "bulbjax.epoch.rollouts": ({"bulbjax.epoch.loop", "bulbjax.epoch.offline"},
+                               {"bulbjax.epoch", "bulbjax.epoch.loop", "bulbjax.epoch.offline",
+                                "bulbjax.epoch.learning", "bulbjax.epoch.probing",
+                                "bulbjax.epoch.programs", "bulbjax.epoch.groups",
+                                "bulbjax.epoch.apart"}),
     "bulbjax.learners.spair": ({"bulbjax.learners"},
                                {"bulbjax.learners", "bulbjax.learners.registry", "bulbjax.learners.plugins",
                                 "bulbjax.learners.vae", "bulbjax.learners.sequential",

@@ -19,7 +19,7 @@ import pytest
 
 from bulbjax.data import sequence
 from bulbjax.epoch import Experiment, ExperimentConfig
-from bulbjax.epoch.policy import push_window
+from bulbjax.epoch.rollouts.policy import push_window
 from bulbjax.epoch.programs import Programs
 from bulbjax.eval.probe import ProbeConfig
 from bulbjax.learners import LearnerConfig

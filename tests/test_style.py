@@ -1,8 +1,8 @@
 """The line-length limit of the style notes (`../shared/reference/style-notes.md`: "pick a limit
 (100) and hold it"), held by the files that were brought under it: the command line
 (`bulbjax/cli.py`, `bulbjax/run_command.py`) and PPO's policy and observation modes
-(`bulbjax/epoch/policy.py`, `bulbjax/epoch/observations.py`). A file joins `HELD` once it keeps
-the limit; the test reads the files as text (nothing is imported)."""
+(`bulbjax/epoch/rollouts/policy.py`, `.../observations.py`). A file joins `HELD` once it keeps
+the limit; the test reads the files as text (nothing is imported). And the size of a folder."""
 
 from __future__ import annotations
 
@@ -12,8 +12,8 @@ import pytest
 
 LIMIT = 100
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-HELD = ("bulbjax/cli.py", "bulbjax/run_command.py", "bulbjax/epoch/policy.py",
-        "bulbjax/epoch/observations.py")
+HELD = ("bulbjax/cli.py", "bulbjax/run_command.py", "bulbjax/epoch/rollouts/policy.py",
+        "bulbjax/epoch/rollouts/observations.py")
 
 
 def long_lines(text: str, limit: int = LIMIT) -> list[str]:
@@ -32,3 +32,31 @@ def test_lines_keep_to_the_limit(path: str) -> None:
 def test_the_check_sees_a_long_line() -> None:
     """The check counts characters, not bytes, and names the line."""
     assert long_lines("a\n" + "x" * 100 + "\n" + "é" * 101) == ["line 3: 101"]
+
+
+# a folder of the package a reader takes in at a glance (issue 66: "no folder in bulbjax/ over
+# ~15 files or ~3K lines"); a folder that grows past them splits into folders named for what
+# they hold, as envs/objects, learners/spair and epoch/rollouts did
+MAX_FILES, MAX_LINES = 15, 3000
+
+
+def folder_sizes(root: str) -> dict[str, tuple[int, int]]:
+    """Every folder under `root` holding Python files: (its .py files, their lines), its own
+    files only (a subfolder counts for itself)."""
+    out = {}
+    for here, _, names in os.walk(root):
+        py = [n for n in names if n.endswith(".py")]
+        if py and "__pycache__" not in here:
+            lines = 0
+            for n in py:
+                with open(os.path.join(here, n), encoding="utf-8") as f:
+                    lines += sum(1 for _ in f)
+            out[os.path.relpath(here, ROOT)] = (len(py), lines)
+    return out
+
+
+def test_folders_stay_small() -> None:
+    sizes = folder_sizes(os.path.join(ROOT, "bulbjax"))
+    assert "bulbjax/epoch/rollouts" in sizes and "bulbjax" in sizes  # it looked
+    big = {d: s for d, s in sizes.items() if s[0] > MAX_FILES or s[1] > MAX_LINES}
+    assert not big, f"folders over {MAX_FILES} files or {MAX_LINES} lines (files, lines): {big}"

@@ -1,7 +1,8 @@
 """The epoch: one experiment's jitted init and epoch, all seeds at once (`loop.py`: `Experiment`),
-the parts it is composed of (`devices`, `seeds`, `policy`, `streams`, `learning`, `probing`,
-`probe_variants`; the run state's types in `state`), its programs compiled and laid over devices
-and processes (`programs`, `groups`), and an offline fit's programs (`offline`).
+the parts it is composed of (`devices`, `seeds`, `learning`, `probing`, `probe_variants`; the
+environment's side in `rollouts/`: `policy`, `observations`, `streams`; the run state's types in
+`state`, the layout of its random keys in `keys`), its programs compiled and laid over devices and
+processes (`programs`, `groups`, `apart`), and an offline fit's programs (`offline`).
 
 Imports `bulbjax.config` (what an experiment is built from) and the layers below it (learners,
 envs, rl, data, eval); never `bulbjax.report` or `bulbjax.run`, which use this face."""

@@ -11,6 +11,7 @@ import jax
 import jax.numpy as jnp
 
 from bulbjax.data import replay, sequence
+from bulbjax.epoch.keys import init_keys
 from bulbjax.epoch.seeds import Team, stack_members, switch_buffer, unstack_members
 
 
@@ -46,7 +47,7 @@ class Learning:
 
     def init_learner(self, name: str, key: jax.Array) -> Any:
         """Learner `name`'s state for every seed `[S]`, from the run's init key."""
-        k_learn = jax.random.split(key, 5)[1]
+        k_learn = init_keys(key).learners
         keys = self.team.seed_keys(jax.random.fold_in(k_learn, list(self.team.learners).index(name)))
         learner = self.team.learners[name]
         # one seed at a time: the same parameters as a vmap, and on the GPU a much cheaper

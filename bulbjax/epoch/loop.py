@@ -27,12 +27,13 @@ from bulbjax.envs.base import EnvState
 from bulbjax.epoch import probe_variants as pv
 from bulbjax.epoch.apart import Apart
 from bulbjax.epoch.devices import Devices
+from bulbjax.epoch.keys import epoch_keys, init_keys, world_keys
 from bulbjax.epoch.learning import Learning
-from bulbjax.epoch.policy import Policy
+from bulbjax.epoch.rollouts.policy import Policy
 from bulbjax.epoch.probing import Probing, object_pixels, probe_targets
 from bulbjax.epoch.seeds import SeedGroup, Team, resolve_seed_loop, with_seed_loop
 from bulbjax.epoch.state import EnvBatch, EnvStage, PolicyHistory, RunState
-from bulbjax.epoch.streams import Streams
+from bulbjax.epoch.rollouts.streams import Streams
 from bulbjax.eval import objects, probe
 from bulbjax.learners import make_learner
 from bulbjax.rl.ppo import PPOState
@@ -161,19 +162,18 @@ class Experiment:
         PPO, the worlds, replay and window buffers filled by the random policy, the reference
         spread."""
         c, dev, policy = self.config, self.devices, self.policy
-        k_ppo, _, k_env, k_fill, k_keep = jax.random.split(key, 5)
-        ppo_state = jax.vmap(self.ppo.init)(self.team.seed_keys(k_ppo))
-        ke = jax.random.split(k_env, 4)
-        train_env, curr_env, rand_env = (dev.env_reset(k) for k in ke[:3])
+        keys, worlds = init_keys(key), world_keys(key)
+        ppo_state = jax.vmap(self.ppo.init)(self.team.seed_keys(keys.ppo))
+        train_env, curr_env, rand_env = (dev.env_reset(k) for k in (worlds.train, worlds.curr, worlds.rand))
         # The reference spread of every state entry, once per run: the random policy's held-out
         # worlds run `reference_steps` steps (pooled over seeds); their π_rand stream goes on from there.
-        (rand_env, _), (_, ref_states, _, _) = policy.rollout(ppo_state, rand_env, ke[3], c.reference_steps,
+        (rand_env, _), (_, ref_states, _, _) = policy.rollout(ppo_state, rand_env, worlds.reference, c.reference_steps,
                                                               random=True)
         ref_targets = self.targets(ref_states)
         ref_spread = probe.spread(ref_targets.reshape((-1, ref_targets.shape[-1])))
         # Fill replay with frames of the random policy; retained learners keep a share of them.
-        frames, states = self.streams.initial_frames(ppo_state, k_fill)
-        buffers = self.streams.fill_buffers(frames, states, k_keep)
+        frames, states = self.streams.initial_frames(ppo_state, keys.fill)
+        buffers = self.streams.fill_buffers(frames, states, keys.keep)
         initial = pv.frames_as_windows(frames, states, self.action_dim)
         # Keys of the window buffers are folded in, so frame-only runs keep their random streams.
         windows = {}
@@ -196,11 +196,11 @@ class Experiment:
         """The states `[reference_steps, S*N, D]` that init's reference spread is taken over (the
         random policy's held-out worlds, `init_env`), recomputed from the init key: a run of seed
         groups pools them over all its groups (`bulbjax.epoch.groups`)."""
-        k_ppo, _, k_env, _, _ = jax.random.split(key, 5)
-        ppo_state = jax.vmap(self.ppo.init)(self.team.seed_keys(k_ppo))
-        ke = jax.random.split(k_env, 4)
-        _, (_, ref_states, _, _) = self.policy.rollout(ppo_state, self.devices.env_reset(ke[2]), ke[3],
-                                                       self.config.reference_steps, random=True)
+        worlds = world_keys(key)
+        ppo_state = jax.vmap(self.ppo.init)(self.team.seed_keys(init_keys(key).ppo))
+        _, (_, ref_states, _, _) = self.policy.rollout(ppo_state, self.devices.env_reset(worlds.rand),
+                                                       worlds.reference, self.config.reference_steps,
+                                                       random=True)
         return ref_states
 
     # ------------------------------------------------------------------ the epoch
@@ -220,24 +220,24 @@ class Experiment:
                  learners: dict | None, key: jax.Array) -> tuple[PPOState, EnvState, PolicyHistory | None, EnvBatch]:
         """The environment's half of `env_stage`: PPO's rollouts and updates, then the epoch's
         new frames and windows rendered (`EnvBatch`, with the keys of the later phases)."""
-        k_rl, k_rep, k_learn, k_eval, k_probe = jax.random.split(key, 5)
+        k = epoch_keys(key)
         resets_before = train_env.counts["nonfinite_resets"]
         # named scopes label each phase's ops in a profiler trace (benchmarks/trace_summary.py)
         with jax.named_scope("bj.rl"):
             ppo_state, train_env, ppo_m, ret_sum, count, steps, train_hist = self.policy.rl_phase(
-                ppo_state, train_env, k_rl, learners, train_hist)
+                ppo_state, train_env, k.rl, learners, train_hist)
         # worlds of this epoch's rollouts reset because their physics went non-finite (`EnvState.counts`)
         nonfinite = self.devices.per_seed(train_env.counts["nonfinite_resets"] - resets_before).sum(1)
         with jax.named_scope("bj.replay"):
-            frames, states = self.streams.epoch_frames(steps, k_rep)
+            frames, states = self.streams.epoch_frames(steps, k.replay)
         new = index = None
         if self.window_length:
             with jax.named_scope("bj.windows"):
-                new, index = self.streams.epoch_windows(steps, jax.random.fold_in(k_rep, 1))
+                new, index = self.streams.epoch_windows(steps, jax.random.fold_in(k.replay, 1))
         rl = {"rl_return": jnp.where(count > 0, ret_sum / jnp.maximum(count, 1), jnp.nan),
               "rl_episodes": count, "nonfinite_resets": nonfinite, "ppo": ppo_m}
-        return ppo_state, train_env, train_hist, EnvBatch(frames, states, new, index, k_rep, k_learn, k_eval,
-                                                          k_probe, rl)
+        return ppo_state, train_env, train_hist, EnvBatch(frames, states, new, index, k.replay, k.learn,
+                                                          k.eval, k.probe, rl)
 
     def insert_data(self, buffers: dict, windows: dict, batch: EnvBatch, ref_spread: jax.Array
                     ) -> tuple[dict, dict, dict[str, Any]]:

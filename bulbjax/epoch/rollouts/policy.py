@@ -21,7 +21,7 @@ import jax.numpy as jnp
 from bulbjax.config import ExperimentConfig
 from bulbjax.envs.base import EnvState
 from bulbjax.epoch.devices import Devices
-from bulbjax.epoch.observations import (Observation, WindowLatent, current_frames,
+from bulbjax.epoch.rollouts.observations import (Observation, WindowLatent, current_frames,
                                         observation_for, push_window)
 from bulbjax.epoch.seeds import Team
 from bulbjax.epoch.state import PolicyHistory, PolicyView, PolicyWindow, Rendered, history_of

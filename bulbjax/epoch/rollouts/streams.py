@@ -21,7 +21,7 @@ from bulbjax.data import replay, sequence
 from bulbjax.data.sequence import Windows
 from bulbjax.envs.base import EnvState
 from bulbjax.epoch.devices import Devices
-from bulbjax.epoch.policy import Policy
+from bulbjax.epoch.rollouts.policy import Policy
 from bulbjax.epoch.seeds import Team, buffer_key
 from bulbjax.epoch.state import PolicyHistory, Rendered
 from bulbjax.rl.ppo import PPOState
