@@ -58,7 +58,7 @@ if _cache.strip().lower() not in ("", "0", "off", "false", "no"):  # compile_cac
 COMPILE_BOUND = (
     "test_experiment.py", "test_object_probe.py", "test_recon.py", "test_rl_sequential.py",
     "test_extending.py", "test_run.py", "test_sharding.py", "test_distributed.py", "test_kill_resume.py",
-    "test_reproduce.py", "test_plugins.py",
+    "test_reproduce.py", "test_plugins.py", "test_apart.py",
 )
 
 
@@ -111,6 +111,11 @@ def pytest_unconfigure(config) -> None:
 #     loop; the pixel policy's torso), ~105 + ~80 s: test_rl_frames checks the latents of the last two
 #     frames that PPO observes, step by step, and its pixels stacked along the channels;
 #     test_contrastive runs an epoch with PPO on ST-DIM's latent; test_ppo trains a pixel torso
+#   test_experiment.py::test_the_pipelined_epoch_gives_the_plain_epochs (--overlap pipeline, probing and
+#     not, against the six-learner fixture), ~125 s: test_apart's epochs, which take the same pending
+#     keys and metrics (`RunState.pending`, `insert_data`), stay against the plain epoch
+#   test_apart.py::test_a_run_with_the_learners_apart_resumes (--overlap apart through `bulbjax run` and
+#     `--resume` in fresh processes on two CPU devices), ~95 s: the apart epochs' equivalence stays
 #   the second case of four equivalences whose first stays (each ~20-60 s, mostly its own compile):
 #     test_chunked_reset's ReacherRearrangeGeom (GeomOnIncline stays), test_sequential_learners'
 #     rnn_unroll for dsa (svae stays), test_per_seed's svae-remat (dsa-remat and svae-saved stay),

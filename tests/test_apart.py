@@ -10,6 +10,8 @@ import subprocess
 import sys
 import textwrap
 
+import pytest
+
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
 SCRIPT = textwrap.dedent("""
@@ -83,6 +85,7 @@ def test_the_learners_apart_give_the_plain_epochs(tmp_path):
     assert res["plain_where"]["learners"] == [env_dev]  # the plain run: one device for all
 
 
+@pytest.mark.slow
 def test_a_run_with_the_learners_apart_resumes(tmp_path):
     """`bulbjax run --overlap apart` as a user runs it (two devices shown to JAX on the CPU): it
     says where the learners are, checkpoints the state of both devices, resumes from it and

@@ -520,6 +520,7 @@ def test_whole_window_latent_has_the_learners_window_size(run):
         np.testing.assert_array_equal(pv.held_step_latents(ctx, context), z)
 
 
+@pytest.mark.slow
 def test_the_pipelined_epoch_gives_the_plain_epochs(run):
     """`overlap="pipeline"`: one program does epoch t's learner updates and probes and epoch t+1's
     PPO work and replay inserts. From the same init and epoch keys as the fixture's two epochs it
