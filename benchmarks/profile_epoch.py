@@ -69,8 +69,9 @@ def add_config_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--programs", default="", choices=("", "fused", "split"),
                    help="init and the epoch as one program each or several (ExperimentConfig.programs; "
                         "default: the preset's)")
-    p.add_argument("--overlap", default="", choices=("", "none", "pipeline"),
-                   help="the next epoch's PPO work beside this epoch's learner updates (ExperimentConfig.overlap; "
+    p.add_argument("--overlap", default="", choices=("", "none", "pipeline", "apart"),
+                   help="the next epoch's PPO work beside this epoch's learner updates (ExperimentConfig.overlap; apart: "
+                        "the learners on a second device, two devices visible; "
                         "default: the preset's)")
     p.add_argument("--no-shared-updates", action="store_true",
                    help="one update and probe program per frame VAE, not one for vae/vae_rpl/beta_vae "
@@ -126,7 +127,10 @@ def profile(cfg: ExperimentConfig, repeats: int, warm_epochs: int, trace_dir: st
     `program`: "flag" (what a run probing every k epochs uses: one program, `Experiment.epoch_flag`,
     whose start-up is timed as `bulbjax run` does it, init and epoch compiled side by side) or
     "static" (one specialised program per tag, compiled one after the other, as before 2026-11-25)."""
-    out: dict[str, Any] = {"phases": {}, "fused": {}, "done": False, "program": program}
+    out: dict[str, Any] = {"phases": {}, "fused": {}, "done": False, "program": program,
+                           "overlap": cfg.overlap}
+    if cfg.overlap == "apart" and program != "flag":
+        raise ValueError("--overlap apart runs its three programs as a run does: use --program flag")
     t0 = time.perf_counter()
     exp = Experiment(cfg)
     out["build_s"] = time.perf_counter() - t0
@@ -141,7 +145,7 @@ def profile(cfg: ExperimentConfig, repeats: int, warm_epochs: int, trace_dir: st
         out["split_programs"] = progs.split
         out["programs"] = progs.names
         t0 = time.perf_counter()
-        progs.prepare("init", *(("prime",) if exp.pipelined else ()))
+        progs.prepare(*progs.startup(resume=False)[:-1])  # init (and a pipelined run's prime)
         t_lower_init = time.perf_counter() - t0
         progs.prepare("epoch")
         out["lower_s"] = time.perf_counter() - t0
@@ -181,9 +185,10 @@ def profile(cfg: ExperimentConfig, repeats: int, warm_epochs: int, trace_dir: st
             if tag not in tags:
                 continue
             k = jax.random.fold_in(key, 100 + probe)
-            if program == "flag" and progs.split:  # the split programs, as a run calls them
+            if program == "flag" and (progs.split or exp.apart is not None):  # as a run calls them
                 if vopts:
-                    raise ValueError("--variant compiles the fused epoch program: use --programs fused")
+                    raise ValueError("--variant compiles the fused epoch program: use --programs fused "
+                                     "and --overlap none or pipeline")
                 compiled = functools.partial(progs.epoch, probe=probe)
                 lower_s, compile_s = out["lower_s"], out["epoch_ready_s"]
             elif program == "flag":  # one program for both tags: compiled once per variant
@@ -210,7 +215,7 @@ def profile(cfg: ExperimentConfig, repeats: int, warm_epochs: int, trace_dir: st
                 if hlo_dir:  # the executable's optimised HLO, for trace_summary's scopes
                     with open(os.path.join(hlo_dir, f"epoch_{program}_{tag}.hlo.txt"), "w") as f:
                         f.write(_hlo_text(flag_compiled if program == "flag" else compiled))
-            what = "split epoch" if out.get("split_programs") else "fused epoch"
+            what = _what(out)
             log(f"[{vname}] {what} ({tag}): lower {lower_s:.1f} s, compile {compile_s:.1f} s")
             times, get_s, rec_s, ffi = [], [], [], []
             for i in range(warm_epochs + repeats):
@@ -266,7 +271,9 @@ def profile(cfg: ExperimentConfig, repeats: int, warm_epochs: int, trace_dir: st
                 jax.block_until_ready(rs)
         out["trace_dir"] = trace_dir
 
-    if not phases:
+    if exp.apart is not None and phases:  # the phases alone would take inputs from both devices
+        log("phases one by one: not timed with --overlap apart (time them with --overlap none)")
+    if not phases or exp.apart is not None:
         out["done"] = True
         save(out)
         return out
@@ -301,6 +308,14 @@ def profile(cfg: ExperimentConfig, repeats: int, warm_epochs: int, trace_dir: st
     out["done"] = True
     save(out)
     return out
+
+
+def _what(out: dict[str, Any]) -> str:
+    """What the timed epoch is: the fused program, the split programs, or the three programs of
+    the learners apart (`ExperimentConfig.overlap`)."""
+    if out.get("overlap") == "apart":
+        return "apart epoch"
+    return "split epoch" if out.get("split_programs") else "fused epoch"
 
 
 def _hlo_text(exe: Any) -> str:
@@ -396,7 +411,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         for tag in ("probe", "no_probe"):
             if tag in rv:
                 v = rv[tag]
-                what = "split epoch" if res.get("split_programs") else "fused epoch"
+                what = _what(res)
                 print(f"[{vname}] {what} {tag:8}: lower {v['lower_s']:5.1f} s, compile {v['compile_s']:6.1f} s, "
                       f"median {v['median_s']:.3f} s, device_get {v['device_get_s'] * 1e3:.1f} ms, "
                       f"records {v['records_s'] * 1e3:.1f} ms")
