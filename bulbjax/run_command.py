@@ -79,8 +79,9 @@ def _per_gpu(args: argparse.Namespace, out: str, cfg: ExperimentConfig,
         return None
     n = local_processes.process_count(cfg.seeds, len(gpus))
     if n < len(gpus):
-        print(f"{cfg.seeds} seeds on {len(gpus)} GPUs: {n} process(es), one GPU each, "
-              f"{len(gpus) - n} GPU(s) idle (every process runs as many seeds: give --seeds a "
+        unit = "GPU pair" if cfg.overlap == "apart" else "GPU"
+        print(f"{cfg.seeds} seeds on {len(gpus)} {unit}s: {n} process(es), one {unit} each, "
+              f"{len(gpus) - n} {unit}(s) idle (every process runs as many seeds: give --seeds a "
               f"multiple of {len(gpus)} to use all)", flush=True)
     if n < 2:
         return None

@@ -157,6 +157,35 @@ def test_a_dry_run_names_the_hours_of_its_slots(tmp_path, monkeypatch) -> None:
     assert re.search(r"\nestimated: [0-9.]+ GPU-hours, .* on 2 slot\(s\)", said[0]), said[0]
 
 
+def test_learners_apart_gives_each_job_a_pair_of_devices(tmp_path, monkeypatch) -> None:
+    """`--learners-apart`: a slot per two GPUs (an odd one left over unused), two CPU devices per
+    CPU worker, one line on a host of one GPU; every job's command asks for `--overlap apart`."""
+    from bulbjax import local_processes
+    from bulbjax.reproduce import main
+
+    monkeypatch.setattr(main, "device_kind", lambda gpus: "NVIDIA H200")
+    monkeypatch.setattr(local_processes, "visible_gpus", lambda: ["0", "1", "2", "3", "4"])
+    slots, kind = main.slots_of(None, 2)
+    assert [s.gpu for s in slots] == ["0,1", "2,3"] and kind == "NVIDIA H200"
+    assert slots[0].env()["CUDA_VISIBLE_DEVICES"] == "0,1"
+    assert [s.gpu for s in main.slots_of(None)[0]] == ["0", "1", "2", "3", "4"]
+    monkeypatch.setattr(local_processes, "visible_gpus", lambda: ["0"])
+    with pytest.raises(ValueError, match="--learners-apart runs each job on 2 GPUs and this host has 1"):
+        main.slots_of(None, 2)
+    monkeypatch.setattr(local_processes, "visible_gpus", lambda: [])
+    (cpu,), _ = main.slots_of(None, 2)
+    assert "--xla_force_host_platform_device_count=2" in cpu.env()["XLA_FLAGS"]
+    summary = reproduce("fig2-cartpole", "tiny", str(tmp_path / "o"), dry_run=True, learners_apart=True,
+                        log=lambda _: None)
+    assert summary["learners_apart"] and summary["gpus"] == 1
+    from bulbjax.reproduce import jobs as J
+
+    job = plan_jobs("fig2-cartpole", "tiny")[0]
+    apart = J.command(str(tmp_path / "o"), job, 1.0, run_flags=("--overlap", "apart"))
+    assert " ".join(apart[apart.index("--overlap"):][:2]) == "--overlap apart"
+    assert "--overlap" not in J.command(str(tmp_path / "o"), job, 1.0)
+
+
 def test_the_cli_says_a_bad_shard_in_one_line(tmp_path) -> None:
     r = subprocess.run([sys.executable, "-m", "bulbjax", "reproduce", "--shard", "3/2", "--out", str(tmp_path / "o")],
                        capture_output=True, text=True, timeout=120, env=dict(os.environ, JAX_PLATFORMS="cpu"))
