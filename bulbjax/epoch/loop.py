@@ -29,11 +29,11 @@ from bulbjax.epoch.apart import Apart
 from bulbjax.epoch.devices import Devices
 from bulbjax.epoch.keys import epoch_keys, init_keys, world_keys
 from bulbjax.epoch.learning import Learning
-from bulbjax.epoch.rollouts.policy import Policy
 from bulbjax.epoch.probing import Probing, object_pixels, probe_targets
+from bulbjax.epoch.rollouts.policy import Policy
+from bulbjax.epoch.rollouts.streams import Streams
 from bulbjax.epoch.seeds import SeedGroup, Team, resolve_seed_loop, with_seed_loop
 from bulbjax.epoch.state import EnvBatch, EnvStage, PolicyHistory, RunState
-from bulbjax.epoch.rollouts.streams import Streams
 from bulbjax.eval import objects, probe
 from bulbjax.learners import make_learner
 from bulbjax.rl.ppo import PPOState

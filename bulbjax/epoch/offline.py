@@ -29,8 +29,8 @@ from bulbjax.data import sequence, synthetic
 from bulbjax.data.sequence import Trajectories, Windows
 from bulbjax.epoch.devices import Devices, make_mesh
 from bulbjax.epoch.learning import train_learner
-from bulbjax.epoch.rollouts.policy import Policy
 from bulbjax.epoch.probing import fit_and_score, probe_latents, probe_over_seeds, probe_targets
+from bulbjax.epoch.rollouts.policy import Policy
 from bulbjax.epoch.seeds import SeedGroup, Team, learner_loop, over_seeds, resolve_seed_loop, with_seed_loop
 from bulbjax.eval import probe
 from bulbjax.eval.spec import StateEntry
