@@ -12,7 +12,7 @@ import pytest
 
 LIMIT = 100
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-HELD = ("bulbjax/cli.py", "bulbjax/run_command.py", "bulbjax/epoch/rollouts/policy.py",
+HELD = ("bulbjax/cli.py", "bulbjax/run_command.py", "bulbjax/env_commands.py", "bulbjax/epoch/rollouts/policy.py",
         "bulbjax/epoch/rollouts/observations.py")
 
 
