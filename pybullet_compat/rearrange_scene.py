@@ -152,7 +152,7 @@ def rearrange_domain(name: str) -> RearrangeSpec:
 
 def reacher_mjcf_path() -> str:
     """bulbjax's reacher MJCF (`$BULBJAX_MJCF_DIR`, else the MJCF folder as
-    `bulbjax.envs.base.asset_dir` finds it: `bulbjax/mjcf_assets/` in an installed wheel, the
+    `bulbjax.envs.models.asset_dir` finds it: `bulbjax/mjcf_assets/` in an installed wheel, the
     checkout's top-level `mjcf_assets/` beside `bulbjax/` otherwise), found without importing
     bulbjax: `find_spec` of a top-level package locates it without running it."""
     folder = os.environ.get("BULBJAX_MJCF_DIR")

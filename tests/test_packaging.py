@@ -118,7 +118,7 @@ def test_mjcf_assets_at_the_top_level():
     """The design's layout: the MJCF models in the checkout's top-level `mjcf_assets/` (issue 66),
     every file an environment loads among them, none left in the old `bulbjax/envs/mjcf/`; and
     `asset_dir()` of a bulbjax imported from this checkout reads that folder."""
-    from bulbjax.envs import base
+    from bulbjax.envs import models as base
 
     assert os.path.isdir(MJCF), MJCF
     need = sorted({f for fs in _model_files().values() for f in fs})
@@ -141,7 +141,7 @@ def test_installed_wheel_makes_every_family(installed, tmp_path):
         names = [n for n in names if not n.startswith("Franka")]
         families.remove("FrankaRearrangeGeom")
     code = ("import os, sys, jax, bulbjax\n"
-            "from bulbjax.envs.base import asset_dir\n"
+            "from bulbjax.envs.models import asset_dir\n"
             f"site = os.path.realpath({installed!r})\n"
             "here = os.path.realpath(bulbjax.__file__)\n"
             "assert here.startswith(site + os.sep), here\n"

@@ -61,7 +61,8 @@ import mujoco
 import numpy as np
 from mujoco import mjx
 
-from bulbjax.envs.base import MjxPixelEnv, quiet_solver_limits
+from bulbjax.envs.base import MjxPixelEnv
+from bulbjax.envs.models import quiet_solver_limits
 from bulbjax.envs.camera import CameraConfig
 from bulbjax.envs.env_config import EnvConfig
 from bulbjax.eval.spec import StateEntry

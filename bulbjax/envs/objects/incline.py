@@ -45,7 +45,8 @@ import mujoco
 import numpy as np
 from mujoco import mjx
 
-from bulbjax.envs.base import EnvState, MjxPixelEnv, quiet_solver_limits
+from bulbjax.envs.base import EnvState, MjxPixelEnv
+from bulbjax.envs.models import quiet_solver_limits
 from bulbjax.envs.batch import finite_rows, where_tree
 from bulbjax.envs.env_config import EnvConfig
 from bulbjax.envs.objects.incline_scene import (  # noqa: F401  (the domain's constants, one import away)

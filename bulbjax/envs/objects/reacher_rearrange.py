@@ -10,7 +10,7 @@ import jax.numpy as jnp
 import numpy as np
 from mujoco import mjx
 
-from bulbjax.envs.base import asset_dir
+from bulbjax.envs.models import asset_dir
 from bulbjax.envs.camera import CameraConfig
 
 os.environ.setdefault("MUJOCO_GL", "disable")  # dm_control needs no GL context to build models
