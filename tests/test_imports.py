@@ -15,8 +15,8 @@ Layers, top to bottom (a module may import its own layer and the ones below, nev
   6. the report: `bulbjax.report.*` (records, report files, findings, figures of learners);
   5. the epoch: `bulbjax.epoch.*` (the jitted epoch and its parts, seed groups, compiled programs,
      the offline fit's programs);
-  4. what an experiment is built from: `bulbjax.config` (ExperimentConfig, RunOptions,
-     OfflineConfig, presets, config.json read back);
+  4. what an experiment is built from: `bulbjax.config` (ExperimentConfig, RunOptions, presets,
+     config.json read back) and `bulbjax.offline_config` (OfflineConfig, built on it);
   3. what an experiment is made of: `bulbjax.learners.*`, `bulbjax.envs.*`, `bulbjax.interop.*`,
      `bulbjax.gym`, and the package root `bulbjax` (`bulbjax.make`);
   2. what those use: `bulbjax.data.*` (buffers, windows, synthetic data), `bulbjax.eval.*` (probes,
@@ -43,8 +43,8 @@ ROOT = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))),
 
 # module-name prefix -> layer (the longest matching prefix wins)
 LAYERS: dict[str, int] = {
-    "bulbjax.cli": 8, "bulbjax.__main__": 8, "bulbjax.run_command": 8, "bulbjax.reproduce": 8,
-    "bulbjax.run": 7, "bulbjax.report": 6, "bulbjax.epoch": 5, "bulbjax.config": 4,
+    "bulbjax.cli": 8, "bulbjax.__main__": 8, "bulbjax.run_command": 8, "bulbjax.env_commands": 8, "bulbjax.reproduce": 8,
+    "bulbjax.run": 7, "bulbjax.report": 6, "bulbjax.epoch": 5, "bulbjax.config": 4, "bulbjax.offline_config": 4,
     "bulbjax.learners": 3, "bulbjax.envs": 3, "bulbjax.interop": 3, "bulbjax.gym": 3, "bulbjax": 3,
     "bulbjax.data": 2, "bulbjax.eval": 2, "bulbjax.rl": 2,
     "bulbjax.assets": 1, "bulbjax.compile_cache": 1, "bulbjax.distributed": 1,

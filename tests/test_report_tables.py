@@ -84,7 +84,8 @@ def test_report_redraws_an_offline_fit_folder(tmp_path, capsys):
     import json
 
     from bulbjax.cli import main
-    from bulbjax.config import OfflineConfig, preset
+    from bulbjax.config import preset
+    from bulbjax.offline_config import OfflineConfig
     from bulbjax.data import synthetic
     from bulbjax.epoch.probing import probe_targets
     from bulbjax.report.records import write_jsonl

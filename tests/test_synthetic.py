@@ -15,7 +15,8 @@ import pytest
 
 from bulbjax.data import sequence, synthetic
 from bulbjax.eval.probe import ProbeConfig, summarise
-from bulbjax.config import ExperimentConfig, OfflineConfig
+from bulbjax.config import ExperimentConfig
+from bulbjax.offline_config import OfflineConfig
 from bulbjax.epoch.offline import OfflineFit, reference_spread
 from bulbjax.run.offline import load_or_collect
 from bulbjax.learners import LearnerConfig

@@ -24,7 +24,6 @@ from typing import Any, Callable
 import jax
 import jax.numpy as jnp
 
-from bulbjax.config import OfflineConfig
 from bulbjax.data import sequence, synthetic
 from bulbjax.data.sequence import Trajectories, Windows
 from bulbjax.epoch.devices import Devices, make_mesh
@@ -35,6 +34,7 @@ from bulbjax.epoch.seeds import SeedGroup, Team, learner_loop, over_seeds, resol
 from bulbjax.eval import probe
 from bulbjax.eval.spec import StateEntry
 from bulbjax.learners import is_sequential, make_learner
+from bulbjax.offline_config import OfflineConfig
 
 
 @dataclass(frozen=True)

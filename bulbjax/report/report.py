@@ -290,7 +290,8 @@ def redraw_offline(run_dir: str, raw: dict[str, Any], figures: bool = True) -> s
     reconstruction grid needs the learners: `bulbjax fit --resume` draws it."""
     import dataclasses
 
-    from bulbjax.config import OfflineConfig, config_from_dict
+    from bulbjax.config import config_from_dict
+    from bulbjax.offline_config import OfflineConfig
     from bulbjax.data import synthetic
     from bulbjax.envs.registry import env_class
 

@@ -15,7 +15,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from bulbjax.config import OfflineConfig
+from bulbjax.offline_config import OfflineConfig
 from bulbjax.data import sequence
 from bulbjax.data.sequence import Trajectories
 from bulbjax.epoch import OfflineFit, Source, reference_spread

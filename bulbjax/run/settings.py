@@ -23,11 +23,12 @@ from __future__ import annotations
 import dataclasses
 from typing import Any, Mapping, Sequence
 
-from bulbjax.config import ExperimentConfig, OfflineConfig, RunOptions, preset as named_preset, small_config
+from bulbjax.config import ExperimentConfig, RunOptions, preset as named_preset, small_config
 from bulbjax.data import synthetic
 from bulbjax.envs import registry
 from bulbjax.learners import LearnerConfig, is_sequential_name, parse_learner_options
 from bulbjax.learners.plugins import load_learner_spec, parse_learner_list
+from bulbjax.offline_config import OfflineConfig
 from bulbjax.rl.ppo_config import parse_ppo_options
 from bulbjax.run.resume import Resume, SavedRun
 
