@@ -81,3 +81,15 @@ def check_config(config: EnvConfig) -> None:
     if not isinstance(res, (int, np.integer)) or not MIN_RES <= res <= MAX_RES:
         raise ValueError(f"resolution must be an integer side length in [{MIN_RES}, {MAX_RES}] "
                          f"(frames are square; 64 is the paper's), got {res!r}")
+
+
+def scene_versions(name: str, version: object, count: int, note: str = "") -> tuple[tuple[int, ...], bool]:
+    """The versions a scene's worlds draw from and whether they draw at random: `version` is
+    "random" (each world one of `count` at random) or one int in 0..count-1; anything else is one
+    line naming what is accepted (`note`: what some versions are). The multi-object scenes
+    (Incline, Rearrange) read `EnvConfig.version` through it."""
+    if version == "random":
+        return tuple(range(count)), True
+    if isinstance(version, (int, np.integer)) and 0 <= version < count:
+        return (int(version),), False
+    raise ValueError(f"{name}: version must be an int in 0..{count - 1}{note} or 'random', got {version!r}")

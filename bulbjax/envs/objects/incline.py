@@ -48,7 +48,7 @@ from mujoco import mjx
 from bulbjax.envs.base import EnvState, MjxPixelEnv
 from bulbjax.envs.models import quiet_solver_limits
 from bulbjax.envs.batch import finite_rows, where_tree
-from bulbjax.envs.env_config import EnvConfig
+from bulbjax.envs.env_config import EnvConfig, scene_versions
 from bulbjax.envs.objects.incline_scene import (  # noqa: F401  (the domain's constants, one import away)
     BULLET_DT, BULLET_SUBSTEPS, CAMERA, CLIP_DIST, CLIP_SPEED, EPISODE_STEPS, FALL_STEPS, FRICTION,
     GEOM_COLOURS, GEOM_PLANE_COLOUR, INCLINE_COLOURS, INCLINE_HALF, INCLINE_POS, MASS, MAX_FORCE, MAX_X,
@@ -119,15 +119,7 @@ class Incline(MjxPixelEnv):
     reset_pool_multiple = 2
 
     def __init__(self, config: EnvConfig):
-        version = config.version
-        if version == "random":
-            self.versions = tuple(range(NUM_VERSIONS))
-        elif isinstance(version, (int, np.integer)) and 0 <= version < NUM_VERSIONS:
-            self.versions = (int(version),)
-        else:
-            raise ValueError(f"{self.name}: version must be an int in 0..{NUM_VERSIONS - 1} or 'random', "
-                             f"got {version!r}")
-        self.random_version = version == "random"
+        self.versions, self.random_version = scene_versions(self.name, config.version, NUM_VERSIONS)
         super().__init__(config)
         m = self.mj_model
         # attaching a sub-model makes a frame body that carries the free joint; the object's

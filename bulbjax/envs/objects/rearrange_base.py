@@ -16,7 +16,7 @@ from mujoco import mjx
 from bulbjax.envs.base import EnvState, MjxPixelEnv
 from bulbjax.envs.models import quiet_solver_limits
 from bulbjax.envs.batch import finite_rows, where_tree
-from bulbjax.envs.env_config import EnvConfig
+from bulbjax.envs.env_config import EnvConfig, scene_versions
 from bulbjax.envs.objects.incline import _quat_mat
 from bulbjax.envs.render import SCENERY_GROUP
 from bulbjax.eval.spec import StateEntry
@@ -115,15 +115,8 @@ class Rearrange(MjxPixelEnv):
             find_ycb_dir(ycb_dir)
 
     def __init__(self, config: EnvConfig):
-        version = config.version
-        if version == "random":
-            self.versions = tuple(range(NUM_VERSIONS))
-        elif isinstance(version, (int, np.integer)) and 0 <= version < NUM_VERSIONS:
-            self.versions = (int(version),)
-        else:
-            raise ValueError(f"{self.name}: version must be an int in 0..{NUM_VERSIONS - 1} (6-11: black "
-                             f"background) or 'random', got {version!r}")
-        self.random_version = version == "random"
+        self.versions, self.random_version = scene_versions(self.name, config.version, NUM_VERSIONS,
+                                                            note=" (6-11: black background)")
         self.lists = OBJECT_LISTS[self.variant]
         self.num_objects = len(self.lists[0])
         self.slot_names, version_slots = _slots(self.lists, self.versions)
