@@ -31,7 +31,7 @@ sys.path.insert(0, REPO)
 
 from bulbjax.reproduce import estimate  # noqa: E402
 from bulbjax.reproduce.main import slots_of  # noqa: E402
-from bulbjax.reproduce.plan import Job, figure_specs  # noqa: E402
+from bulbjax.reproduce.plan import PLAN_FILE, Job, figure_specs, job_of, read_plan  # noqa: E402
 from bulbjax.reproduce.queue import Queue  # noqa: E402
 
 TABLE = os.path.join(REPO, "bulbjax", "reproduce", estimate.TIMES_FILE)
@@ -76,13 +76,18 @@ def measured(summary: dict, jobs: list[Job]) -> dict[str, dict]:
 
 
 def from_summary(path: str) -> tuple[str, dict[str, dict]]:
-    """Per-preset figures from a `bulbjax reproduce` summary.json (its jobs of one seed)."""
+    """Per-row figures from a `bulbjax reproduce` summary.json (its jobs of one seed): each job's
+    row as the estimate keys it (`estimate.timing_key`: an fp32 job's `<preset> fp32`), read
+    from the plan.json beside it; without one, the preset its id begins with."""
     with open(path) as f:
         s = json.load(f)
+    plan_path = os.path.join(os.path.dirname(os.path.abspath(path)), PLAN_FILE)
+    planned = {d["id"]: job_of(d) for d in read_plan(plan_path)["jobs"]} if os.path.exists(plan_path) else {}
     by: dict[str, list[dict]] = {}
     for jid, r in s["jobs"].items():
         if "/seed" in jid and r.get("epoch_s"):
-            by.setdefault(jid.split("/")[0], []).append(r)
+            row = estimate.timing_key(planned[jid]) if jid in planned else jid.split("/")[0]
+            by.setdefault(row, []).append(r)
     out = {p: {"epoch_s": round(statistics.median(r["epoch_s"] for r in rs), 3),
                **({"startup_cold_s": round(max(r["startup_s"] for r in rs if r.get("startup_s")))}
                   if any(r.get("startup_s") for r in rs) else {})} for p, rs in by.items()}
@@ -95,7 +100,9 @@ def write_table(kind: str, found: dict[str, dict], note: str) -> None:
         table = json.load(f)
     mine = table["kinds"].setdefault(kind, {})
     for p, e in found.items():
-        old = dict(mine.get(p, {}))
+        # a new fp32 row (`<preset> fp32`) starts from its preset's bf16 row: the fields this
+        # measurement lacks (warm start-up, a further seed) stay as that row has them
+        old = dict(mine.get(p) or mine.get(p.split(" ")[0], {}))
         old.pop("derived", None)
         mine[p] = {**old, **e, "measured": note}
     lines = ["{", f' "about": {json.dumps(table["about"])},', ' "kinds": {']

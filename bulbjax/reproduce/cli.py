@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from bulbjax.reproduce.plan import FIGURES, SCALES
+from bulbjax.reproduce.plan import ENTRIES, SCALES
 
 
 def cmd_reproduce(args: argparse.Namespace) -> int:
@@ -30,7 +30,8 @@ def add_parser(sub: argparse._SubParsersAction,
                     "again to continue unfinished jobs (finished ones are skipped).",
         formatter_class=formatter_class)
     rp.add_argument("--figures", default="all",
-                    help=f"comma-separated figures ({', '.join(FIGURES)}, all) or presets of them (e.g. fig2-ant)")
+                    help=f"comma-separated figures ({', '.join(ENTRIES)}, all) or presets of them (e.g. fig2-ant); "
+                         "fp32: Fig. 2's InvertedPendulum again without --bf16, beside its bf16 runs")
     rp.add_argument("--scale", default="paper", choices=SCALES,
                     help="paper: the paper's seeds and epochs; quick: every figure on one GPU in ~15 min; "
                          "tiny: CPU-sized, 2 epochs (tests)")

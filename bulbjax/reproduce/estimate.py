@@ -7,10 +7,15 @@ A job's cost is its start-up plus its epochs left times the preset's epoch time.
 a preset on a host starts cold (XLA compiles the programs); later ones find them in the
 persistent compile cache (`bulbjax.compile_cache`, shared by the host's processes) once the first
 has compiled, and start warm.
+
+A run job of the plan's "fp32" entry (no `--bf16`, at full size) is timed by the table's
+row `<preset> fp32` where one was measured, else by the preset's bf16 row with its epoch times
+times `FP32_EPOCH_FACTOR`, marked derived (`timing_of`; `--dry-run` says so).
 """
 
 from __future__ import annotations
 
+import dataclasses
 import heapq
 import json
 import subprocess
@@ -38,6 +43,51 @@ class Timing:
     def epoch_of(self, seeds: int) -> float:
         """Seconds per epoch of a process running `seeds` seeds."""
         return self.epoch_s + self.extra_seed_s * max(0, seeds - 1)
+
+
+# fp32 epochs over bf16 ones, until an fp32 run measures them: the learners' updates run ~2.05x
+# slower in fp32 (a VAE update, batch 1,024, H100: 150.5 against 309.3 /s, docs/performance.md)
+# and are about half of an InvertedPendulum seed's epoch (~0.23 s of ~0.46 s: "~0.29 s plus ~0.23
+# s per seed"), the rest (PPO's launch-bound rollouts, rendering) the same: ~1.5x
+FP32_EPOCH_FACTOR = 1.5
+FP32_ROW = "{preset} fp32"  # the table's key of a preset's measured fp32 times
+
+
+def is_fp32(job: Job) -> bool:
+    """Whether `job` is a run of the plan's fp32 entry at full size (no `--small`), its learners
+    in fp32 where the table's rows time bf16 ones; the CPU rows are the tiny scale's `--small`
+    runs, fp32 as measured, so a tiny fp32 job is timed as its preset."""
+    return job.kind == "run" and job.figure == "fp32" and "--bf16" not in job.flags and "--small" not in job.flags
+
+
+def timing_key(job: Job) -> str:
+    """The table row that times `job`, and the programs it compiles (a job starts warm after one
+    of the same key): "recon", `<preset> fp32` for an fp32 run (`is_fp32`), else its preset."""
+    if job.kind == "recon":
+        return "recon"
+    return FP32_ROW.format(preset=job.preset) if is_fp32(job) else job.preset
+
+
+def timing_of(job: Job, times: dict[str, Timing]) -> Timing:
+    """`job`'s times: its row (`timing_key`); for an fp32 run without a row of its own, its
+    preset's bf16 row with the epoch times x `FP32_EPOCH_FACTOR` (start-ups as they are), its
+    `derived` saying so."""
+    key = timing_key(job)
+    if key in times or key == job.preset or key == "recon":
+        return times[key]
+    t = times[job.preset]
+    return dataclasses.replace(
+        t, epoch_s=t.epoch_s * FP32_EPOCH_FACTOR, extra_seed_s=t.extra_seed_s * FP32_EPOCH_FACTOR,
+        derived=f"no {key!r} row: {job.preset}'s bf16 epoch times x FP32_EPOCH_FACTOR {FP32_EPOCH_FACTOR} "
+                "(bulbjax/reproduce/estimate.py)")
+
+
+def derived_fp32(jobs: Sequence[Job], times: dict[str, Timing]) -> list[str]:
+    """One line per fp32 row `jobs` are estimated with that the table does not hold (`timing_of`
+    derived it), for the plan's printout."""
+    keys = dict.fromkeys(timing_key(j) for j in jobs if is_fp32(j) and timing_key(j) not in times)
+    return [f"{k}: estimated, {timing_of(next(j for j in jobs if timing_key(j) == k), times).derived}"
+            for k in keys]
 
 
 def device_kind(gpus: Sequence[str] = ()) -> str:
@@ -69,7 +119,7 @@ def load_times(kind: str) -> tuple[dict[str, Timing], str]:
 def job_cost(job: Job, times: dict[str, Timing], warm: bool = False, epochs_done: int = 0) -> float:
     """Seconds `job` should hold a GPU: start-up (warm or cold) plus its epochs left at the
     epoch time of its seeds."""
-    t = times["recon" if job.kind == "recon" else job.preset]
+    t = timing_of(job, times)
     start = t.startup_warm_s if warm else t.startup_cold_s
     left = 0 if job.kind == "recon" else max(0, job.epochs - epochs_done)
     return start + left * t.epoch_of(job.seeds)
@@ -124,10 +174,10 @@ def simulate(jobs: Sequence[Job], times: dict[str, Timing], gpus: int,
             continue
         j = min(ready, key=lambda x: (max(now, end_of.get(x.after, 0.0)), todo.index(x)))
         start = max(now, end_of.get(j.after, 0.0) if j.after else now)
-        key = "recon" if j.kind == "recon" else j.preset
+        key = timing_key(j)
         warm = key in compiled and compiled[key] <= start
         cost = job_cost(j, times, warm, epochs_done.get(j.id, 0))
-        t = times[key]
+        t = timing_of(j, times)
         compiled.setdefault(key, start + (t.startup_warm_s if warm else t.startup_cold_s))
         spans[j.id] = (start, start + cost)
         end_of[j.id] = start + cost

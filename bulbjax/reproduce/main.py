@@ -20,9 +20,10 @@ from typing import Any, Callable, Sequence
 from bulbjax.config import PRESETS
 from bulbjax.reproduce import jobs as J
 from bulbjax.reproduce import results
-from bulbjax.reproduce.estimate import device_kind, fit_jobs, hms, hours_unit, job_cost, load_times, simulate
-from bulbjax.reproduce.plan import (PLAN_FILE, Job, parse_figures, parse_jobs, parse_shard, plan_differences,
-                                    plan_jobs, plan_record, read_plan, shard_of)
+from bulbjax.reproduce.estimate import (derived_fp32, device_kind, fit_jobs, hms, hours_unit, job_cost, load_times,
+                                       simulate)
+from bulbjax.reproduce.plan import (PLAN_FILE, Job, grown_from, parse_figures, parse_jobs, parse_shard,
+                                    plan_differences, plan_jobs, plan_record, read_plan, shard_of)
 from bulbjax.reproduce.queue import Queue, Slot
 from bulbjax.run import checkpoint_steps
 
@@ -83,21 +84,26 @@ def _check_ycb(jobs: Sequence[Job]) -> None:
                              "google_16k folder, or leave Fig. 5 out (--figures fig2,fig3,fig4)")
 
 
-def _open_out(out: str, record: dict, overwrite: bool, dry_run: bool) -> None:
-    """Check `out` can hold this plan: missing, empty, or holding the same plan (continued).
-    Another plan there is refused unless `overwrite`, which clears a plan's folder (and only
-    a plan's: a folder holding anything else is never deleted)."""
+def _open_out(out: str, record: dict, overwrite: bool, dry_run: bool) -> list[str]:
+    """Check `out` can hold this plan: missing, empty, or holding the same plan (continued), or
+    the plan of a former "all" that this one grows (`plan.grown_from`: its jobs kept, the ids of
+    the jobs added returned). Another plan there is refused unless `overwrite`, which clears a
+    plan's folder (and only a plan's: a folder holding anything else is never deleted)."""
     path = os.path.join(out, PLAN_FILE)
     if os.path.exists(path):
-        diff = plan_differences(read_plan(path), record)
+        saved = read_plan(path)
+        diff = plan_differences(saved, record)
         if overwrite:
             if not dry_run:
                 shutil.rmtree(out)
         elif diff:
             raise ValueError(f"{out} holds a plan made with other settings ({'; '.join(diff)}): run the same "
                              "command to continue it, or add --overwrite to start afresh (deletes its runs)")
+        else:
+            return grown_from(saved, record)
     elif os.path.isdir(out) and os.listdir(out):
         raise ValueError(f"{out} is not empty and holds no reproduce plan: give --out a new or empty folder")
+    return []
 
 
 def plan_table(out: str, jobs: Sequence[Job], times: dict, est_gpus: int) -> tuple[list[str], Any]:
@@ -171,8 +177,13 @@ def reproduce(figures: str | Sequence[str] = "all", scale: str = "paper", out: s
             raise ValueError(f"--fit-minutes {fit_minutes:g}: no unfinished job fits (the shortest needs "
                              f"{hms(shortest)} here); give more minutes")
     _check_ycb(mine)  # --dry-run too: no plan of Fig. 5 without its models; before --overwrite clears anything
-    _open_out(out, record, overwrite, dry_run)
+    grown = _open_out(out, record, overwrite, dry_run)
+    if grown:
+        joined = ", ".join(sorted({_job(all_jobs, i).figure for i in grown}))
+        log(f"{out} holds this plan as it was before {joined} joined --figures all: its "
+            f"{len(all_jobs) - len(grown)} jobs continue, {len(grown)} added")
     lines, est = plan_table(out, mine, times, len(slots))
+    lines += derived_fp32(mine, times)
     note = "" if times_kind == kind else f" (estimates of an {times_kind}: none measured on this kind yet)"
     picked = (f", {len(mine)} picked" + (f" to fit {fit_minutes:g} min" if fit_minutes else " by --jobs")
               if fit_minutes or named is not None else "")

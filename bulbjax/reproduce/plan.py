@@ -20,7 +20,15 @@ from typing import Any, Sequence
 from bulbjax.config import PRESETS
 
 SCALES = ("paper", "quick", "tiny")
-FIGURES = ("fig2", "fig3", "fig4", "fig5")
+FIGURES = ("fig2", "fig3", "fig4", "fig5")  # the paper's
+# entries of the plan beyond the paper's figures, planned by "all" with them and after them (their
+# jobs last, so a plan saved before one joined is the start of the plan with it): "fp32", Fig. 2's
+# InvertedPendulum with the learners in fp32, beside its bf16 runs (the verdicts in both)
+EXTRAS = ("fp32",)
+ENTRIES = FIGURES + EXTRAS  # what `--figures all` plans
+# "all" as it was before an entry joined it: a plan folder saved under one of these continues as
+# today's "all" while its jobs are the new plan's first jobs, unchanged (`plan_differences`)
+FORMER_ALL = (FIGURES,)
 FIG4_LEARNERS = ("vae_rpl", "svae", "pred", "dsa")  # the paper's Fig. 4 columns
 
 
@@ -43,6 +51,9 @@ class FigureSpec:
     # preset's seeds in one job, so it starts (compiles) once
     seeds_per_job: int = 1
     checkpoint_every: int = 0  # epochs between a job's checkpoints (0: about every 5 minutes)
+    # before a job's id and under runs/: an entry that runs presets of a figure again in another
+    # way ("fp32/": fp32/fig2-invpend/seed0 in runs/fp32/fig2-invpend/seed0) keeps its own
+    prefix: str = ""
 
     def epochs_for(self, preset: str) -> int:
         return dict(self.epochs_of).get(preset, self.epochs)
@@ -54,6 +65,7 @@ TITLES = {
     "fig3": "Fig. 3: SPAIR and VAE_rpl on RearrangeGeom (the paper's fixed scene)",
     "fig4": "Fig. 4: reconstructions of VAE_rpl, SVAE, PRED and DSA after long training",
     "fig5": "Fig. 5: SPAIR 4x4 and 6x6 on RearrangeYCB",
+    "fp32": "fp32: Fig. 2's InvertedPendulum with the learners in fp32, beside its bf16 runs",
 }
 
 
@@ -68,19 +80,20 @@ def figure_specs(scale: str) -> dict[str, FigureSpec]:
     epochs with the probe variants, Figs. 3 and 5 3 seeds x 1,000; bf16, probes every 10th epoch), "quick" (every figure
     on one GPU in about a quarter of an hour: 2 seeds, short runs) or "tiny" (the CPU-sized
     `--small` config, 2 seeds x 2 epochs, two learners: what the tests run). Fig. 4 has no runs
-    of its own: it is drawn from Fig. 2's seed-0 runs (`plan_jobs`)."""
+    of its own: it is drawn from Fig. 2's seed-0 runs (`plan_jobs`). "fp32" runs Fig. 2's
+    InvertedPendulum again as Fig. 2 does at the scale, without `--bf16` (`fp32_spec`)."""
     if scale not in SCALES:
         raise ValueError(f"unknown --scale {scale!r}; accepted: {', '.join(SCALES)}")
     if scale == "paper":
-        return {
+        specs = {
             "fig2": FigureSpec("fig2", TITLES["fig2"], _FIG2, 6, 1000, flags=("--bf16", *VARIANTS)),
             "fig3": FigureSpec("fig3", TITLES["fig3"], ("fig3-rearrange-geom",), 3, 1000, recon_every=250,
                                flags=("--bf16",)),
             "fig5": FigureSpec("fig5", TITLES["fig5"], ("fig5-rearrange-ycb",), 3, 1000, recon_every=250,
                                flags=("--bf16",)),
         }
-    if scale == "quick":
-        return {
+    elif scale == "quick":
+        specs = {
             "fig2": FigureSpec("fig2", TITLES["fig2"], _FIG2, 2, 60, probe_every=10, seeds_per_job=2,
                                epochs_of=(("fig2-halfcheetah", 20), ("fig2-ant", 20)), flags=("--bf16", *VARIANTS)),
             "fig3": FigureSpec("fig3", TITLES["fig3"], ("fig3-rearrange-geom",), 2, 40, probe_every=10,
@@ -88,15 +101,31 @@ def figure_specs(scale: str) -> dict[str, FigureSpec]:
             "fig5": FigureSpec("fig5", TITLES["fig5"], ("fig5-rearrange-ycb",), 2, 40, probe_every=10,
                                recon_every=40, seeds_per_job=2, flags=("--bf16",)),
         }
-    tiny = ("--small", "--learners", "vae,vae_rpl")
-    rearrange = ("--small", "--learners", "vae_rpl,spair")
-    return {
-        "fig2": FigureSpec("fig2", TITLES["fig2"], _FIG2, 2, 2, probe_every=1, flags=tiny, checkpoint_every=1),
-        "fig3": FigureSpec("fig3", TITLES["fig3"], ("fig3-rearrange-geom",), 2, 2, probe_every=1,
-                           recon_every=2, flags=rearrange, checkpoint_every=1),
-        "fig5": FigureSpec("fig5", TITLES["fig5"], ("fig5-rearrange-ycb",), 2, 2, probe_every=1,
-                           recon_every=2, flags=rearrange, checkpoint_every=1),
-    }
+    else:
+        tiny = ("--small", "--learners", "vae,vae_rpl")
+        rearrange = ("--small", "--learners", "vae_rpl,spair")
+        specs = {
+            "fig2": FigureSpec("fig2", TITLES["fig2"], _FIG2, 2, 2, probe_every=1, flags=tiny, checkpoint_every=1),
+            "fig3": FigureSpec("fig3", TITLES["fig3"], ("fig3-rearrange-geom",), 2, 2, probe_every=1,
+                               recon_every=2, flags=rearrange, checkpoint_every=1),
+            "fig5": FigureSpec("fig5", TITLES["fig5"], ("fig5-rearrange-ycb",), 2, 2, probe_every=1,
+                               recon_every=2, flags=rearrange, checkpoint_every=1),
+        }
+    return {**specs, "fp32": fp32_spec(specs["fig2"])}
+
+
+FP32_PRESETS = ("fig2-invpend",)  # the issue's "at least InvertedPendulum 6 x 1,000 in fp32"
+
+
+def fp32_spec(fig2: FigureSpec) -> FigureSpec:
+    """The "fp32" entry at a scale: Fig. 2's spec there (seeds, epochs, probes, seeds per job,
+    the probe variants) for `FP32_PRESETS`, its flags without `--bf16`, so that each claim's
+    verdict can be read in fp32 beside Fig. 2's bf16 runs of the same seeds. At the paper scale 6
+    seeds x 1,000 epochs, each seed a job; quick 2 x 60 in one job; tiny, which runs fp32 in both
+    (no `--bf16`), the same runs as Fig. 2's: a check of the page, not of the precision."""
+    return dataclasses.replace(fig2, name="fp32", title=TITLES["fp32"], presets=FP32_PRESETS, epochs_of=(),
+                               epochs=fig2.epochs_for(FP32_PRESETS[0]),
+                               flags=tuple(f for f in fig2.flags if f != "--bf16"), prefix="fp32/")
 
 
 @dataclass(frozen=True)
@@ -125,14 +154,15 @@ class Job:
 
 
 def parse_figures(text: str | Sequence[str]) -> tuple[str, ...]:
-    """`--figures fig2,fig5` or preset names (`fig2-cartpole`): the figures and presets asked
-    for, each checked; "all" (or empty) is every figure."""
+    """`--figures fig2,fig5` or preset names (`fig2-cartpole`), or an entry beyond the paper's
+    figures (`fp32`): the entries and presets asked for, each checked; "all" (or empty) is every
+    entry (`ENTRIES`)."""
     items = [t.strip() for t in (text.split(",") if isinstance(text, str) else text) if t.strip()]
     if not items or items == ["all"]:
-        return FIGURES
-    bad = [t for t in items if t not in FIGURES and t not in PRESETS]
+        return ENTRIES
+    bad = [t for t in items if t not in ENTRIES and t not in PRESETS]
     if bad:
-        raise ValueError(f"unknown figure(s) {', '.join(bad)}; accepted: {', '.join(FIGURES)}, all, or a "
+        raise ValueError(f"unknown figure(s) {', '.join(bad)}; accepted: {', '.join(ENTRIES)}, all, or a "
                          f"preset of one ({', '.join(p for p in PRESETS if p != 'fig3-rearrange-geom-random')})")
     return tuple(dict.fromkeys(items))
 
@@ -143,7 +173,8 @@ def plan_jobs(figures: Sequence[str], scale: str, add_learners: Sequence[str] = 
     order. `add_learners`: learner specs (`name` or `pkg.module:Name`) run beside each preset's
     own learners in every run job. `learners_of`: each preset's learners (default: the preset's);
     the tiny scale's `--learners` flag replaces them. Fig. 4 adds one recon job per Fig. 2 domain
-    planned, reading that domain's seed-0 run, and plans those seed-0 runs if Fig. 2 is not."""
+    planned, reading that domain's seed-0 run, and plans those seed-0 runs if Fig. 2 is not. The
+    jobs of the entries beyond the paper's figures (`EXTRAS`) come last, after Fig. 4's."""
     specs = figure_specs(scale)
     wanted = parse_figures(figures)
     runs: dict[tuple[str, str], None] = {}  # (figure, preset), ordered
@@ -154,7 +185,7 @@ def plan_jobs(figures: Sequence[str], scale: str, add_learners: Sequence[str] = 
             fig = next((f for f, s in specs.items() if w in s.presets), None)
             if fig is None:
                 raise ValueError(f"preset {w} is in no figure of the plan; accepted: "
-                                 f"{', '.join(p for s in specs.values() for p in s.presets)}")
+                                 f"{', '.join(dict.fromkeys(p for s in specs.values() for p in s.presets))}")
             runs[(fig, w)] = None
     fig4_presets: list[str] = []
     if "fig4" in wanted:  # the Fig. 2 domains planned, or all four when Fig. 4 comes alone
@@ -162,7 +193,8 @@ def plan_jobs(figures: Sequence[str], scale: str, add_learners: Sequence[str] = 
         fig4_presets = planned or list(specs["fig2"].presets)
     jobs: list[Job] = []
     for fig, preset in runs:
-        jobs += _run_jobs(specs[fig], preset, add_learners, learners_of)
+        if fig not in EXTRAS:
+            jobs += _run_jobs(specs[fig], preset, add_learners, learners_of)
     fig2 = specs["fig2"]
     for preset in fig4_presets:
         first = _run_jobs(fig2, preset, add_learners, learners_of)[0]  # the job of seed 0
@@ -170,6 +202,9 @@ def plan_jobs(figures: Sequence[str], scale: str, add_learners: Sequence[str] = 
             jobs.append(first)
         jobs.append(Job(f"fig4/{preset}", "fig4", "recon", preset, 0, first.epochs, f"fig4/{preset}",
                         after=first.id))
+    for fig, preset in runs:  # the entries beyond the paper's figures last (`EXTRAS`)
+        if fig in EXTRAS:
+            jobs += _run_jobs(specs[fig], preset, add_learners, learners_of)
     return jobs
 
 
@@ -181,8 +216,8 @@ def _run_jobs(s: FigureSpec, preset: str, add_learners: Sequence[str],
     for first in range(0, s.seeds, s.seeds_per_job):
         n = min(s.seeds_per_job, s.seeds - first)
         name = f"seed{first}" if n == 1 else f"seeds{first}-{first + n - 1}"
-        out.append(Job(f"{preset}/{name}", s.name, "run", preset, first, s.epochs_for(preset),
-                       f"runs/{preset}/{name}", s.probe_every, s.recon_every, flags, seeds=n,
+        out.append(Job(f"{s.prefix}{preset}/{name}", s.name, "run", preset, first, s.epochs_for(preset),
+                       f"runs/{s.prefix}{preset}/{name}", s.probe_every, s.recon_every, flags, seeds=n,
                        checkpoint_every=s.checkpoint_every))
     return out
 
@@ -235,8 +270,11 @@ def shard_of(jobs: Sequence[Job], cost: dict[str, float], n: int) -> dict[str, i
     """Each job's shard (0..n-1), balanced by estimated cost: longest first, each to the shard
     with the least work so far (ties: the lowest shard, then the job's place in the plan), a
     Fig. 4 job with the run it reads. Depends only on the plan and the estimates, so every host
-    of a sharded plan computes the same split."""
-    order = sorted((j for j in jobs if j.after is None), key=lambda j: (-cost[j.id], jobs.index(j)))
+    of a sharded plan computes the same split. The jobs of `EXTRAS` are placed after all others,
+    so the paper's figures' jobs keep the shards they had in a plan without them (a sharded plan
+    saved before an entry joined "all" continues with each host's jobs where they were)."""
+    order = sorted((j for j in jobs if j.after is None),
+                   key=lambda j: (j.figure in EXTRAS, -cost[j.id], jobs.index(j)))
     load = [0.0] * n
     out: dict[str, int] = {}
     for j in order:
@@ -285,8 +323,25 @@ def plan_record(figures: Sequence[str], scale: str, add_learners: Sequence[str],
 
 
 def plan_differences(saved: dict, new: dict) -> list[str]:
-    """What differs between a saved plan and a new one, as 'field: saved X, given Y'."""
-    return [f"{k}: saved {saved.get(k)!r}, given {new.get(k)!r}" for k in IDENTITY if saved.get(k) != new.get(k)]
+    """What differs between a saved plan and a new one, as 'field: saved X, given Y'. A plan saved
+    as a former "all" (`FORMER_ALL`, e.g. before the fp32 entry joined) is today's "all" when its
+    jobs are the new plan's first ones unchanged (`grown_from`): the same plan, grown."""
+    return [f"{k}: saved {saved.get(k)!r}, given {new.get(k)!r}" for k in IDENTITY
+            if saved.get(k) != new.get(k) and not (k == "figures" and grown_from(saved, new))]
+
+
+def grown_from(saved: dict, new: dict) -> list[str]:
+    """The ids of the jobs `new` adds to `saved` when `new` is "all" and `saved` a plan of a
+    former "all" whose jobs are `new`'s first jobs, each the same (id, folder, flags, seeds,
+    epochs: every field); [] otherwise. A plan folder of the campaign made before an entry joined
+    "all" so continues (its runs kept) with the entry's jobs added at its end."""
+    if tuple(saved.get("figures", ())) not in FORMER_ALL or tuple(new.get("figures", ())) != ENTRIES:
+        return []
+    old = [job_of(d) for d in saved.get("jobs", [])]
+    jobs = [job_of(d) for d in new.get("jobs", [])]
+    if not old or jobs[:len(old)] != old:
+        return []
+    return [j.id for j in jobs[len(old):]]
 
 
 def read_plan(path: str) -> dict:

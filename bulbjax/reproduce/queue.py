@@ -23,7 +23,7 @@ from dataclasses import dataclass, field
 from typing import Callable, Sequence
 
 from bulbjax.reproduce import jobs as J
-from bulbjax.reproduce.estimate import Timing, hms, queue_order, simulate
+from bulbjax.reproduce.estimate import Timing, hms, queue_order, simulate, timing_of
 from bulbjax.reproduce.plan import Job
 
 ATTEMPTS = 2  # a failed job is retried once
@@ -165,9 +165,9 @@ class Queue:
                 break
             t = ready[0]
             if self.deadline is not None:
-                key = "recon" if t.job.kind == "recon" else t.job.preset
                 left = self.deadline - time.monotonic()
-                if left < self.times[key].startup_warm_s + 60:  # it would stop before its first epochs
+                # it would stop before its first epochs
+                if left < timing_of(t.job, self.times).startup_warm_s + 60:
                     continue
             self._launch(t, slot)
             started = True
@@ -175,12 +175,11 @@ class Queue:
 
     def _launch(self, t: Track, slot: Slot) -> None:
         job = t.job
-        key = "recon" if job.kind == "recon" else job.preset
         minutes = 0.0
         if self.deadline is not None:
             minutes = max(0.5, (self.deadline - time.monotonic()) / 60.0)
         source = self.by_id.get(job.after) if job.after else None
-        cmd = J.command(self.out, job, self.times[key].epoch_s, minutes, source,
+        cmd = J.command(self.out, job, timing_of(job, self.times).epoch_s, minutes, source,
                         self.learners_of(source) if source else (), self.run_flags)
         os.makedirs(os.path.join(self.out, "logs"), exist_ok=True)
         logf = open(self._log_path(job), "a")
