@@ -1,9 +1,12 @@
 """`bulbjax reproduce`'s fp32 entry (the issue's "fp32 column: at least InvertedPendulum 6 x 1,000
-in fp32 beside its bf16 run"): its jobs beside Fig. 2's without colliding, its estimate, and a
-campaign folder planned before it continuing with it. Plans only: nothing here runs `bulbjax run`."""
+in fp32 beside its bf16 run"): its jobs beside Fig. 2's without colliding, its estimate, a campaign
+folder planned before it continuing with it, and the results page's comparison of each claim's
+verdict in bf16 and in fp32, from the two merged runs' findings. Plans only and synthetic run
+folders: nothing here runs `bulbjax run`."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 import re
@@ -11,12 +14,15 @@ import shutil
 
 import pytest
 
-from bulbjax.reproduce import estimate, plan
+from bulbjax.config import ExperimentConfig
+from bulbjax.report import records
+from bulbjax.reproduce import claims, estimate, plan, results
 from bulbjax.reproduce.main import reproduce
-from bulbjax.reproduce.plan import plan_jobs
+from bulbjax.reproduce.plan import Job, plan_jobs
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 CAMPAIGN = os.path.join(ROOT, "docs", "results", "paper_h200", "plan.json")  # read, never written
+REPLAY = "replay fixes VAE_v0 on π_rand (vae_rpl's error below vae's)"
 
 
 @pytest.mark.parametrize("scale", plan.SCALES)
@@ -112,3 +118,90 @@ def test_fp32_jobs_are_estimated_slower_and_say_how(tmp_path) -> None:
     with pytest.raises(ValueError, match="--jobs: fig2-invpend/seed0 not in this plan"):
         plan.parse_jobs("fig2-invpend/seed0", plan_jobs("fp32", "paper"))
 
+
+def _synthetic_job_run(out: str, job: Job, vae_rpl: float, dtype: str, env: str = "InvertedPendulum") -> None:
+    """`job`'s run folder as `bulbjax run` leaves it (config.json, metrics.jsonl) with synthetic
+    probed epochs: vae's normalised error 0.5 on every stream and group, vae_rpl's `vae_rpl` (+ the
+    seed / 100), its learners in `dtype`."""
+    cfg = ExperimentConfig(env=env, learners=("vae", "vae_rpl"), seeds=job.seeds, epochs=job.epochs)
+    cfg = cfg.replace(learner=dataclasses.replace(cfg.learner, compute_dtype=dtype))
+    path = os.path.join(out, job.run_dir)
+    os.makedirs(path)
+    with open(os.path.join(path, "config.json"), "w") as f:
+        json.dump({"experiment": dataclasses.asdict(cfg), "run": {"seed": job.seed, "probe_every": 1}}, f)
+
+    def stream(x: float) -> dict:
+        return {"overall": {"mae_norm": x, "baseline_norm": 1.4},
+                "groups": {"position": {"mae_norm": x, "baseline_norm": 1.5},
+                           "velocity": {"mae_norm": x, "baseline_norm": 1.2}}}
+
+    x = vae_rpl + job.seed / 100
+    records.write_jsonl(os.path.join(path, "metrics.jsonl"), [
+        {"epoch": e, "seed": 0, "rl_return": 10.0 * (e + 1),
+         "probes": {"vae": {"curr": stream(0.5), "rand": stream(0.5)},
+                    "vae_rpl": {"curr": stream(x), "rand": stream(x)}}}
+        for e in range(job.epochs)])
+
+
+def test_the_results_page_compares_the_verdicts_of_the_two_merged_runs(tmp_path) -> None:
+    """A tiny plan of Fig. 2's InvertedPendulum and the fp32 entry, its runs synthetic: in bf16
+    vae_rpl's error is below vae's (replay fixes VAE_v0 holds), in fp32 above (does not hold). The
+    page has the fp32 runs' merged section and a comparison whose rows are the two merged
+    findings.md's verdicts; with an fp32 seed unfinished, one line says so."""
+    out = str(tmp_path / "plan")
+    jobs = plan_jobs("fig2-invpend,fp32", "tiny")
+    assert [j.id for j in jobs] == ["fig2-invpend/seed0", "fig2-invpend/seed1",
+                                    "fp32/fig2-invpend/seed0", "fp32/fig2-invpend/seed1"]
+    for j in jobs:
+        bf16 = j.figure == "fig2"
+        _synthetic_job_run(out, j, 0.3 if bf16 else 0.7, "bfloat16" if bf16 else "float32")
+    with open(os.path.join(out, plan.PLAN_FILE), "w") as f:
+        json.dump(plan.plan_record(["fig2-invpend", "fp32"], "tiny", [], jobs), f)
+
+    page = open(results.write(out)).read()
+    fp32_part = page[page.index(f"## {plan.TITLES['fp32']}"):]
+    assert "### fp32/fig2-invpend: 2 seeds x 2 epochs" in fp32_part and "(fp32/fig2-invpend/fig2.png)" in fp32_part
+    rows = {f: claims.findings_rows(os.path.join(out, f, "fig2-invpend")) for f in ("fig2", "fp32")}
+    assert rows["fig2"][REPLAY][0] == "holds" and rows["fp32"][REPLAY][0] == "does not hold"
+    compared = fp32_part[fp32_part.index("### fig2-invpend: the claims in bf16 and in fp32"):]
+    table = [ln for ln in compared.splitlines() if ln.startswith("| ")]
+    assert table[0] == ("| claim (paper, Fig. 2) | Fig. 2 runs (bfloat16 learners) | fp32 runs (float32 learners) "
+                        "| same verdict |")
+    body = {ln.split(" | ")[0][2:]: ln for ln in table[1:]}
+    assert body[REPLAY] == (f"| {REPLAY} | {claims.cell(*rows['fig2'][REPLAY])} | "
+                            f"{claims.cell(*rows['fp32'][REPLAY])} | **no** |")
+    # every row a claim of the paper this domain tests, as both findings give it
+    shown = {c for r in rows.values() for c, (v, _) in r.items()} - {
+        c for c in rows["fig2"] if "beyond the paper" in c
+        or all(r.get(c, ("not tested",))[0].startswith("not tested") for r in rows.values())}
+    assert set(body) == shown and REPLAY in shown
+    for c in shown:
+        cells = [claims.cell(*r[c]) if c in r else "-" for r in rows.values()]
+        assert body[c].startswith(f"| {c} | {cells[0]} | {cells[1]} | ")
+
+    os.remove(os.path.join(out, "runs", "fp32", "fig2-invpend", "seed1", "metrics.jsonl"))
+    page = open(results.write(out)).read()
+    assert ("Not compared yet: the fp32 entry's runs (1 of 2 jobs finished) unfinished; compared once "
+            "both sides are merged.") in page
+    assert "| claim (paper, Fig. 2) | Fig. 2 runs" not in page
+
+
+def test_the_probe_protocol_table_takes_the_fp32_run_of_its_domain(tmp_path) -> None:
+    """The Fig. 2 protocol table (over the merged runs with the probe variants) gets the fp32
+    entry's merged run of the same domain as its "fp32 run" column, `bulbjax report
+    --probe-protocol --fp32`'s own table; an fp32 run of a domain without such a run is left out,
+    not an error. (The committed InvertedPendulum run stands in for both sides.)"""
+    from bulbjax.report.protocol import probe_protocol_table
+
+    run = os.path.join(ROOT, "docs", "results", "fig2_invpend_variants_2xh200")
+    merged, fp32 = tmp_path / "out" / "fig2" / "fig2-invpend", tmp_path / "out" / "fp32" / "fig2-invpend"
+    shutil.copytree(run, merged)
+    shutil.copytree(run, fp32)
+    other = tmp_path / "out" / "fp32" / "fig2-cartpole"
+    _synthetic_job_run(str(other), Job("c/seed0", "fp32", "run", "fig2-cartpole", 0, 2, "."), 0.3, "float32",
+                       env="CartPole")
+    results._protocol_section(str(tmp_path / "out"), [str(merged)], [str(fp32), str(other)])
+    table = (tmp_path / "out" / results.PROTOCOL_DIR / "table.md").read_text()
+    assert table == probe_protocol_table([str(merged)], [str(fp32)])
+    head = next(ln for ln in table.splitlines() if ln.startswith("| claim"))
+    assert head.endswith("| raw MAE | fp32 run |") and "CartPole" not in table

@@ -3,7 +3,8 @@
 (`results.md`) over every figure: the figures, every claim's verdict with its band, the PPO
 returns per seed, each preset's table. Written at the end of `bulbjax reproduce` and by
 `bulbjax report OUT` on a plan's folder, from the runs' own metrics, so it can be redrawn at any
-time and never says what the runs do not."""
+time and never says what the runs do not. The plan's fp32 entry adds its merged runs and a table
+of each claim's verdict in bf16 (Fig. 2's runs) beside fp32, read from both merged findings.md."""
 
 from __future__ import annotations
 
@@ -16,9 +17,10 @@ from typing import Any, Sequence
 import numpy as np
 
 from bulbjax.report import band, ci90, last_returns, merge_seeds, metrics_path, probed, read_jsonl, redraw
+from bulbjax.reproduce import claims
 from bulbjax.reproduce import jobs as J
 from bulbjax.reproduce.estimate import hms, hours_unit
-from bulbjax.reproduce.plan import PLAN_FILE, TITLES, Job, job_of, read_plan
+from bulbjax.reproduce.plan import ENTRIES, PLAN_FILE, TITLES, Job, job_of, read_plan
 
 PAGE = "results.md"
 PROTOCOL_DIR = "probe_protocol"  # the Fig. 2 claims under the probe variants, across domains
@@ -117,16 +119,21 @@ def write(out: str, summary: dict[str, Any] | None = None, out_name: str | None 
                      f"{busy / 3600:.2f} {hours_unit(stretches[-1].get('device_kind', ''))}.")
     lines.append("")
     by_preset = runs_by_preset(jobs)
-    for fig in ("fig2", "fig3", "fig4", "fig5"):
+    merged = {k: merge(out, *k, seeds) for k, seeds in by_preset.items()}  # None: a seed unfinished
+    for fig in ENTRIES:
         mine = {p: s for (f, p), s in by_preset.items() if f == fig}
         recon = [j for j in jobs if j.figure == fig and j.kind == "recon"]
         if not mine and not recon:
             continue
         lines += [f"## {TITLES[fig]}", ""]
         for preset, seeds in mine.items():
-            lines += _preset_section(out, fig, preset, seeds)
+            lines += _preset_section(out, fig, preset, seeds, merged[(fig, preset)])
         if fig == "fig2":
-            lines += _protocol_section(out, [merged_dir(out, fig, p) for p in mine])
+            lines += _protocol_section(out, [merged_dir(out, fig, p) for p in mine],
+                                       [d for (f, _), d in merged.items() if f == "fp32" and d])
+        if fig == "fp32":
+            for preset, seeds in mine.items():
+                lines += precision_section(out, preset, by_preset.get(("fig2", preset), []), seeds)
         for j in recon:
             pngs = sorted(glob.glob(os.path.join(glob.escape(J.job_dir(out, j)), "recon_*.png")))
             if pngs:
@@ -140,10 +147,12 @@ def write(out: str, summary: dict[str, Any] | None = None, out_name: str | None 
     return path
 
 
-def _preset_section(out: str, fig: str, preset: str, seeds: Sequence[Job]) -> list[str]:
+def _preset_section(out: str, fig: str, preset: str, seeds: Sequence[Job], dest: str | None) -> list[str]:
+    """One preset's section: its merged runs (`dest`, from `merge`; None while a seed is
+    unfinished) as figure, findings, PPO returns and links."""
     done = sum(J.is_done(out, j) for j in seeds)
-    head = f"### {preset}: {sum(j.seeds for j in seeds)} seeds x {seeds[0].epochs} epochs"
-    dest = merge(out, fig, preset, seeds)
+    name = seeds[0].id.rsplit("/", 1)[0]  # the preset, after its entry's prefix (fp32/fig2-invpend)
+    head = f"### {name}: {sum(j.seeds for j in seeds)} seeds x {seeds[0].epochs} epochs"
     if dest is None:
         return [head, "", f"{done} of {len(seeds)} jobs finished: their seeds are merged once all are.", ""]
     rel = os.path.relpath(dest, out)
@@ -160,9 +169,11 @@ def _preset_section(out: str, fig: str, preset: str, seeds: Sequence[Job]) -> li
     return lines
 
 
-def _protocol_section(out: str, dirs: Sequence[str]) -> list[str]:
+def _protocol_section(out: str, dirs: Sequence[str], fp32: Sequence[str] = ()) -> list[str]:
     """The Fig. 2 claims under each probe variant, over the merged runs that carry the variants
-    (`bulbjax report --probe-protocol`), into OUT/probe_protocol/table.md; nothing without them."""
+    (`bulbjax report --probe-protocol`), into OUT/probe_protocol/table.md; nothing without them.
+    `fp32`: the fp32 entry's merged runs; each one of a domain among those runs is its "fp32 run"
+    column (`bulbjax report --probe-protocol --fp32`)."""
     from bulbjax.config import read_run_config
     from bulbjax.report import probe_protocol_table
 
@@ -170,13 +181,56 @@ def _protocol_section(out: str, dirs: Sequence[str]) -> list[str]:
             and read_run_config(d)[0].probe_variants]
     if not runs:
         return []
+    envs = {read_run_config(d)[0].env for d in runs}
     dest = os.path.join(out, PROTOCOL_DIR)
-    probe_protocol_table(runs, out_dir=dest)
+    probe_protocol_table(runs, [d for d in fp32 if read_run_config(d)[0].env in envs], out_dir=dest)
     rel = os.path.relpath(os.path.join(dest, "table.md"), out)
     return ["### The Fig. 2 claims under the probe protocol's variants", "",
             f"Is a verdict the latent's or the probe's? Every claim of every domain above with the "
             f"present probe, a common probe set, the sequential learners' whole window and raw MAE: "
             f"[{rel}]({rel}) (docs/probes.md, \"Variants of the protocol\").", ""]
+
+
+SAME_CLAIMS_DROP = ("beyond the paper",)  # rows of findings.md that are not the paper's claims
+
+
+def precision_section(out: str, preset: str, bf16: Sequence[Job], fp32: Sequence[Job]) -> list[str]:
+    """`preset`'s claims in bf16 (its Fig. 2 jobs, `bf16`) beside fp32 (the fp32 entry's jobs,
+    `fp32`): a row per claim of the paper this domain tests, each cell that side's verdict and
+    bands as its merged findings.md says them (`claims.findings_rows`, `claims.cell`: the rows the
+    sections above show, computed once by `bulbjax report`), and whether the two agree. One line
+    while a side is unfinished or the plan has no Fig. 2 runs of the preset."""
+    from bulbjax.config import read_run_config
+
+    lines = [f"### {preset}: the claims in bf16 and in fp32", ""]
+    if not bf16:
+        return lines + [f"Not compared: the plan has no Fig. 2 runs of {preset} (plan them too: "
+                        f"--figures fig2,fp32 or {preset},fp32).", ""]
+    sides = (("Fig. 2's", "fig2", bf16), ("the fp32 entry's", "fp32", fp32))
+    waiting = [f"{name} runs ({sum(J.is_done(out, j) for j in jobs)} of {len(jobs)} jobs finished)"
+               for name, _, jobs in sides if not all(J.is_done(out, j) for j in jobs)]
+    if waiting:
+        return lines + [f"Not compared yet: {' and '.join(waiting)} unfinished; compared once both "
+                        "sides are merged.", ""]
+    dirs = [merged_dir(out, fig, preset) for _, fig, _ in sides]
+    rows = [claims.findings_rows(d) for d in dirs]
+    dtypes = [read_run_config(d)[0].learner.compute_dtype for d in dirs]
+    names = [c for c in dict.fromkeys(k for r in rows for k in r)
+             if not any(x in c for x in SAME_CLAIMS_DROP)
+             and not all(r.get(c, ("not tested",))[0].startswith("not tested") for r in rows)]
+    lines += [f"| claim (paper, Fig. 2) | Fig. 2 runs ({dtypes[0]} learners) | fp32 runs ({dtypes[1]} learners) | "
+              "same verdict |", "|---|---|---|---|"]
+    same = 0
+    for c in names:
+        a, b = (r.get(c) for r in rows)
+        agree = a is not None and b is not None and a[0] == b[0]
+        same += agree
+        lines.append(f"| {c} | {claims.cell(*a) if a else '-'} | {claims.cell(*b) if b else '-'} | "
+                     f"{'yes' if agree else '**no**'} |")
+    rels = [os.path.relpath(os.path.join(d, "findings.md"), out) for d in dirs]
+    lines += ["", f"{same} of {len(names)} verdicts the same; each cell from [{rels[0]}]({rels[0]}) and "
+              f"[{rels[1]}]({rels[1]}) (the sections above).", ""]
+    return lines
 
 
 def _summary_line(s: dict[str, Any]) -> str:
