@@ -81,6 +81,9 @@ def from_summary(path: str) -> tuple[str, dict[str, dict]]:
     from the plan.json beside it; without one, the preset its id begins with."""
     with open(path) as f:
         s = json.load(f)
+    if (s.get("jobs_per_gpu") or 1) > 1:
+        raise SystemExit(f"{path}: its jobs ran {s['jobs_per_gpu']} to a GPU (--jobs-per-gpu), so their epoch "
+                         "times are not one job's alone: give the summary of a stretch of one job per GPU")
     plan_path = os.path.join(os.path.dirname(os.path.abspath(path)), PLAN_FILE)
     planned = {d["id"]: job_of(d) for d in read_plan(plan_path)["jobs"]} if os.path.exists(plan_path) else {}
     by: dict[str, list[dict]] = {}

@@ -410,3 +410,46 @@ def test_a_job_brought_back_without_its_checkpoints_counts_as_done(tmp_path) -> 
     with gzip.open(d / "metrics.jsonl.gz", "wt") as f:
         f.write("\n".join(json.dumps({"epoch": e, "seed": 0}) for e in range(2)) + "\n")
     assert J.epochs_done(str(tmp_path), job) == 0 and not J.is_done(str(tmp_path), job)
+
+
+def test_jobs_per_gpu_shares_each_gpu_and_counts_it_once(tmp_path, monkeypatch) -> None:
+    """`--jobs-per-gpu 3`: three slots per GPU on its CUDA device, each with a third of JAX's
+    memory (a user's XLA_PYTHON_CLIENT_MEM_FRACTION wins); each job's epochs estimated slower by
+    the measured gain, the plan's GPU-hours counted per GPU; refused beside --learners-apart and
+    on a host without GPUs; the page's GPU time divides a shared stretch's slot time by 3."""
+    from bulbjax import local_processes
+    from bulbjax.reproduce import estimate, main, results
+
+    monkeypatch.setattr(main, "device_kind", lambda gpus: "NVIDIA H200")
+    monkeypatch.setattr(local_processes, "visible_gpus", lambda: ["0", "1"])
+    monkeypatch.delenv("XLA_PYTHON_CLIENT_MEM_FRACTION", raising=False)
+    slots, _ = main.slots_of(None, 1, 3)
+    assert [s.gpu for s in slots] == ["0"] * 3 + ["1"] * 3 and len({s.name for s in slots}) == 6
+    assert slots[0].env()["XLA_PYTHON_CLIENT_MEM_FRACTION"] == "0.250"
+    monkeypatch.setenv("XLA_PYTHON_CLIENT_MEM_FRACTION", "0.2")
+    assert slots[0].env()["XLA_PYTHON_CLIENT_MEM_FRACTION"] == "0.2"
+    assert main.slots_of(None)[0][0].mem_fraction is None  # one job per GPU: JAX's own default
+    with pytest.raises(ValueError, match="use one of them"):
+        main.slots_of(None, 2, 3)
+    times, _ = estimate.load_times("NVIDIA H200")
+    shared = estimate.shared_times(times, 3)
+    assert shared["fig2-cartpole"].epoch_s == pytest.approx(times["fig2-cartpole"].epoch_s * 3 / estimate.SHARED_GAIN)
+    assert estimate.shared_times(times, 1) is times
+    one = reproduce("fig2-cartpole", "paper", str(tmp_path / "a"), dry_run=True, log=lambda _: None)
+    three = reproduce("fig2-cartpole", "paper", str(tmp_path / "b"), dry_run=True, jobs_per_gpu=3,
+                      log=lambda _: None)
+    assert three["gpus"] == 2 and three["jobs_per_gpu"] == 3
+    # the same seed-epochs on the same two GPUs: fewer GPU-hours by the gain (start-ups aside)
+    assert three["estimated_gpu_s"] < one["estimated_gpu_s"]
+    monkeypatch.setattr(local_processes, "visible_gpus", lambda: [])
+    with pytest.raises(ValueError, match="no GPU"):
+        main.slots_of(None, 1, 3)
+    out = tmp_path / "page"
+    out.mkdir()
+    for name, per in (("summary_a.json", 3), ("summary_b.json", 1)):
+        rec = {"jobs_per_gpu": per, "busy_s": 3000.0 if per == 3 else 600.0, "finished_utc": name,
+               "jobs": {f"j{name}": {"attempts": 1, "busy_s": 900.0}}}
+        (out / name).write_text(json.dumps(rec))
+    ran = results.job_times(str(out))
+    assert ran["jsummary_a.json"]["busy_s"] == pytest.approx(300.0)
+    assert ran["jsummary_b.json"]["busy_s"] == pytest.approx(900.0)

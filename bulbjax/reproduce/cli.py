@@ -13,7 +13,8 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
     summary = reproduce(args.figures, args.scale, args.out, gpus=args.gpus, shard=args.shard,
                         add_learners=args.add_learner or (), dry_run=args.dry_run, overwrite=args.overwrite,
                         max_minutes=args.max_minutes, progress_every=args.progress_every, jobs=args.jobs,
-                        fit_minutes=args.fit_minutes, learners_apart=args.learners_apart)
+                        fit_minutes=args.fit_minutes, learners_apart=args.learners_apart,
+                        jobs_per_gpu=args.jobs_per_gpu)
     return 1 if summary.get("failed") else 0
 
 
@@ -53,6 +54,10 @@ def add_parser(sub: argparse._SubParsersAction,
     rp.add_argument("--learners-apart", action="store_true",
                     help="each job on two GPUs, its learners on the second beside its PPO work on the first "
                          "(bulbjax run --overlap apart: the same numbers)")
+    rp.add_argument("--jobs-per-gpu", type=int, default=1, metavar="N",
+                    help="N jobs side by side on each GPU, each its own process with 0.75/N of its memory: one "
+                         "job's launch-bound rollouts beside another's learners (3 on one H200: 1.14x the "
+                         "seed-epochs of one job at a time)")
     rp.add_argument("--add-learner", action="append", metavar="SPEC",
                     help="a learner of your own (pkg.module:Name, docs/extending.md) run beside the paper's in "
                          "every figure; repeatable (default: none)")

@@ -82,6 +82,30 @@ def timing_of(job: Job, times: dict[str, Timing]) -> Timing:
                 "(bulbjax/reproduce/estimate.py)")
 
 
+# Jobs side by side on one GPU (`--jobs-per-gpu N`, N > 1): measured at N = 3 on one H200
+# (2026-11-29, fig2-cartpole seeds 3 and 4 and fig2-invpend seed 0, each its own process): 1.076-
+# 1.080 s per epoch each against 0.408-0.414 s alone, so the GPU did 1.14x the seed-epochs of one
+# job (it was 99% busy); start-up 283-286 s against 186 s alone on a fresh machine (three
+# compiles side by side). Other N are taken at the same gain (an estimate, said in --dry-run).
+SHARED_GAIN = 1.14
+SHARED_STARTUP = 1.53
+
+
+def shared_times(times: dict[str, Timing], jobs_per_gpu: int) -> dict[str, Timing]:
+    """The table's times for a job running beside `jobs_per_gpu - 1` others on its GPU: its
+    epochs `jobs_per_gpu / SHARED_GAIN` times as long, its start-ups `SHARED_STARTUP` times
+    (measured at 3 jobs per GPU); unchanged for 1."""
+    if jobs_per_gpu <= 1:
+        return times
+    slow = jobs_per_gpu / SHARED_GAIN
+    note = f"{jobs_per_gpu} jobs per GPU: epochs x {slow:.2f}, start-ups x {SHARED_STARTUP} (estimate.SHARED_GAIN)"
+    return {k: dataclasses.replace(t, epoch_s=t.epoch_s * slow, extra_seed_s=t.extra_seed_s * slow,
+                                   startup_cold_s=t.startup_cold_s * SHARED_STARTUP,
+                                   startup_warm_s=t.startup_warm_s * SHARED_STARTUP,
+                                   derived="; ".join(x for x in (t.derived, note) if x))
+            for k, t in times.items()}
+
+
 def derived_fp32(jobs: Sequence[Job], times: dict[str, Timing]) -> list[str]:
     """One line per fp32 row `jobs` are estimated with that the table does not hold (`timing_of`
     derived it), for the plan's printout."""

@@ -20,11 +20,11 @@ from typing import Any, Callable, Sequence
 from bulbjax.config import PRESETS
 from bulbjax.reproduce import jobs as J
 from bulbjax.reproduce import results
-from bulbjax.reproduce.estimate import (derived_fp32, device_kind, fit_jobs, hms, hours_unit, job_cost, load_times,
-                                       simulate)
+from bulbjax.reproduce.estimate import (SHARED_GAIN, derived_fp32, device_kind, fit_jobs, hms, hours_unit, job_cost,
+                                       load_times, shared_times, simulate)
 from bulbjax.reproduce.plan import (PLAN_FILE, Job, grown_from, parse_figures, parse_jobs, parse_shard,
                                     plan_differences, plan_jobs, plan_record, read_plan, shard_of)
-from bulbjax.reproduce.queue import Queue, Slot
+from bulbjax.reproduce.queue import SHARED_MEMORY, Queue, Slot
 from bulbjax.run import checkpoint_steps
 
 
@@ -49,15 +49,22 @@ def learner_names(specs: Sequence[str]) -> list[str]:
     return out
 
 
-def slots_of(gpus: int | None, per_slot: int = 1) -> tuple[list[Slot], str]:
+def slots_of(gpus: int | None, per_slot: int = 1, jobs_per_gpu: int = 1) -> tuple[list[Slot], str]:
     """This host's slots: one per visible GPU (the first `gpus` of them), or per `per_slot` GPUs
     (the learners apart: 2), or `gpus` CPU workers (default 1) on a host without one, each
-    showing `per_slot` CPU devices; and the device kind."""
+    showing `per_slot` CPU devices; and the device kind. `jobs_per_gpu` > 1: that many slots per
+    GPU, each with its share of the GPU's memory (`Slot.mem_fraction`), so the jobs' processes
+    run side by side on it (one's launch-bound rollouts beside another's learners)."""
     from bulbjax import local_processes
 
     visible = local_processes.visible_gpus()
     if gpus is not None and gpus < 1:
         raise ValueError(f"--gpus {gpus}: give 1 or more (the GPUs of this host to use)")
+    if jobs_per_gpu < 1:
+        raise ValueError(f"--jobs-per-gpu {jobs_per_gpu}: give 1 or more (jobs side by side on each GPU)")
+    if jobs_per_gpu > 1 and per_slot > 1:
+        raise ValueError("--jobs-per-gpu shares a GPU between jobs and --learners-apart gives each job two: "
+                         "use one of them")
     if visible:
         if gpus is not None and gpus > len(visible):
             raise ValueError(f"--gpus {gpus}: this host has {len(visible)} GPU(s) "
@@ -69,7 +76,13 @@ def slots_of(gpus: int | None, per_slot: int = 1) -> tuple[list[Slot], str]:
                 raise ValueError(f"--learners-apart runs each job on {per_slot} GPUs and this host has "
                                  f"{len(use)} to use ({', '.join(use)}): leave it out, or give more GPUs")
             return [Slot(f"GPUs {g}", g) for g in groups], device_kind(use)
+        if jobs_per_gpu > 1:
+            share = SHARED_MEMORY / jobs_per_gpu
+            return [Slot(f"GPU {g}.{k}", g, mem_fraction=share) for g in use for k in range(jobs_per_gpu)], \
+                device_kind(use)
         return [Slot(f"GPU {g}", g) for g in use], device_kind(use)
+    if jobs_per_gpu > 1:
+        raise ValueError(f"--jobs-per-gpu {jobs_per_gpu}: this host has no GPU; give CPU workers with --gpus N")
     return [Slot(f"cpu{i}", None, per_slot) for i in range(gpus or 1)], "cpu"
 
 
@@ -124,7 +137,7 @@ def reproduce(figures: str | Sequence[str] = "all", scale: str = "paper", out: s
               dry_run: bool = False, overwrite: bool = False, max_minutes: float = 0.0,
               progress_every: float = 30.0, log: Callable[[str], None] = print,
               jobs: str | Sequence[str] | None = None, fit_minutes: float = 0.0,
-              learners_apart: bool = False) -> dict[str, Any]:
+              learners_apart: bool = False, jobs_per_gpu: int = 1) -> dict[str, Any]:
     """Run (or with `dry_run`, only plan) the paper's `figures` at `scale` into `out`; returns the
     summary (also `out/summary.json`). Rerunning with the same arguments continues unfinished
     jobs and skips finished ones. `shard` "K/N": this host's share of a plan split over N hosts.
@@ -134,7 +147,9 @@ def reproduce(figures: str | Sequence[str] = "all", scale: str = "paper", out: s
     held for a limited time. A stretch that selects jobs writes `summary_<UTC time>.json`, so the
     stretches of one plan folder (several hosts, several allocations) each keep theirs.
     `learners_apart`: every job on two GPUs, its learners on the second (`bulbjax run --overlap
-    apart`: the same numbers; its epochs beside its PPO work)."""
+    apart`: the same numbers; its epochs beside its PPO work). `jobs_per_gpu`: that many jobs side by
+    side on each GPU, each its own process (`slots_of`); the summary's GPU-hours count each GPU
+    once (its slots' busy time / `jobs_per_gpu`)."""
     figs = parse_figures(figures)
     share = parse_shard(shard)
     if share is not None and overwrite:
@@ -144,8 +159,9 @@ def reproduce(figures: str | Sequence[str] = "all", scale: str = "paper", out: s
         raise ValueError(f"--max-minutes must be >= 0 (0: no limit), got {max_minutes}")
     names = learner_names(add_learners)
     all_jobs = plan_jobs(figs, scale, list(add_learners))
-    slots, kind = slots_of(gpus, 2 if learners_apart else 1)
+    slots, kind = slots_of(gpus, 2 if learners_apart else 1, jobs_per_gpu)
     times, times_kind = load_times(kind)
+    times = shared_times(times, jobs_per_gpu)
     costs = {j.id: job_cost(j, times) for j in all_jobs}
     mine = all_jobs
     if share is not None:
@@ -184,18 +200,22 @@ def reproduce(figures: str | Sequence[str] = "all", scale: str = "paper", out: s
             f"{len(all_jobs) - len(grown)} jobs continue, {len(grown)} added")
     lines, est = plan_table(out, mine, times, len(slots))
     lines += derived_fp32(mine, times)
+    if jobs_per_gpu > 1:
+        lines.append(f"{jobs_per_gpu} jobs per GPU: estimated from one measurement (the GPU's seed-epochs "
+                     f"x {SHARED_GAIN} at 3 jobs per H200; bulbjax/reproduce/estimate.py)")
+    gpu_s = est.gpu_s / jobs_per_gpu
     note = "" if times_kind == kind else f" (estimates of an {times_kind}: none measured on this kind yet)"
     picked = (f", {len(mine)} picked" + (f" to fit {fit_minutes:g} min" if fit_minutes else " by --jobs")
               if fit_minutes or named is not None else "")
     log(f"plan: {len(mine)} job(s)" + (f", shard {share[0]}/{share[1]} of {len(all_jobs)}" if share else "")
         + (f" of {len(all_jobs)}{picked}" if picked else "")
         + f", scale {scale}, on {len(slots)} {kind} slot(s){note}\n" + "\n".join(lines)
-        + f"\nestimated: {est.gpu_s / 3600:.2f} {hours_unit(kind)}, {hms(est.wall_s)} wall on {len(slots)} slot(s) "
+        + f"\nestimated: {gpu_s / 3600:.2f} {hours_unit(kind)}, {hms(est.wall_s)} wall on {len(slots)} slot(s) "
         f"(utilisation {est.utilisation:.0%})")
-    summary: dict[str, Any] = {"gpus": len(slots), "device_kind": kind, "times_of": times_kind,
-                               "estimated_wall_s": est.wall_s, "estimated_gpu_s": est.gpu_s,
+    summary: dict[str, Any] = {"gpus": len(slots) // jobs_per_gpu, "device_kind": kind, "times_of": times_kind,
+                               "estimated_wall_s": est.wall_s, "estimated_gpu_s": gpu_s,
                                "shard": list(share) if share else None, "jobs_planned": len(mine),
-                               "learners_apart": learners_apart}
+                               "learners_apart": learners_apart, "jobs_per_gpu": jobs_per_gpu}
     if dry_run:
         return summary
     os.makedirs(out, exist_ok=True)
@@ -211,7 +231,7 @@ def reproduce(figures: str | Sequence[str] = "all", scale: str = "paper", out: s
               run_flags=("--overlap", "apart") if learners_apart else ())
     ran = q.run()
     summary.update(measured_wall_s=ran["wall_s"], utilisation=ran["utilisation"], busy_s=ran["busy_s"],
-                   gpu_hours=ran["busy_s"] / 3600, failed=ran["failed"], unfinished=ran["unfinished"],
+                   gpu_hours=ran["busy_s"] / 3600 / jobs_per_gpu, failed=ran["failed"], unfinished=ran["unfinished"],
                    jobs=ran["jobs"], finished_utc=datetime.datetime.now(datetime.timezone.utc).isoformat(
                        timespec="seconds"))
     ran_any = any(r["attempts"] for r in ran["jobs"].values())

@@ -28,19 +28,27 @@ from bulbjax.reproduce.plan import Job
 
 ATTEMPTS = 2  # a failed job is retried once
 STOP_GRACE_S = 180.0  # after SIGTERM, time for a job to checkpoint before it is killed
+# the GPU memory JAX's processes on one GPU take together when slots share it (JAX's default for
+# one process): three jobs of the pendulums at 0.25 each ran on one H200 with room for Warp's own
+SHARED_MEMORY = 0.75
 
 
 @dataclass
 class Slot:
     """Where a job runs: its GPUs (`gpu`, a CUDA_VISIBLE_DEVICES value: one GPU, or two, "0,1",
-    with the learners apart) or a CPU worker (None) showing `cpu_devices` devices to JAX."""
+    with the learners apart) or a CPU worker (None) showing `cpu_devices` devices to JAX.
+    `mem_fraction`: the share of the GPU's memory JAX may take, for a GPU that several slots
+    share (JAX takes 75% by default; the user's XLA_PYTHON_CLIENT_MEM_FRACTION wins)."""
 
     name: str
     gpu: str | None
     cpu_devices: int = 1
+    mem_fraction: float | None = None
 
     def env(self) -> dict[str, str]:
         env = dict(os.environ, PYTHONUNBUFFERED="1")
+        if self.mem_fraction is not None:
+            env.setdefault("XLA_PYTHON_CLIENT_MEM_FRACTION", f"{self.mem_fraction:.3f}")
         if self.gpu is None:
             env.update(JAX_PLATFORMS="cpu", CUDA_VISIBLE_DEVICES="")
             if self.cpu_devices > 1:
@@ -256,7 +264,7 @@ class Queue:
         head = (f"[{hms(time.monotonic() - self.t0)}] {counts['done']} done, {counts['running']} running, "
                 f"{counts['queued']} queued" + (f", {counts['stopped']} stopped" if counts["stopped"] else "")
                 + (f", {counts['failed']} failed" if counts["failed"] else "")
-                + f"; {busy}/{len(self.slots)} {'GPUs' if self.slots and self.slots[0].gpu is not None else 'slots'} busy"
+                + f"; {busy}/{len(self.slots)} {self._slot_word()} busy"
                 + (f"; about {hms(eta)} left" if left and not self.stopping else ""))
         lines = [head]
         for t in self.tracks.values():
@@ -272,6 +280,11 @@ class Queue:
                     else f"epoch {n}/{t.job.epochs}")
             lines.append(f"  {t.job.id:<28} {t.slot.name:<7} {what}")
         self.log("\n".join(lines))
+
+    def _slot_word(self) -> str:
+        if not self.slots or self.slots[0].gpu is None:
+            return "slots"
+        return "GPU slots" if self.slots[0].mem_fraction is not None else "GPUs"
 
     def _write_status(self) -> None:
         data = {"elapsed_s": time.monotonic() - self.t0, "stopping": self.stopping,

@@ -114,7 +114,7 @@ def write(out: str, summary: dict[str, Any] | None = None, out_name: str | None 
                      f"{hms(r['startup_s']) if r.get('startup_s') else '-'} | {per} |")
     stretches = summaries(out)
     if stretches:
-        busy = sum(s.get("busy_s", 0.0) for s in stretches)
+        busy = sum(s.get("busy_s", 0.0) / (s.get("jobs_per_gpu") or 1) for s in stretches)
         lines.append(f"\nGPU time of the stretches that ran jobs ({len(stretches)}, `summary*.json`): "
                      f"{busy / 3600:.2f} {hours_unit(stretches[-1].get('device_kind', ''))}.")
     lines.append("")
@@ -235,7 +235,10 @@ def precision_section(out: str, preset: str, bf16: Sequence[Job], fp32: Sequence
 
 def _summary_line(s: dict[str, Any]) -> str:
     est = s.get("estimated_wall_s")
-    return (f"This stretch: {s.get('gpus')} {s.get('device_kind')} slot(s), {hms(s.get('measured_wall_s', 0))} "
+    shared = s.get("jobs_per_gpu") or 1
+    return (f"This stretch: {s.get('gpus')} {s.get('device_kind')} slot(s)"
+            + (f" ({shared} jobs side by side on each)" if shared > 1 else "") + ", "
+            f"{hms(s.get('measured_wall_s', 0))} "
             f"wall (estimated {hms(est) if est is not None else '-'}), utilisation "
             f"{(s.get('utilisation') or 0):.0%}, {s.get('gpu_hours', 0):.2f} {hours_unit(s.get('device_kind', ''))}.")
 
@@ -252,15 +255,16 @@ def summaries(out: str) -> list[dict[str, Any]]:
 
 
 def job_times(out: str) -> dict[str, dict[str, Any]]:
-    """Each job's measured GPU time (`busy_s`, summed over the stretches that ran it), its last
-    start-up (`startup_s`) and seconds per epoch (`epoch_s`), from every stretch's summary."""
+    """Each job's measured GPU time (`busy_s`, summed over the stretches that ran it; a job that
+    shared its GPU with others, `jobs_per_gpu`, counts its share), its last start-up (`startup_s`)
+    and seconds per epoch (`epoch_s`), from every stretch's summary."""
     times: dict[str, dict[str, Any]] = {}
     for s in summaries(out):
         for jid, r in (s.get("jobs") or {}).items():
             if not r.get("attempts"):
                 continue
             t = times.setdefault(jid, {"busy_s": 0.0})
-            t["busy_s"] += r.get("busy_s") or 0.0
+            t["busy_s"] += (r.get("busy_s") or 0.0) / (s.get("jobs_per_gpu") or 1)
             for k in ("startup_s", "epoch_s"):
                 if r.get(k):
                     t[k] = r[k]
