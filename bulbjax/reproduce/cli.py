@@ -34,7 +34,7 @@ def add_parser(sub: argparse._SubParsersAction,
                     help=f"comma-separated figures ({', '.join(ENTRIES)}, all) or presets of them (e.g. fig2-ant); "
                          "fp32: Fig. 2's InvertedPendulum again without --bf16, beside its bf16 runs")
     rp.add_argument("--scale", default="paper", choices=SCALES,
-                    help="paper: the paper's seeds and epochs; quick: every figure on one GPU in ~15 min; "
+                    help="paper: the paper's seeds and epochs; quick: every figure, short (~11 min on four H200s, ~40 on one); "
                          "tiny: CPU-sized, 2 epochs (tests)")
     rp.add_argument("--out", default="runs/reproduce", help="the plan's folder (runs, logs, results.md)")
     rp.add_argument("--gpus", type=int, default=None,

@@ -78,7 +78,7 @@ VARIANTS = ("--probe-variants", "common,window,raw")
 def figure_specs(scale: str) -> dict[str, FigureSpec]:
     """The figures at `scale`: "paper" (the paper's settings: Fig. 2 4 domains x 6 seeds x 1,000
     epochs with the probe variants, Figs. 3 and 5 3 seeds x 1,000; bf16, probes every 10th epoch), "quick" (every figure
-    on one GPU in about a quarter of an hour: 2 seeds, short runs) or "tiny" (the CPU-sized
+    short: 2 seeds, short runs, ~11 min on four H200s) or "tiny" (the CPU-sized
     `--small` config, 2 seeds x 2 epochs, two learners: what the tests run). Fig. 4 has no runs
     of its own: it is drawn from Fig. 2's seed-0 runs (`plan_jobs`). "fp32" runs Fig. 2's
     InvertedPendulum again as Fig. 2 does at the scale, without `--bf16` (`fp32_spec`)."""
