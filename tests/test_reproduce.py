@@ -260,6 +260,9 @@ def test_a_tiny_plan_on_two_slots(tmp_path) -> None:
     assert (out / "fig2" / "fig2-cartpole" / "fig2.png").exists()
     summary = json.loads((out / "summary.json").read_text())
     assert summary["gpus"] == 2 and summary["failed"] == [] and 0 < summary["utilisation"] <= 1
+    # each job's estimate kept beside what it took, and the page shows both with the error
+    assert all(r["estimated_s"] > 0 for r in summary["jobs"].values()), summary["jobs"]
+    assert re.search(r"\| fig2-cartpole/seed1 \|.* \| \d:\d\d:\d\d / \d:\d\d:\d\d \([+-]\d+%\) \|", page), page
     again = subprocess.run(cmd, capture_output=True, text=True, timeout=300, env=dict(os.environ, JAX_PLATFORMS="cpu"))
     assert again.returncode == 0 and "start " not in again.stdout and "2 done, 0 running" in again.stdout
 

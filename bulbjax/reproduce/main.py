@@ -230,6 +230,9 @@ def reproduce(figures: str | Sequence[str] = "all", scale: str = "paper", out: s
     q = Queue(out, mine, all_jobs, slots, times, deadline, progress_every, learners_of, log, status,
               run_flags=("--overlap", "apart") if learners_apart else ())
     ran = q.run()
+    for jid, r in ran["jobs"].items():  # what the plan estimated for each job it ran, beside what it took
+        span = est.spans.get(jid)
+        r["estimated_s"] = span[1] - span[0] if span and r.get("attempts") else None
     summary.update(measured_wall_s=ran["wall_s"], utilisation=ran["utilisation"], busy_s=ran["busy_s"],
                    gpu_hours=ran["busy_s"] / 3600 / jobs_per_gpu, failed=ran["failed"], unfinished=ran["unfinished"],
                    jobs=ran["jobs"], finished_utc=datetime.datetime.now(datetime.timezone.utc).isoformat(

@@ -104,14 +104,15 @@ def write(out: str, summary: dict[str, Any] | None = None, out_name: str | None 
     if summary:
         lines += [_summary_line(summary), ""]
     ran = job_times(out)
-    lines += ["| job | figure | epochs done | state | GPU time | start-up | s / epoch |", "|---|---|---|---|---|---|---|"]
+    lines += ["| job | figure | epochs done | state | GPU time | start-up | s / epoch | wall: estimated / measured |",
+              "|---|---|---|---|---|---|---|---|"]
     for j in jobs:
         done, r = J.epochs_done(out, j), ran.get(j.id, {})
         per = f"{r['epoch_s']:.3f}" if r.get("epoch_s") else "-"
         lines.append(f"| {j.id} | {j.figure} | {done} / {j.epochs} | "
                      f"{'done' if J.is_done(out, j) else 'unfinished'} | "
                      f"{hms(r['busy_s']) if r.get('busy_s') else '-'} | "
-                     f"{hms(r['startup_s']) if r.get('startup_s') else '-'} | {per} |")
+                     f"{hms(r['startup_s']) if r.get('startup_s') else '-'} | {per} | {_against(r)} |")
     stretches = summaries(out)
     if stretches:
         busy = sum(s.get("busy_s", 0.0) / (s.get("jobs_per_gpu") or 1) for s in stretches)
@@ -254,17 +255,31 @@ def summaries(out: str) -> list[dict[str, Any]]:
     return sorted(out_, key=lambda s: s.get("finished_utc", ""))
 
 
+def _against(r: dict[str, Any]) -> str:
+    """A job's estimated wall time beside its measured one and how far off the estimate was, or
+    "-" where a stretch that ran it kept no estimate (summaries before `estimated_s`)."""
+    est, wall = r.get("estimated_s"), r.get("wall_s")
+    if not est or not wall:
+        return "-"
+    return f"{hms(est)} / {hms(wall)} ({(est - wall) / wall:+.0%})"
+
+
 def job_times(out: str) -> dict[str, dict[str, Any]]:
     """Each job's measured GPU time (`busy_s`, summed over the stretches that ran it; a job that
-    shared its GPU with others, `jobs_per_gpu`, counts its share), its last start-up (`startup_s`)
-    and seconds per epoch (`epoch_s`), from every stretch's summary."""
+    shared its GPU with others, `jobs_per_gpu`, counts its share), its wall time on its slot
+    (`wall_s`) and what the plans estimated for it (`estimated_s`, None unless every stretch that
+    ran it kept one), its last start-up (`startup_s`) and seconds per epoch (`epoch_s`), from
+    every stretch's summary."""
     times: dict[str, dict[str, Any]] = {}
     for s in summaries(out):
         for jid, r in (s.get("jobs") or {}).items():
             if not r.get("attempts"):
                 continue
-            t = times.setdefault(jid, {"busy_s": 0.0})
+            t = times.setdefault(jid, {"busy_s": 0.0, "wall_s": 0.0, "estimated_s": 0.0})
             t["busy_s"] += (r.get("busy_s") or 0.0) / (s.get("jobs_per_gpu") or 1)
+            t["wall_s"] += r.get("busy_s") or 0.0
+            est = r.get("estimated_s")
+            t["estimated_s"] = None if est is None or t["estimated_s"] is None else t["estimated_s"] + est
             for k in ("startup_s", "epoch_s"):
                 if r.get(k):
                     t[k] = r[k]
