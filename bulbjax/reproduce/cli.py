@@ -8,6 +8,11 @@ from bulbjax.reproduce.plan import ENTRIES, SCALES
 
 
 def cmd_reproduce(args: argparse.Namespace) -> int:
+    if args.gather:
+        from bulbjax.reproduce.gather import gather_and_report
+
+        gather_and_report(args.out, [d for d in args.gather.split(",") if d])
+        return 0
     from bulbjax.reproduce.main import reproduce
 
     summary = reproduce(args.figures, args.scale, args.out, gpus=args.gpus, shard=args.shard,
@@ -61,6 +66,10 @@ def add_parser(sub: argparse._SubParsersAction,
     rp.add_argument("--add-learner", action="append", metavar="SPEC",
                     help="a learner of your own (pkg.module:Name, docs/extending.md) run beside the paper's in "
                          "every figure; repeatable (default: none)")
+    rp.add_argument("--gather", default=None, metavar="DIR,...",
+                    help="run nothing: copy into --out the jobs these plan folders (brought back from other "
+                         "hosts) finished and --out has not, with their stretch summaries, then write its "
+                         "results page (default: none, run the plan)")
     rp.add_argument("--dry-run", action="store_true", help="print the jobs and the estimated time, run nothing")
     rp.add_argument("--overwrite", action="store_true", help="start afresh: delete the plan's folder first")
     rp.add_argument("--max-minutes", type=float, default=0.0,

@@ -1,0 +1,130 @@
+"""Plan folders from several hosts gathered into one (`bulbjax reproduce --out OUT --gather DIR,...`).
+
+A host held for a limited time, or a SLURM task on scratch that is wiped, runs its share of a plan
+in a folder of its own (a copy of OUT, or an empty one), and only that folder comes back. Gathering
+copies into OUT what each folder finished that OUT has not: the job's run folder (or Fig. 4's
+figure folder) and its console log, and each stretch's `summary*.json`, named by when that stretch
+finished, so the results page lists every stretch's GPU time once. A job finished in both is kept
+as OUT has it; a job a folder holds unfinished is left there (a run is continued only from its
+checkpoint, on the host that has it). The folders must hold OUT's plan (or the plan OUT's grows
+from or into: `plan.grown_from`).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+from typing import Any, Callable, Sequence
+
+from bulbjax.reproduce import jobs as J
+from bulbjax.reproduce.plan import PLAN_FILE, job_of, plan_differences, read_plan
+
+
+def gather(out: str, sources: Sequence[str], log: Callable[[str], None] = print) -> dict[str, list[str]]:
+    """Copy into `out` the jobs each of `sources` finished that `out` has not, with their logs and
+    the sources' stretch summaries; returns the job ids `taken`, `kept` (finished in `out` and in
+    a source: `out`'s kept) and `unfinished` (begun in a source, not finished there: not taken).
+    Raises ValueError, naming the folder, for a source without a plan or with another plan."""
+    plan = _plan_of(out, sources)
+    jobs = [job_of(d) for d in plan["jobs"]]
+    os.makedirs(out, exist_ok=True)
+    with open(os.path.join(out, PLAN_FILE), "w") as f:
+        json.dump(plan, f, indent=1)
+    found: dict[str, list[str]] = {"taken": [], "kept": [], "unfinished": []}
+    for src in sources:
+        for job in jobs:
+            if J.is_done(src, job):
+                if J.is_done(out, job):
+                    if job.id not in found["kept"]:
+                        found["kept"].append(job.id)
+                    continue
+                _copy_job(src, out, job)
+                found["taken"].append(job.id)
+            elif os.path.isdir(J.job_dir(src, job)) and os.listdir(J.job_dir(src, job)):
+                found["unfinished"].append(job.id)
+        for name in _copy_summaries(src, out):
+            log(f"{src}: stretch summary {name}")
+    done_here = {j.id for j in jobs if J.is_done(out, j)}
+    found["unfinished"] = [i for i in dict.fromkeys(found["unfinished"]) if i not in done_here]
+    log(f"gathered into {out}: {len(found['taken'])} job(s) taken"
+        + (f" ({', '.join(found['taken'])})" if found["taken"] else "")
+        + (f"; {len(found['kept'])} finished here already, kept as they are" if found["kept"] else "")
+        + (f"; unfinished in their folders, not taken (they run again): {', '.join(found['unfinished'])}"
+           if found["unfinished"] else ""))
+    return found
+
+
+def gather_and_report(out: str, sources: Sequence[str], log: Callable[[str], None] = print) -> str:
+    """`gather`, then the results page of the gathered folder (`results.write`); its path."""
+    from bulbjax.reproduce import results
+
+    gather(out, sources, log)
+    page = results.write(out, results.read_summary(out), out_name=out)
+    log(f"results: {page}")
+    return page
+
+
+def _plan_of(out: str, sources: Sequence[str]) -> dict[str, Any]:
+    """The plan the gathered folder holds: `out`'s, or the first source's where `out` has none;
+    a source's plan that `out`'s grows into (a newer "all") replaces it."""
+    path = os.path.join(out, PLAN_FILE)
+    plan = read_plan(path) if os.path.exists(path) else None
+    for src in sources:
+        if os.path.abspath(src) == os.path.abspath(out):
+            raise ValueError(f"--gather {src}: that is the --out folder itself; give the folders brought back")
+        p = os.path.join(src, PLAN_FILE)
+        if not os.path.exists(p):
+            raise ValueError(f"--gather {src}: no reproduce plan there ({PLAN_FILE}); give plan folders that "
+                             "`bulbjax reproduce --out` wrote")
+        theirs = read_plan(p)
+        if plan is None or not plan_differences(theirs, plan):
+            plan = plan or theirs
+        elif not plan_differences(plan, theirs):
+            plan = theirs  # the source's plan is this one grown: its jobs begin with ours
+        else:
+            raise ValueError(f"--gather {src}: its plan differs from {out}'s "
+                             f"({'; '.join(plan_differences(theirs, plan))}): gather folders of one plan")
+    assert plan is not None
+    return plan
+
+
+def _copy_job(src: str, out: str, job: Any) -> None:
+    """`job`'s folder (checkpoints too, where the source kept them) and console log into `out`,
+    replacing an unfinished attempt there."""
+    dest = J.job_dir(out, job)
+    if os.path.exists(dest):
+        shutil.rmtree(dest)
+    shutil.copytree(J.job_dir(src, job), dest)
+    name = job.id.replace("/", "_") + ".txt"
+    log_src = os.path.join(src, "logs", name)
+    if os.path.exists(log_src):
+        os.makedirs(os.path.join(out, "logs"), exist_ok=True)
+        shutil.copy2(log_src, os.path.join(out, "logs", name))
+
+
+def _copy_summaries(src: str, out: str) -> list[str]:
+    """Each stretch summary of `src` not already in `out`, as `summary_<finished UTC>.json` (the
+    name a stretch that selected its jobs writes, from its end rather than its start, so the
+    summaries of hosts that started at once do not collide); the names written."""
+    written = []
+    for name in sorted(os.listdir(src)):
+        if not (name.startswith("summary") and name.endswith(".json")):
+            continue
+        with open(os.path.join(src, name)) as f:
+            text = f.read()
+        finished = json.loads(text).get("finished_utc", "")
+        stamp = finished[:19].replace("-", "").replace(":", "")
+        base = f"summary_{stamp}Z" if stamp else name[:-len(".json")]
+        dest, k = f"{base}.json", 1
+        while os.path.exists(os.path.join(out, dest)):
+            with open(os.path.join(out, dest)) as f:
+                if f.read() == text:
+                    break
+            k += 1
+            dest = f"{base}_{k}.json"
+        else:
+            with open(os.path.join(out, dest), "w") as f:
+                f.write(text)
+            written.append(dest)
+    return written

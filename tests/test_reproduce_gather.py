@@ -1,0 +1,86 @@
+"""`bulbjax reproduce --gather`: plan folders brought back from several hosts gathered into one.
+Tested on the campaign's own folder (docs/results/paper_h200): taken apart as its allocations
+brought it back and gathered again, it gives the committed page."""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import subprocess
+import sys
+
+import pytest
+
+from bulbjax.reproduce.gather import gather
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+CAMPAIGN = os.path.join(ROOT, "docs", "results", "paper_h200")
+SECOND = ("runs/fig2-cartpole/seed4", "runs/fig2-invpend", "fig4")  # what the second allocation finished
+
+
+def _before_second(dest: str) -> str:
+    """The campaign folder as it was before its second allocation: without what that one ran."""
+    shutil.copytree(CAMPAIGN, dest, ignore=shutil.ignore_patterns("results.md"))
+    for rel in SECOND:
+        shutil.rmtree(os.path.join(dest, rel))
+    for name in os.listdir(dest):
+        if name.startswith("summary_20261129"):
+            os.remove(os.path.join(dest, name))
+    return dest
+
+
+def test_gathering_the_allocations_gives_the_committed_page(tmp_path) -> None:
+    """What the second allocation brought back, gathered into the folder from before it: its jobs
+    taken (the run folders, Fig. 4's figure), the ones finished in both kept, its stretch
+    summaries added under their finished time; the page is the committed one. Gathering again
+    adds nothing."""
+    from bulbjax.reproduce import results
+
+    out = _before_second(str(tmp_path / "out"))
+    host = str(tmp_path / "host")
+    shutil.copytree(CAMPAIGN, host)
+    said: list[str] = []
+    found = gather(out, [host], log=said.append)
+    assert sorted(found["taken"]) == ["fig2-cartpole/seed4", "fig2-invpend/seed0", "fig4/fig2-invpend"]
+    assert "fig2-cartpole/seed3" in found["kept"] and found["unfinished"] == []
+    assert sorted(n for n in os.listdir(out) if n.startswith("summary_20261129")) == sorted(
+        n for n in os.listdir(CAMPAIGN) if n.startswith("summary_20261129"))
+    results.write(out, results.read_summary(out), out_name="docs/results/paper_h200")
+    with open(os.path.join(CAMPAIGN, "results.md")) as f, open(os.path.join(out, "results.md")) as g:
+        assert f.read() == g.read()
+    before = sorted(os.listdir(out))
+    again = gather(out, [host], log=said.append)
+    assert again["taken"] == [] and sorted(os.listdir(out)) == before
+
+
+def test_a_host_summary_is_named_by_its_end_and_unfinished_jobs_stay(tmp_path) -> None:
+    """A host's `summary_<start>.json` arrives as `summary_<finished UTC>.json` (two hosts that
+    started at once do not collide); a job the host left unfinished is named and not taken."""
+    out = _before_second(str(tmp_path / "out"))
+    host = str(tmp_path / "host")
+    shutil.copytree(out, host)
+    (tmp_path / "host" / "summary_20261129T034128Z.json").write_text(
+        json.dumps({"finished_utc": "2026-11-29T05:06:07+00:00", "jobs": {}, "busy_s": 1.0}))
+    part = tmp_path / "host" / "runs" / "fig2-cartpole" / "seed5"
+    part.mkdir(parents=True)
+    (part / "metrics.jsonl").write_text("".join(json.dumps({"epoch": e}) + "\n" for e in range(5)))
+    found = gather(out, [host], log=lambda _: None)
+    assert found["taken"] == [] and found["unfinished"] == ["fig2-cartpole/seed5"]
+    assert os.path.exists(os.path.join(out, "summary_20261129T050607Z.json"))
+    assert not os.path.exists(os.path.join(out, "runs", "fig2-cartpole", "seed5"))
+
+
+def test_folders_of_another_plan_are_refused_in_one_line(tmp_path) -> None:
+    out = _before_second(str(tmp_path / "out"))
+    other = tmp_path / "other"
+    other.mkdir()
+    with pytest.raises(ValueError, match="no reproduce plan there"):
+        gather(out, [str(other)])
+    plan = json.loads((tmp_path / "out" / "plan.json").read_text())
+    (other / "plan.json").write_text(json.dumps(dict(plan, scale="quick")))
+    with pytest.raises(ValueError, match="its plan differs from .*scale: saved 'quick'"):
+        gather(out, [str(other)])
+    r = subprocess.run([sys.executable, "-m", "bulbjax", "reproduce", "--out", out, "--gather", str(other)],
+                       capture_output=True, text=True, timeout=120, env=dict(os.environ, JAX_PLATFORMS="cpu"))
+    assert r.returncode == 2 and r.stderr.strip().count("\n") == 0 and "its plan differs" in r.stderr
