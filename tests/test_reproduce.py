@@ -7,6 +7,7 @@ from __future__ import annotations
 import json
 import os
 import re
+import shutil
 import signal
 import subprocess
 import sys
@@ -329,8 +330,6 @@ def test_fig2_runs_carry_the_probe_variants_and_the_page_their_table(tmp_path):
     answered by the reproduction's own runs); the results page writes their table across domains
     from the merged runs that carry them (here the committed InvertedPendulum run), and nothing
     for runs without them."""
-    import shutil
-
     from run_folders import write_synthetic_run
 
     from bulbjax.report.protocol import probe_protocol_table
@@ -445,7 +444,7 @@ def test_jobs_per_gpu_shares_each_gpu_and_counts_it_once(tmp_path, monkeypatch) 
     # the same seed-epochs on the same two GPUs: fewer GPU-hours by the gain (start-ups aside)
     assert three["estimated_gpu_s"] < one["estimated_gpu_s"]
     monkeypatch.setattr(local_processes, "visible_gpus", lambda: [])
-    with pytest.raises(ValueError, match="no GPU"):
+    with pytest.raises(ValueError, match="this host has none: leave it out"):
         main.slots_of(None, 1, 3)
     out = tmp_path / "page"
     out.mkdir()
@@ -456,3 +455,29 @@ def test_jobs_per_gpu_shares_each_gpu_and_counts_it_once(tmp_path, monkeypatch) 
     ran = results.job_times(str(out))
     assert ran["jsummary_a.json"]["busy_s"] == pytest.approx(300.0)
     assert ran["jsummary_b.json"]["busy_s"] == pytest.approx(900.0)
+
+
+def test_the_plan_table_rows_are_the_schedule_and_lost_figures_are_said(tmp_path, monkeypatch) -> None:
+    """Each row's estimate is the schedule's (a preset's second job on one slot starts warm, so
+    it is shorter than the first, and the rows add up to the total); a Fig. 4 job picked with
+    --jobs whose run finished elsewhere, without its checkpoint, is left out with a line saying
+    why; a shard's header names the plan's size once."""
+    said: list[str] = []
+    reproduce("fig2-cartpole", "paper", str(tmp_path / "a"), dry_run=True, log=said.append)
+    rows = {line.split()[0]: line.split()[2] for line in said[0].splitlines() if line.startswith("fig2-cartpole/")}
+    secs = {k: sum(int(x) * m for x, m in zip(v.split(":"), (3600, 60, 1))) for k, v in rows.items()}
+    assert secs["fig2-cartpole/seed1"] < secs["fig2-cartpole/seed0"]
+    total = re.search(r"estimated: ([0-9.]+) CPU-hours", said[0]).group(1)
+    assert abs(sum(secs.values()) / 3600 - float(total)) < 0.01
+    out = tmp_path / "b"
+    campaign = os.path.join(ROOT, "docs", "results", "paper_h200")
+    shutil.copytree(campaign, out)
+    said.clear()
+    reproduce("all", "paper", str(out), dry_run=True, jobs="fig4/fig2-cartpole,fig2-invpend/seed1",
+              log=said.append)
+    text = "\n".join(said)
+    assert "fig4/fig2-cartpole left out: its run fig2-cartpole/seed0 finished on another host" in text
+    assert "\nfig4/fig2-cartpole " not in text and "fig2-invpend/seed1" in text
+    said.clear()
+    reproduce("fig2", "paper", str(tmp_path / "c"), dry_run=True, shard="2/2", log=said.append)
+    assert re.match(r"plan: \d+ job\(s\), shard 2/2 of 24, scale paper", said[0]), said[0]

@@ -79,8 +79,49 @@ def test_folders_of_another_plan_are_refused_in_one_line(tmp_path) -> None:
         gather(out, [str(other)])
     plan = json.loads((tmp_path / "out" / "plan.json").read_text())
     (other / "plan.json").write_text(json.dumps(dict(plan, scale="quick")))
-    with pytest.raises(ValueError, match="its plan differs from .*scale: saved 'quick'"):
+    with pytest.raises(ValueError, match="its plan differs from .*scale 'quick' there, 'paper' in "):
         gather(out, [str(other)])
     r = subprocess.run([sys.executable, "-m", "bulbjax", "reproduce", "--out", out, "--gather", str(other)],
                        capture_output=True, text=True, timeout=120, env=dict(os.environ, JAX_PLATFORMS="cpu"))
     assert r.returncode == 2 and r.stderr.strip().count("\n") == 0 and "its plan differs" in r.stderr
+
+
+def test_a_dry_gather_copies_nothing_and_changes_are_said(tmp_path) -> None:
+    """`--dry-run` says what a gather would take and writes nothing; a gather that grows OUT's plan
+    (a folder of today's "all" into one of the former) or replaces an unfinished copy of a job
+    says so; a missing folder, an empty list and an OUT that holds no plan are refused; the CLI
+    refuses the flags that shape or run a plan beside --gather, in one line."""
+    from bulbjax.reproduce.gather import gather_and_report
+
+    out = _before_second(str(tmp_path / "out"))
+    partial = tmp_path / "out" / "runs" / "fig2-cartpole" / "seed4"
+    partial.mkdir(parents=True)
+    (partial / "metrics.jsonl").write_text("".join(json.dumps({"epoch": e}) + "\n" for e in range(3)))
+    host = str(tmp_path / "host")
+    shutil.copytree(CAMPAIGN, host)
+    from bulbjax.reproduce.plan import ENTRIES, plan_jobs
+
+    plan = json.loads((tmp_path / "host" / "plan.json").read_text())  # the host's: today's "all", fp32 in it
+    grown = plan_jobs(ENTRIES, "paper")
+    (tmp_path / "host" / "plan.json").write_text(json.dumps(dict(plan, figures=list(ENTRIES),
+                                                                 jobs=[j.as_dict() for j in grown])))
+    before = {p: os.path.getmtime(os.path.join(dp, p)) for dp, _, fs in os.walk(out) for p in fs}
+    said: list[str] = []
+    assert gather_and_report(out, [host], log=said.append, dry_run=True) is None
+    assert {p: os.path.getmtime(os.path.join(dp, p)) for dp, _, fs in os.walk(out) for p in fs} == before
+    text = "\n".join(said)
+    assert "would gather" in text and "plan grows" in text and "6 job(s) added" in text
+    assert "fig2-cartpole/seed4: " in text and "held it unfinished (epoch 0 of 1000)" in text
+    with pytest.raises(ValueError, match="no such folder"):
+        gather(out, [str(tmp_path / "nowhere")])
+    with pytest.raises(ValueError, match="needs the plan folders"):
+        gather_and_report(out, [])
+    stray = tmp_path / "stray"
+    stray.mkdir()
+    (stray / "notes.txt").write_text("x")
+    with pytest.raises(ValueError, match="holds no reproduce plan"):
+        gather(str(stray), [host])
+    r = subprocess.run([sys.executable, "-m", "bulbjax", "reproduce", "--out", out, "--gather", host,
+                        "--jobs-per-gpu", "3"], capture_output=True, text=True, timeout=120,
+                       env=dict(os.environ, JAX_PLATFORMS="cpu"))
+    assert r.returncode == 2 and r.stderr.strip().count("\n") == 0 and "not --jobs-per-gpu" in r.stderr

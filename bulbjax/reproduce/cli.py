@@ -7,11 +7,22 @@ import argparse
 from bulbjax.reproduce.plan import ENTRIES, SCALES
 
 
+# the flags that shape or run a plan, with their defaults: --gather refuses them (it takes the
+# plan the folders hold and runs nothing)
+_RUN_ONLY = (("--figures", "all"), ("--scale", "paper"), ("--gpus", None), ("--shard", None), ("--jobs", None),
+             ("--fit-minutes", 0.0), ("--learners-apart", False), ("--jobs-per-gpu", 1), ("--add-learner", None),
+             ("--overwrite", False), ("--max-minutes", 0.0))
+
+
 def cmd_reproduce(args: argparse.Namespace) -> int:
-    if args.gather:
+    if args.gather is not None:
         from bulbjax.reproduce.gather import gather_and_report
 
-        gather_and_report(args.out, [d for d in args.gather.split(",") if d])
+        given = [f for f, default in _RUN_ONLY if getattr(args, f.lstrip("-").replace("-", "_")) != default]
+        if given:
+            raise ValueError(f"--gather runs nothing and takes only --out (and --dry-run), not {', '.join(given)}: "
+                             "gather first, then run the plan with those")
+        gather_and_report(args.out, [d for d in args.gather.split(",") if d], dry_run=args.dry_run)
         return 0
     from bulbjax.reproduce.main import reproduce
 

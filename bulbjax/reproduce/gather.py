@@ -18,36 +18,49 @@ import shutil
 from typing import Any, Callable, Sequence
 
 from bulbjax.reproduce import jobs as J
-from bulbjax.reproduce.plan import PLAN_FILE, job_of, plan_differences, read_plan
+from bulbjax.reproduce.plan import IDENTITY, PLAN_FILE, job_of, plan_differences, read_plan
 
 
-def gather(out: str, sources: Sequence[str], log: Callable[[str], None] = print) -> dict[str, list[str]]:
+def gather(out: str, sources: Sequence[str], log: Callable[[str], None] = print,
+           dry_run: bool = False) -> dict[str, list[str]]:
     """Copy into `out` the jobs each of `sources` finished that `out` has not, with their logs and
     the sources' stretch summaries; returns the job ids `taken`, `kept` (finished in `out` and in
     a source: `out`'s kept) and `unfinished` (begun in a source, not finished there: not taken).
-    Raises ValueError, naming the folder, for a source without a plan or with another plan."""
+    `dry_run`: say what would be taken, copy nothing. Raises ValueError, naming the folder, for a
+    missing folder, a source without a plan or with another plan, and an `out` that holds
+    something other than a plan."""
     plan = _plan_of(out, sources)
     jobs = [job_of(d) for d in plan["jobs"]]
-    os.makedirs(out, exist_ok=True)
-    with open(os.path.join(out, PLAN_FILE), "w") as f:
-        json.dump(plan, f, indent=1)
+    path = os.path.join(out, PLAN_FILE)
+    before = len(read_plan(path)["jobs"]) if os.path.exists(path) else None
+    if before is not None and before < len(jobs):
+        log(f"{out}'s plan grows to that of the folders gathered: {len(jobs) - before} job(s) added "
+            f"({', '.join(j.id for j in jobs[before:])})")
+    if not dry_run:
+        os.makedirs(out, exist_ok=True)
+        with open(path, "w") as f:
+            json.dump(plan, f, indent=1)
     found: dict[str, list[str]] = {"taken": [], "kept": [], "unfinished": []}
     for src in sources:
         for job in jobs:
             if J.is_done(src, job):
-                if J.is_done(out, job):
-                    if job.id not in found["kept"]:
+                if job.id in found["taken"] or J.is_done(out, job):
+                    if job.id not in found["kept"] + found["taken"]:
                         found["kept"].append(job.id)
                     continue
-                _copy_job(src, out, job)
+                if os.path.isdir(J.job_dir(out, job)) and os.listdir(J.job_dir(out, job)):
+                    log(f"{job.id}: {out} held it unfinished (epoch {J.epochs_done(out, job)} of {job.epochs}); "
+                        f"replaced by the finished one from {src}")
+                if not dry_run:
+                    _copy_job(src, out, job)
                 found["taken"].append(job.id)
             elif os.path.isdir(J.job_dir(src, job)) and os.listdir(J.job_dir(src, job)):
                 found["unfinished"].append(job.id)
-        for name in _copy_summaries(src, out):
+        for name in ([] if dry_run else _copy_summaries(src, out)):
             log(f"{src}: stretch summary {name}")
     done_here = {j.id for j in jobs if J.is_done(out, j)}
     found["unfinished"] = [i for i in dict.fromkeys(found["unfinished"]) if i not in done_here]
-    log(f"gathered into {out}: {len(found['taken'])} job(s) taken"
+    log(f"{'would gather' if dry_run else 'gathered'} into {out}: {len(found['taken'])} job(s) taken"
         + (f" ({', '.join(found['taken'])})" if found["taken"] else "")
         + (f"; {len(found['kept'])} finished here already, kept as they are" if found["kept"] else "")
         + (f"; unfinished in their folders, not taken (they run again): {', '.join(found['unfinished'])}"
@@ -55,11 +68,17 @@ def gather(out: str, sources: Sequence[str], log: Callable[[str], None] = print)
     return found
 
 
-def gather_and_report(out: str, sources: Sequence[str], log: Callable[[str], None] = print) -> str:
-    """`gather`, then the results page of the gathered folder (`results.write`); its path."""
+def gather_and_report(out: str, sources: Sequence[str], log: Callable[[str], None] = print,
+                      dry_run: bool = False) -> str | None:
+    """`gather`, then the results page of the gathered folder (`results.write`); its path (None
+    with `dry_run`, which writes nothing)."""
     from bulbjax.reproduce import results
 
-    gather(out, sources, log)
+    if not sources:
+        raise ValueError("--gather needs the plan folders to gather (DIR,DIR,...), brought back from other hosts")
+    gather(out, sources, log, dry_run)
+    if dry_run:
+        return None
     page = results.write(out, results.read_summary(out), out_name=out)
     log(f"results: {page}")
     return page
@@ -70,7 +89,12 @@ def _plan_of(out: str, sources: Sequence[str]) -> dict[str, Any]:
     a source's plan that `out`'s grows into (a newer "all") replaces it."""
     path = os.path.join(out, PLAN_FILE)
     plan = read_plan(path) if os.path.exists(path) else None
+    if plan is None and os.path.isdir(out) and os.listdir(out):
+        raise ValueError(f"{out} is not empty and holds no reproduce plan: gather into a plan's folder or an "
+                         "empty one")
     for src in sources:
+        if not os.path.isdir(src):
+            raise ValueError(f"--gather {src}: no such folder")
         if os.path.abspath(src) == os.path.abspath(out):
             raise ValueError(f"--gather {src}: that is the --out folder itself; give the folders brought back")
         p = os.path.join(src, PLAN_FILE)
@@ -83,8 +107,11 @@ def _plan_of(out: str, sources: Sequence[str]) -> dict[str, Any]:
         elif not plan_differences(plan, theirs):
             plan = theirs  # the source's plan is this one grown: its jobs begin with ours
         else:
-            raise ValueError(f"--gather {src}: its plan differs from {out}'s "
-                             f"({'; '.join(plan_differences(theirs, plan))}): gather folders of one plan")
+            what = [f"{k} {theirs.get(k)!r} there, {plan.get(k)!r} in {out}" for k in IDENTITY
+                    if theirs.get(k) != plan.get(k)]
+            raise ValueError(f"--gather {src}: its plan differs from {out}'s ({'; '.join(what)}): gather folders "
+                             "of one plan (every host runs the same --figures and --scale, its share picked "
+                             "with --jobs, --fit-minutes or --shard)")
     assert plan is not None
     return plan
 

@@ -82,7 +82,8 @@ def slots_of(gpus: int | None, per_slot: int = 1, jobs_per_gpu: int = 1) -> tupl
                 device_kind(use)
         return [Slot(f"GPU {g}", g) for g in use], device_kind(use)
     if jobs_per_gpu > 1:
-        raise ValueError(f"--jobs-per-gpu {jobs_per_gpu}: this host has no GPU; give CPU workers with --gpus N")
+        raise ValueError(f"--jobs-per-gpu {jobs_per_gpu} shares a GPU between jobs and this host has none: "
+                         "leave it out (CPU workers: --gpus N)")
     return [Slot(f"cpu{i}", None, per_slot) for i in range(gpus or 1)], "cpu"
 
 
@@ -126,7 +127,8 @@ def plan_table(out: str, jobs: Sequence[Job], times: dict, est_gpus: int) -> tup
     lines = [f"{'job':<28} {'epochs':>11} {'estimate':>9}  state"]
     for j in jobs:
         state = "done" if j.id in done else f"continue from epoch {ep[j.id]}" if ep.get(j.id) else "new"
-        cost = 0.0 if j.id in done else job_cost(j, times, epochs_done=ep.get(j.id, 0))
+        span = est.spans.get(j.id)  # the schedule's: cold for a preset's first job, warm after it
+        cost = span[1] - span[0] if span else 0.0
         epochs = "recon" if j.kind == "recon" else f"{ep.get(j.id, j.epochs if j.id in done else 0)}/{j.epochs}"
         lines.append(f"{j.id:<28} {epochs:>11} {hms(cost):>9}  {state}")
     return lines, est
@@ -172,16 +174,17 @@ def reproduce(figures: str | Sequence[str] = "all", scale: str = "paper", out: s
     if named is not None:
         mine = [j for j in mine if j in named]
     record = plan_record(figs, scale, list(add_learners), all_jobs)
+    if fit_minutes and overwrite:
+        raise ValueError("--fit-minutes picks among the plan's unfinished jobs: drop --overwrite")
+    lost = [] if overwrite else [j for j in mine if not J.is_done(out, j) and j.after
+                                 and J.is_done(out, _job(all_jobs, j.after))
+                                 and not checkpoint_steps(J.job_dir(out, _job(all_jobs, j.after)))]
+    for j in lost:  # its run finished on a host whose disk (and the checkpoint) went with it
+        log(f"{j.id} left out: its run {j.after} finished on another host and left no checkpoint here to "
+            f"draw from; delete {J.job_dir(out, _job(all_jobs, j.after))} to run both again")
+    mine = [j for j in mine if j not in lost]
     if fit_minutes:  # before the YCB check: Fig. 5 may not be among what fits
-        if overwrite:
-            raise ValueError("--fit-minutes picks among the plan's unfinished jobs: drop --overwrite")
         left = [j for j in mine if not J.is_done(out, j)]
-        lost = [j for j in left if j.after and J.is_done(out, _job(all_jobs, j.after))
-                and not checkpoint_steps(J.job_dir(out, _job(all_jobs, j.after)))]
-        for j in lost:  # its run finished on a host whose disk (and the checkpoint) went with it
-            log(f"{j.id} left out: its run {j.after} finished on another host and left no checkpoint here to "
-                f"draw from; delete {J.job_dir(out, _job(all_jobs, j.after))} to run both again")
-        left = [j for j in left if j not in lost]
         from bulbjax.assets.ycb import YCB_DIR_ENV  # here: it imports trimesh
 
         if any("ycb" in j.preset for j in left) and not os.environ.get(YCB_DIR_ENV):
@@ -207,8 +210,8 @@ def reproduce(figures: str | Sequence[str] = "all", scale: str = "paper", out: s
     note = "" if times_kind == kind else f" (estimates of an {times_kind}: none measured on this kind yet)"
     picked = (f", {len(mine)} picked" + (f" to fit {fit_minutes:g} min" if fit_minutes else " by --jobs")
               if fit_minutes or named is not None else "")
-    log(f"plan: {len(mine)} job(s)" + (f", shard {share[0]}/{share[1]} of {len(all_jobs)}" if share else "")
-        + (f" of {len(all_jobs)}{picked}" if picked else "")
+    log(f"plan: {len(mine)} job(s)" + (f", shard {share[0]}/{share[1]}" if share else "")
+        + (f" of {len(all_jobs)}" if share or picked else "") + picked
         + f", scale {scale}, on {len(slots)} {kind} slot(s){note}\n" + "\n".join(lines)
         + f"\nestimated: {gpu_s / 3600:.2f} {hours_unit(kind)}, {hms(est.wall_s)} wall on {len(slots)} slot(s) "
         f"(utilisation {est.utilisation:.0%})")

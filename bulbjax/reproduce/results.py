@@ -21,6 +21,7 @@ from bulbjax.reproduce import claims
 from bulbjax.reproduce import jobs as J
 from bulbjax.reproduce.estimate import hms, hours_unit
 from bulbjax.reproduce.plan import ENTRIES, PLAN_FILE, TITLES, Job, job_of, read_plan
+from bulbjax.run import checkpoint_steps
 
 PAGE = "results.md"
 PROTOCOL_DIR = "probe_protocol"  # the Fig. 2 claims under the probe variants, across domains
@@ -141,11 +142,23 @@ def write(out: str, summary: dict[str, Any] | None = None, out_name: str | None 
                 rel = os.path.relpath(pngs[-1], out)
                 lines += [f"### {j.preset}: seed 0 after {j.epochs} epochs", "", f"![{j.preset}]({rel})", ""]
             else:
-                lines += [f"### {j.preset}", "", "Not drawn yet (its Fig. 2 run is unfinished).", ""]
+                lines += [f"### {j.preset}", "", _undrawn(out, j, jobs), ""]
     path = os.path.join(out, PAGE)
     with open(path, "w") as f:
         f.write("\n".join(lines).rstrip() + "\n")
     return path
+
+
+def _undrawn(out: str, recon: Job, jobs: Sequence[Job]) -> str:
+    """Why a Fig. 4 job has no figure: its run is unfinished, or finished where its last
+    checkpoint stayed (a host whose disk went with it)."""
+    run = next((j for j in jobs if j.id == recon.after), None)
+    if run is None or not J.is_done(out, run):
+        return "Not drawn yet (its Fig. 2 run is unfinished)."
+    if checkpoint_steps(J.job_dir(out, run)):
+        return "Not drawn yet (its run has finished; the Fig. 4 job has not run)."
+    return (f"Not drawn: its Fig. 2 run ({run.id}) finished on a host that kept its last checkpoint; run it "
+            f"again with this job (delete {run.run_dir}, then `--jobs {recon.id}`).")
 
 
 def _preset_section(out: str, fig: str, preset: str, seeds: Sequence[Job], dest: str | None) -> list[str]:
