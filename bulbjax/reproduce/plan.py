@@ -307,7 +307,12 @@ def parse_jobs(text: str | Sequence[str] | None, jobs: Sequence[Job]) -> list[Jo
     known = [j.id for j in jobs]
     bad = [t for t in items if t not in known]
     if bad or not items:
-        raise ValueError(f"--jobs: {', '.join(bad) or 'no job named'} not in this plan; its jobs: {', '.join(known)}")
+        groups = list(dict.fromkeys(i.rsplit("/", 1)[0] for i in known))
+        hint = ""
+        if bad and not any(b.rsplit("/", 1)[0] in groups for b in bad):
+            hint = " (a job of a figure the plan leaves out? add it to --figures)"
+        raise ValueError(f"--jobs: {', '.join(bad) or 'no job named'} not in this plan{hint}; its jobs, as --dry-run "
+                         f"lists them: {', '.join(f'{g}/...' for g in groups)} (e.g. {known[0]})")
     return with_partners(jobs, items)
 
 
