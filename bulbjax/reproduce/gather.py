@@ -59,7 +59,8 @@ def gather(out: str, sources: Sequence[str], log: Callable[[str], None] = print,
         for name in ([] if dry_run else _copy_summaries(src, out)):
             log(f"{src}: stretch summary {name}")
     done_here = {j.id for j in jobs if J.is_done(out, j)}
-    found["unfinished"] = [i for i in dict.fromkeys(found["unfinished"]) if i not in done_here]
+    found["unfinished"] = [i for i in dict.fromkeys(found["unfinished"])
+                           if i not in done_here and i not in found["taken"]]
     log(f"{'would gather' if dry_run else 'gathered'} into {out}: {len(found['taken'])} job(s) taken"
         + (f" ({', '.join(found['taken'])})" if found["taken"] else "")
         + (f"; {len(found['kept'])} finished here already, kept as they are" if found["kept"] else "")
