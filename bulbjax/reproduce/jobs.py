@@ -65,6 +65,12 @@ def is_done(out: str, job: Job) -> bool:
     return recon_done(out, job) if job.kind == "recon" else epochs_done(out, job) >= job.epochs
 
 
+def finished_elsewhere(out: str, job: Job) -> bool:
+    """Whether run `job` counts as done here without a checkpoint: it finished on a host whose disk
+    kept its last checkpoint, so a Fig. 4 job cannot draw from it in `out`."""
+    return is_done(out, job) and not checkpoint_steps(job_dir(out, job))
+
+
 def epochs_written(out: str, job: Job) -> int:
     """Epochs whose records a running job has written (the last whole line of its metrics.jsonl,
     read from the file's end: a long run's file is large); 0 before the first. The window read

@@ -25,7 +25,6 @@ from bulbjax.reproduce.estimate import (SHARED_GAIN, derived_fp32, device_kind, 
 from bulbjax.reproduce.plan import (PLAN_FILE, Job, grown_from, parse_figures, parse_jobs, parse_shard,
                                     plan_differences, plan_jobs, plan_record, read_plan, shard_of)
 from bulbjax.reproduce.queue import SHARED_MEMORY, Queue, Slot
-from bulbjax.run import checkpoint_steps
 
 
 def learner_names(specs: Sequence[str]) -> list[str]:
@@ -177,8 +176,7 @@ def reproduce(figures: str | Sequence[str] = "all", scale: str = "paper", out: s
     if fit_minutes and overwrite:
         raise ValueError("--fit-minutes picks among the plan's unfinished jobs: drop --overwrite")
     lost = [] if overwrite else [j for j in mine if not J.is_done(out, j) and j.after
-                                 and J.is_done(out, _job(all_jobs, j.after))
-                                 and not checkpoint_steps(J.job_dir(out, _job(all_jobs, j.after)))]
+                                 and J.finished_elsewhere(out, _job(all_jobs, j.after))]
     for j in lost:  # its run finished on a host whose disk (and the checkpoint) went with it
         log(f"{j.id} left out: its run {j.after} finished on another host and left no checkpoint here to "
             f"draw from; delete {J.job_dir(out, _job(all_jobs, j.after))} to run both again")

@@ -21,7 +21,6 @@ from bulbjax.reproduce import claims
 from bulbjax.reproduce import jobs as J
 from bulbjax.reproduce.estimate import hms, hours_unit
 from bulbjax.reproduce.plan import ENTRIES, PLAN_FILE, TITLES, Job, job_of, read_plan
-from bulbjax.run import checkpoint_steps
 
 PAGE = "results.md"
 PROTOCOL_DIR = "probe_protocol"  # the Fig. 2 claims under the probe variants, across domains
@@ -155,7 +154,7 @@ def _undrawn(out: str, recon: Job, jobs: Sequence[Job]) -> str:
     run = next((j for j in jobs if j.id == recon.after), None)
     if run is None or not J.is_done(out, run):
         return "Not drawn yet (its Fig. 2 run is unfinished)."
-    if checkpoint_steps(J.job_dir(out, run)):
+    if not J.finished_elsewhere(out, run):
         return "Not drawn yet (its run has finished; the Fig. 4 job has not run)."
     return (f"Not drawn: its Fig. 2 run ({run.id}) finished on a host that kept its last checkpoint; run it "
             f"again with this job (delete {run.run_dir}, then `--jobs {recon.id}`).")
