@@ -41,6 +41,8 @@ sys.path.insert(0, REPO)
 
 import jax  # noqa: E402
 
+import bulbjax  # noqa: E402
+
 import warp_ffi_stats  # noqa: E402
 from timing import time_fn  # noqa: E402
 
@@ -361,7 +363,12 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     p.add_argument("--warp-graph-cache", default="",
                    help="captured CUDA graphs kept per Warp callable (an int, or none: unbounded; default: "
                         "bulbjax.envs.warp_graphs.GRAPH_CACHE_MAX; Warp's own default is 32)")
+    p.add_argument("--separate-substeps", action="store_true",
+                   help="step the physics in MJX's separate calls (EnvConfig.fuse_substeps=False): "
+                        "the before of issue 63's one-call-per-env-step measurement")
     a = p.parse_args(argv)
+    if a.separate_substeps:  # the experiment builds its env through bulbjax.make
+        bulbjax.make = functools.partial(bulbjax.make, fuse_substeps=False)
     if a.warp_stats or a.warp_graph_cache:
         gcm = a.warp_graph_cache
         warp_ffi_stats.install("default" if not gcm else None if gcm == "none" else int(gcm))
@@ -375,6 +382,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
                            "platform": jax.default_backend(), "jax": jax.__version__,
                            "compile_cache": a.compile_cache or None,
                            "warp_graph_cache": a.warp_graph_cache or "default",
+                           "fuse_substeps": not a.separate_substeps,
                            # settings given by the environment (XLA_FLAGS, JAX_* such as
                            # JAX_THREEFRY_GPU_KERNEL_LOWERING), so that a result says what it ran
                            "env": {k: v for k, v in os.environ.items()

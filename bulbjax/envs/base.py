@@ -18,7 +18,7 @@ import numpy as np
 from flax import struct
 from mujoco import mjx
 
-from bulbjax.envs import warp_graphs
+from bulbjax.envs import warp_graphs, warp_steps
 from bulbjax.envs.batch import add_counts, nonfinite, prng_key, where_tree
 from bulbjax.envs.camera import PAN_CAMERAS, CameraConfig, add_bulb_camera, pan_cameras, static_view, view_poses
 from bulbjax.envs.colours import NUM_SCHEMES, scheme_table
@@ -183,6 +183,10 @@ class MjxPixelEnv:
         ids, rgb = self._scheme_colours()
         self._colour_ids, self._scheme_rgb = jnp.asarray(ids, jnp.int32), jnp.asarray(rgb, jnp.float32)
         self._recolour = bool(self._colour_ids.size) and (config.multicolour or self.always_recolour)
+        # `physics` in one Warp call where that saves calls and the action holds the controls only
+        self._fused_substeps = (config.fuse_substeps and (self.frame_skip > 1 or self.kinematics_after_step)
+                                and type(self)._apply_action is MjxPixelEnv._apply_action
+                                and warp_steps.available())
 
     # ----- to be provided by domains -----
     always_recolour: bool = False  # apply `_scheme_colours` even without multicolour
@@ -333,6 +337,9 @@ class MjxPixelEnv:
         (`state.params`). `step` is this plus the episode bookkeeping; the parity mirror calls
         it alone to keep stepping past an episode's end."""
         mx = self._world_model(params or {})
+        if self._fused_substeps:  # one MJX-Warp call for the substeps and the kinematics
+            step = warp_steps.multi_step(self.frame_skip, self.kinematics_after_step)
+            return jax.vmap(step, in_axes=(None, 0))(mx, jax.vmap(self._apply_action)(data, action))
 
         def substep(d: mjx.Data) -> mjx.Data:
             d = jax.vmap(self._apply_action)(d, action)

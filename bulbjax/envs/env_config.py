@@ -53,6 +53,11 @@ class EnvConfig:
     # buffers) or "none" (no graphs). Same physics; a speed setting (benchmarks/diagnostics/
     # incline_gap.py --graph-modes). The CPU never captures graphs: there it has no effect.
     graph_mode: str | None = None
+    # An env step's physics substeps (and the kinematics pass after them) as one MJX-Warp call
+    # (`warp_steps.multi_step`) where the action is the same controls at every substep: the same
+    # numbers bit for bit, one host callback per env step instead of `frame_skip` + 1 (the
+    # locomotion domains: 5). False: MJX's separate calls. A speed setting.
+    fuse_substeps: bool = True
 
 
 GRAPH_MODES = ("none", "jax", "warp", "warp_staged", "warp_staged_ex")
@@ -72,6 +77,8 @@ def check_config(config: EnvConfig) -> None:
         raise ValueError(f"num_envs must be a positive integer, got {config.num_envs!r}")
     if config.graph_mode is not None and config.graph_mode not in GRAPH_MODES:
         raise ValueError(f"graph_mode must be None (MJX's default) or one of {GRAPH_MODES}, got {config.graph_mode!r}")
+    if not isinstance(config.fuse_substeps, (bool, np.bool_)):
+        raise ValueError(f"fuse_substeps must be True or False, got {config.fuse_substeps!r}")
     seg = config.pool_segments
     if (isinstance(seg, (bool, np.bool_)) or not isinstance(seg, (int, np.integer)) or seg < 1
             or config.num_envs % seg):
