@@ -51,18 +51,22 @@ def test_the_fp32_entry_is_fig2s_invpend_without_bf16(scale: str) -> None:
 
 
 def test_the_campaigns_jobs_are_unchanged_and_its_folder_continues(tmp_path, monkeypatch) -> None:
-    """The committed campaign's plan.json (made before the fp32 entry) holds the first jobs of
-    today's "all", each the same; a folder holding it continues as "all" with the 6 fp32 jobs added
+    """The committed campaign's plan.json is today's "all" (it grew when its first fp32 job was
+    gathered); as it was before the fp32 entry (its 34 jobs), it holds the first jobs of today's
+    "all", each the same, and a folder holding it continues as "all" with the 6 fp32 jobs added
     (new), each host's shard of its jobs unchanged; a saved plan of a former "all" whose jobs differ,
     or of other figures, is still refused."""
     from bulbjax.assets.ycb import YCB_DIR_ENV
 
     with open(CAMPAIGN) as f:
-        saved = json.load(f)
-    old = [plan.job_of(d) for d in saved["jobs"]]
+        committed = json.load(f)
     new = plan_jobs("all", "paper")
-    assert new[:len(old)] == old and {j.figure for j in new[len(old):]} == {"fp32"}
     record = plan.plan_record(plan.parse_figures("all"), "paper", [], new)
+    assert plan.plan_differences(committed, record) == [] and plan.grown_from(committed, record) == []
+    saved = dict(committed, figures=[f for f in committed["figures"] if f != "fp32"],
+                 jobs=[d for d in committed["jobs"] if d["figure"] != "fp32"])
+    old = [plan.job_of(d) for d in saved["jobs"]]
+    assert len(old) == 34 and new[:len(old)] == old and {j.figure for j in new[len(old):]} == {"fp32"}
     assert plan.plan_differences(saved, record) == []
     assert plan.grown_from(saved, record) == [f"fp32/fig2-invpend/seed{k}" for k in range(6)]
     times, _ = estimate.load_times("NVIDIA H200")
@@ -73,7 +77,7 @@ def test_the_campaigns_jobs_are_unchanged_and_its_folder_continues(tmp_path, mon
 
     out = tmp_path / "campaign"
     out.mkdir()
-    shutil.copy(CAMPAIGN, out / plan.PLAN_FILE)
+    (out / plan.PLAN_FILE).write_text(json.dumps(saved))
     monkeypatch.setenv(YCB_DIR_ENV, str(tmp_path))
     said: list[str] = []
     s = reproduce("all", "paper", str(out), dry_run=True, log=said.append)
@@ -94,7 +98,8 @@ def test_fp32_jobs_are_estimated_slower_and_say_how(tmp_path) -> None:
     """Without an fp32 row an fp32 job costs its preset's bf16 epochs x FP32_EPOCH_FACTOR (start-up
     as is, its own compile: not warm after a bf16 job), and the dry run says the row is derived; a
     measured `fig2-invpend fp32` row is used as it is. `--jobs` picks one fp32 job."""
-    times, _ = estimate.load_times("NVIDIA H200")
+    times, _ = estimate.load_times("NVIDIA H100 80GB HBM3")  # a device with no fp32 row
+    h200, _ = estimate.load_times("NVIDIA H200")
     bf16, fp32 = plan_jobs("fig2-invpend", "paper")[0], plan_jobs("fp32", "paper")[0]
     t = times["fig2-invpend"]
     assert estimate.job_cost(fp32, times) == pytest.approx(
@@ -106,6 +111,7 @@ def test_fp32_jobs_are_estimated_slower_and_say_how(tmp_path) -> None:
     # on one slot the fp32 job after the bf16 one still starts cold: other programs
     assert estimate.simulate([bf16, fp32], times, 1).wall_s == pytest.approx(
         estimate.job_cost(bf16, times) + estimate.job_cost(fp32, times))
+    assert estimate.derived_fp32([fp32], h200) == [] and not estimate.timing_of(fp32, h200).derived  # measured
     measured = dict(times, **{"fig2-invpend fp32": estimate.Timing(0.9, 200.0, 50.0)})
     assert estimate.job_cost(fp32, measured) == 200.0 + 900.0 and estimate.derived_fp32([fp32], measured) == []
 

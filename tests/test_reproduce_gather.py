@@ -16,25 +16,34 @@ from bulbjax.reproduce.gather import gather
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 CAMPAIGN = os.path.join(ROOT, "docs", "results", "paper_h200")
-SECOND = ("runs/fig2-cartpole/seed4", "runs/fig2-invpend", "fig4")  # what the second allocation finished
+# what the allocations after the first finished: the second (CartPole seed 4, InvertedPendulum seed 0
+# and its Fig. 4), the third (the first fp32 job, whose gathering grew the plan by the fp32 entry)
+LATER = ("runs/fig2-cartpole/seed4", "runs/fig2-invpend", "fig4", "runs/fp32")
+LATER_JOBS = ["fig2-cartpole/seed4", "fig2-invpend/seed0", "fig4/fig2-invpend", "fp32/fig2-invpend/seed0"]
 
 
 def _before_second(dest: str) -> str:
-    """The campaign folder as it was before its second allocation: without what that one ran."""
+    """The campaign folder as it was before its second allocation: without what that one and the
+    later ones ran, its plan the 34 jobs of before the fp32 entry."""
     shutil.copytree(CAMPAIGN, dest, ignore=shutil.ignore_patterns("results.md"))
-    for rel in SECOND:
+    for rel in LATER:
         shutil.rmtree(os.path.join(dest, rel))
     for name in os.listdir(dest):
         if name.startswith("summary_20261129"):
             os.remove(os.path.join(dest, name))
+    with open(os.path.join(dest, "plan.json")) as f:
+        plan = json.load(f)
+    with open(os.path.join(dest, "plan.json"), "w") as f:
+        json.dump(dict(plan, figures=[x for x in plan["figures"] if x != "fp32"],
+                       jobs=[j for j in plan["jobs"] if j["figure"] != "fp32"]), f, indent=1)
     return dest
 
 
 def test_gathering_the_allocations_gives_the_committed_page(tmp_path) -> None:
-    """What the second allocation brought back, gathered into the folder from before it: its jobs
-    taken (the run folders, Fig. 4's figure), the ones finished in both kept, its stretch
-    summaries added under their finished time; the page is the committed one. Gathering again
-    adds nothing."""
+    """What the later allocations brought back, gathered into the folder from before them: their
+    jobs taken (the run folders, Fig. 4's figure), the ones finished in both kept, the plan grown
+    by the fp32 entry, their stretch summaries added under their finished time; the page is the
+    committed one. Gathering again adds nothing."""
     from bulbjax.reproduce import results
 
     out = _before_second(str(tmp_path / "out"))
@@ -42,7 +51,7 @@ def test_gathering_the_allocations_gives_the_committed_page(tmp_path) -> None:
     shutil.copytree(CAMPAIGN, host)
     said: list[str] = []
     found = gather(out, [host], log=said.append)
-    assert sorted(found["taken"]) == ["fig2-cartpole/seed4", "fig2-invpend/seed0", "fig4/fig2-invpend"]
+    assert sorted(found["taken"]) == LATER_JOBS
     assert "fig2-cartpole/seed3" in found["kept"] and found["unfinished"] == []
     assert sorted(n for n in os.listdir(out) if n.startswith("summary_20261129")) == sorted(
         n for n in os.listdir(CAMPAIGN) if n.startswith("summary_20261129"))
