@@ -153,7 +153,7 @@ def test_a_dry_run_names_the_hours_of_its_slots(tmp_path, monkeypatch) -> None:
     reproduce("fig2-cartpole", "tiny", str(tmp_path / "cpu"), dry_run=True, log=said.append)
     assert re.search(r"\nestimated: [0-9.]+ CPU-hours, ", said[0]) and "GPU-hours" not in said[0], said[0]
     monkeypatch.setattr(local_processes, "visible_gpus", lambda: ["0", "1"])
-    monkeypatch.setattr(main, "device_kind", lambda gpus: "NVIDIA H100 80GB HBM3")
+    monkeypatch.setattr(main, "host_kind", lambda gpus: "NVIDIA H100 80GB HBM3")
     said.clear()
     reproduce("fig2-cartpole", "tiny", str(tmp_path / "gpu"), dry_run=True, log=said.append)
     assert re.search(r"\nestimated: [0-9.]+ GPU-hours, .* on 2 slot\(s\)", said[0]), said[0]
@@ -165,7 +165,7 @@ def test_learners_apart_gives_each_job_a_pair_of_devices(tmp_path, monkeypatch) 
     from bulbjax import local_processes
     from bulbjax.reproduce import main
 
-    monkeypatch.setattr(main, "device_kind", lambda gpus: "NVIDIA H200")
+    monkeypatch.setattr(main, "host_kind", lambda gpus: "NVIDIA H200")
     monkeypatch.setattr(local_processes, "visible_gpus", lambda: ["0", "1", "2", "3", "4"])
     slots, kind = main.slots_of(None, 2)
     assert [s.gpu for s in slots] == ["0,1", "2,3"] and kind == "NVIDIA H200"
@@ -425,7 +425,7 @@ def test_jobs_per_gpu_shares_each_gpu_and_counts_it_once(tmp_path, monkeypatch) 
     from bulbjax import local_processes
     from bulbjax.reproduce import estimate, main, results
 
-    monkeypatch.setattr(main, "device_kind", lambda gpus: "NVIDIA H200")
+    monkeypatch.setattr(main, "host_kind", lambda gpus: "NVIDIA H200")
     monkeypatch.setattr(local_processes, "visible_gpus", lambda: ["0", "1"])
     monkeypatch.delenv("XLA_PYTHON_CLIENT_MEM_FRACTION", raising=False)
     slots, _ = main.slots_of(None, 1, 3)

@@ -11,7 +11,7 @@ from bulbjax.reproduce.plan import ENTRIES, SCALES
 # plan the folders hold and runs nothing)
 _RUN_ONLY = (("--figures", "all"), ("--scale", "paper"), ("--gpus", None), ("--shard", None), ("--jobs", None),
              ("--fit-minutes", 0.0), ("--learners-apart", False), ("--jobs-per-gpu", 1), ("--add-learner", None),
-             ("--overwrite", False), ("--max-minutes", 0.0))
+             ("--overwrite", False), ("--max-minutes", 0.0), ("--device-kind", None))
 
 
 def cmd_reproduce(args: argparse.Namespace) -> int:
@@ -30,7 +30,7 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
                         add_learners=args.add_learner or (), dry_run=args.dry_run, overwrite=args.overwrite,
                         max_minutes=args.max_minutes, progress_every=args.progress_every, jobs=args.jobs,
                         fit_minutes=args.fit_minutes, learners_apart=args.learners_apart,
-                        jobs_per_gpu=args.jobs_per_gpu)
+                        jobs_per_gpu=args.jobs_per_gpu, device_kind=args.device_kind)
     return 1 if summary.get("failed") else 0
 
 
@@ -82,6 +82,10 @@ def add_parser(sub: argparse._SubParsersAction,
                          "hosts) finished and --out has not, with their stretch summaries, then write its "
                          "results page (default: none, run the plan)")
     rp.add_argument("--dry-run", action="store_true", help="print the jobs and the estimated time, run nothing")
+    rp.add_argument("--device-kind", default=None, metavar="KIND",
+                    help="with --dry-run: estimate the plan on --gpus (default 1) GPUs of this kind, as "
+                         "nvidia-smi names it (e.g. 'NVIDIA H200'), not this host's: for a node without them "
+                         "(default: this host's devices)")
     rp.add_argument("--overwrite", action="store_true", help="start afresh: delete the plan's folder first")
     rp.add_argument("--max-minutes", type=float, default=0.0,
                     help="stop every job (checkpointed) after this wall time; the same command continues "

@@ -21,7 +21,7 @@ import json
 import subprocess
 from dataclasses import dataclass
 from importlib import resources
-from typing import Sequence
+from typing import Any, Sequence
 
 from bulbjax.reproduce.plan import Job
 
@@ -129,10 +129,19 @@ def device_kind(gpus: Sequence[str] = ()) -> str:
     return name or "unknown GPU"
 
 
+def _table() -> dict[str, Any]:
+    return json.loads(resources.files("bulbjax.reproduce").joinpath(TIMES_FILE).read_text())
+
+
+def table_kinds() -> list[str]:
+    """The device kinds the table times (nvidia-smi's names, and cpu)."""
+    return list(_table()["kinds"])
+
+
 def load_times(kind: str) -> tuple[dict[str, Timing], str]:
     """The times of `kind` and the kind they are for: the kind's own where the table has it,
     else the table's fallback (an H100's), said in the second value."""
-    table = json.loads(resources.files("bulbjax.reproduce").joinpath(TIMES_FILE).read_text())
+    table = _table()
     kinds = table["kinds"]
     used = kind if kind in kinds else table["fallback"]
     times = {p: Timing(**{k: v for k, v in t.items() if k in Timing.__dataclass_fields__})
@@ -249,7 +258,7 @@ def hms(seconds: float) -> str:
 def times_markdown() -> str:
     """The table of `epoch_times.json` as markdown (docs/reproduce.md holds it; a test keeps the
     two equal)."""
-    table = json.loads(resources.files("bulbjax.reproduce").joinpath(TIMES_FILE).read_text())
+    table = _table()
     lines = ["| device | preset | s per epoch, 1 seed | + per further seed | start-up cold / warm (s) | source |",
              "|---|---|---|---|---|---|"]
     for kind, presets in table["kinds"].items():

@@ -20,8 +20,9 @@ from typing import Any, Callable, Sequence
 from bulbjax.config import PRESETS
 from bulbjax.reproduce import jobs as J
 from bulbjax.reproduce import results
-from bulbjax.reproduce.estimate import (SHARED_GAIN, derived_fp32, device_kind, fit_jobs, hms, hours_unit, job_cost,
-                                       load_times, shared_times, simulate)
+from bulbjax.reproduce.estimate import (SHARED_GAIN, derived_fp32, fit_jobs, hms, hours_unit, job_cost, load_times,
+                                       shared_times, simulate, table_kinds)
+from bulbjax.reproduce.estimate import device_kind as host_kind
 from bulbjax.reproduce.plan import (PLAN_FILE, Job, grown_from, parse_figures, parse_jobs, parse_shard,
                                     plan_differences, plan_jobs, plan_record, read_plan, shard_of)
 from bulbjax.reproduce.queue import SHARED_MEMORY, Queue, Slot
@@ -48,15 +49,24 @@ def learner_names(specs: Sequence[str]) -> list[str]:
     return out
 
 
-def slots_of(gpus: int | None, per_slot: int = 1, jobs_per_gpu: int = 1) -> tuple[list[Slot], str]:
+def slots_of(gpus: int | None, per_slot: int = 1, jobs_per_gpu: int = 1,
+             as_kind: str | None = None) -> tuple[list[Slot], str]:
     """This host's slots: one per visible GPU (the first `gpus` of them), or per `per_slot` GPUs
     (the learners apart: 2), or `gpus` CPU workers (default 1) on a host without one, each
     showing `per_slot` CPU devices; and the device kind. `jobs_per_gpu` > 1: that many slots per
     GPU, each with its share of the GPU's memory (`Slot.mem_fraction`), so the jobs' processes
-    run side by side on it (one's launch-bound rollouts beside another's learners)."""
+    run side by side on it (one's launch-bound rollouts beside another's learners). `as_kind`:
+    the slots of a host of `gpus` (default 1) GPUs of that kind instead of this one's (a dry run's
+    estimate for other hosts, from a login node without GPUs)."""
     from bulbjax import local_processes
 
-    visible = local_processes.visible_gpus()
+    if as_kind is not None:
+        kinds = [k for k in table_kinds() if k != "cpu"]
+        if as_kind not in kinds:
+            raise ValueError(f"--device-kind {as_kind!r}: the table times {', '.join(repr(k) for k in kinds)} "
+                             "(nvidia-smi's names; bulbjax/reproduce/epoch_times.json)")
+    visible = local_processes.visible_gpus() if as_kind is None else [str(i) for i in range(gpus or 1)]
+    kind_of = host_kind if as_kind is None else (lambda _: as_kind)
     if gpus is not None and gpus < 1:
         raise ValueError(f"--gpus {gpus}: give 1 or more (the GPUs of this host to use)")
     if jobs_per_gpu < 1:
@@ -74,12 +84,12 @@ def slots_of(gpus: int | None, per_slot: int = 1, jobs_per_gpu: int = 1) -> tupl
             if not groups:
                 raise ValueError(f"--learners-apart runs each job on {per_slot} GPUs and this host has "
                                  f"{len(use)} to use ({', '.join(use)}): leave it out, or give more GPUs")
-            return [Slot(f"GPUs {g}", g) for g in groups], device_kind(use)
+            return [Slot(f"GPUs {g}", g) for g in groups], kind_of(use)
         if jobs_per_gpu > 1:
             share = SHARED_MEMORY / jobs_per_gpu
             return [Slot(f"GPU {g}.{k}", g, mem_fraction=share) for g in use for k in range(jobs_per_gpu)], \
-                device_kind(use)
-        return [Slot(f"GPU {g}", g) for g in use], device_kind(use)
+                kind_of(use)
+        return [Slot(f"GPU {g}", g) for g in use], kind_of(use)
     if jobs_per_gpu > 1:
         raise ValueError(f"--jobs-per-gpu {jobs_per_gpu} shares a GPU between jobs and this host has none: "
                          "leave it out (CPU workers: --gpus N)")
@@ -138,7 +148,7 @@ def reproduce(figures: str | Sequence[str] = "all", scale: str = "paper", out: s
               dry_run: bool = False, overwrite: bool = False, max_minutes: float = 0.0,
               progress_every: float = 30.0, log: Callable[[str], None] = print,
               jobs: str | Sequence[str] | None = None, fit_minutes: float = 0.0,
-              learners_apart: bool = False, jobs_per_gpu: int = 1) -> dict[str, Any]:
+              learners_apart: bool = False, jobs_per_gpu: int = 1, device_kind: str | None = None) -> dict[str, Any]:
     """Run (or with `dry_run`, only plan) the paper's `figures` at `scale` into `out`; returns the
     summary (also `out/summary.json`). Rerunning with the same arguments continues unfinished
     jobs and skips finished ones. `shard` "K/N": this host's share of a plan split over N hosts.
@@ -150,7 +160,8 @@ def reproduce(figures: str | Sequence[str] = "all", scale: str = "paper", out: s
     `learners_apart`: every job on two GPUs, its learners on the second (`bulbjax run --overlap
     apart`: the same numbers; its epochs beside its PPO work). `jobs_per_gpu`: that many jobs side by
     side on each GPU, each its own process (`slots_of`); the summary's GPU-hours count each GPU
-    once (its slots' busy time / `jobs_per_gpu`)."""
+    once (its slots' busy time / `jobs_per_gpu`). `device_kind` (with `dry_run` only): estimate the
+    plan on `gpus` (default 1) GPUs of that kind, not this host's."""
     figs = parse_figures(figures)
     share = parse_shard(shard)
     if share is not None and overwrite:
@@ -158,9 +169,12 @@ def reproduce(figures: str | Sequence[str] = "all", scale: str = "paper", out: s
                          "deleting it once (or with --overwrite on one host, without --shard)")
     if max_minutes < 0:
         raise ValueError(f"--max-minutes must be >= 0 (0: no limit), got {max_minutes}")
+    if device_kind is not None and not dry_run:
+        raise ValueError(f"--device-kind {device_kind!r} estimates a plan for other hosts: add --dry-run (a run "
+                         "uses this host's devices)")
     names = learner_names(add_learners)
     all_jobs = plan_jobs(figs, scale, list(add_learners))
-    slots, kind = slots_of(gpus, 2 if learners_apart else 1, jobs_per_gpu)
+    slots, kind = slots_of(gpus, 2 if learners_apart else 1, jobs_per_gpu, as_kind=device_kind)
     times, times_kind = load_times(kind)
     times = shared_times(times, jobs_per_gpu)
     costs = {j.id: job_cost(j, times) for j in all_jobs}
