@@ -134,3 +134,34 @@ def test_a_dry_gather_copies_nothing_and_changes_are_said(tmp_path) -> None:
                         "--jobs-per-gpu", "3"], capture_output=True, text=True, timeout=120,
                        env=dict(os.environ, JAX_PLATFORMS="cpu"))
     assert r.returncode == 2 and r.stderr.strip().count("\n") == 0 and "not --jobs-per-gpu" in r.stderr
+
+
+def test_a_plan_of_fewer_figures_gathers_into_the_whole_and_the_whole_into_it(tmp_path) -> None:
+    """A host that ran `--figures fig2-cartpole` ran jobs of the plan of every figure: its folder
+    gathers into that plan's (its finished job taken, the plan kept), and the plan of every figure
+    gathers into its folder (whose plan becomes the larger one, the jobs added named); a part with
+    a job that differs is refused."""
+    from bulbjax.reproduce.plan import parse_figures, plan_jobs, plan_record
+
+    part = plan_record(parse_figures("fig2-cartpole"), "paper", [], plan_jobs("fig2-cartpole", "paper"))
+    host = tmp_path / "host"
+    shutil.copytree(os.path.join(CAMPAIGN, "runs", "fig2-cartpole", "seed4"), host / "runs" / "fig2-cartpole" / "seed4")
+    (host / "plan.json").write_text(json.dumps(part))
+    out = _before_second(str(tmp_path / "out"))
+    whole = json.loads((tmp_path / "out" / "plan.json").read_text())
+    said: list[str] = []
+    found = gather(out, [str(host)], log=said.append)
+    assert found["taken"] == ["fig2-cartpole/seed4"] and "grows" not in "\n".join(said)
+    assert json.loads((tmp_path / "out" / "plan.json").read_text()) == whole
+
+    small = tmp_path / "small"
+    shutil.copytree(host, small)
+    said.clear()
+    found = gather(str(small), [out], log=said.append)
+    assert json.loads((small / "plan.json").read_text()) == whole
+    assert f"{len(whole['jobs']) - 6} job(s) added" in said[0] and "fig2-cartpole/seed0" in found["taken"]
+
+    changed = dict(part, jobs=[dict(part["jobs"][0], epochs=10), *part["jobs"][1:]])
+    (host / "plan.json").write_text(json.dumps(changed))
+    with pytest.raises(ValueError, match="its plan differs from"):
+        gather(str(tmp_path / "out"), [str(host)], log=lambda _: None)

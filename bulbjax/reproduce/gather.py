@@ -7,7 +7,9 @@ figure folder) and its console log, and each stretch's `summary*.json`, named by
 finished, so the results page lists every stretch's GPU time once. A job finished in both is kept
 as OUT has it; a job a folder holds unfinished is left there (a run is continued only from its
 checkpoint, on the host that has it). The folders must hold OUT's plan (or the plan OUT's grows
-from or into: `plan.grown_from`).
+from or into: `plan.grown_from`), or a plan of fewer figures whose jobs are OUT's (`plan.part_of`:
+a host that ran `--figures fig2-cartpole`), or one of more figures of which OUT's is a part (OUT's
+plan becomes it).
 """
 
 from __future__ import annotations
@@ -18,7 +20,7 @@ import shutil
 from typing import Any, Callable, Sequence
 
 from bulbjax.reproduce import jobs as J
-from bulbjax.reproduce.plan import IDENTITY, PLAN_FILE, job_of, plan_differences, read_plan
+from bulbjax.reproduce.plan import IDENTITY, PLAN_FILE, job_of, part_of, plan_differences, read_plan
 
 
 def gather(out: str, sources: Sequence[str], log: Callable[[str], None] = print,
@@ -32,10 +34,10 @@ def gather(out: str, sources: Sequence[str], log: Callable[[str], None] = print,
     plan = _plan_of(out, sources)
     jobs = [job_of(d) for d in plan["jobs"]]
     path = os.path.join(out, PLAN_FILE)
-    before = len(read_plan(path)["jobs"]) if os.path.exists(path) else None
-    if before is not None and before < len(jobs):
-        log(f"{out}'s plan grows to that of the folders gathered: {len(jobs) - before} job(s) added "
-            f"({', '.join(j.id for j in jobs[before:])})")
+    before = {d["id"] for d in read_plan(path)["jobs"]} if os.path.exists(path) else None
+    added = [j.id for j in jobs if before is not None and j.id not in before]
+    if added:
+        log(f"{out}'s plan grows to that of the folders gathered: {len(added)} job(s) added ({', '.join(added)})")
     if not dry_run:
         os.makedirs(out, exist_ok=True)
         with open(path, "w") as f:
@@ -107,12 +109,16 @@ def _plan_of(out: str, sources: Sequence[str]) -> dict[str, Any]:
             plan = plan or theirs
         elif not plan_differences(plan, theirs):
             plan = theirs  # the source's plan is this one grown: its jobs begin with ours
+        elif part_of(theirs, plan):
+            pass  # a plan of fewer figures, its jobs ours: its finished ones are taken
+        elif part_of(plan, theirs):
+            plan = theirs  # ours is a part of the source's: the gathered folder holds the larger plan
         else:
             what = [f"{k} {theirs.get(k)!r} there, {plan.get(k)!r} in {out}" for k in IDENTITY
                     if theirs.get(k) != plan.get(k)]
             raise ValueError(f"--gather {src}: its plan differs from {out}'s ({'; '.join(what)}): gather folders "
-                             "of one plan (every host runs the same --figures and --scale, its share picked "
-                             "with --jobs, --fit-minutes or --shard)")
+                             "of one plan, or of plans whose jobs are the same (a host's --figures a part of "
+                             "another's, the same --scale)")
     assert plan is not None
     return plan
 

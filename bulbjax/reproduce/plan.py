@@ -349,6 +349,18 @@ def grown_from(saved: dict, new: dict) -> list[str]:
     return [j.id for j in jobs[len(old):]]
 
 
+def part_of(small: dict, big: dict) -> bool:
+    """Whether `small` is a plan of fewer figures whose every job is the job of the same id in
+    `big` (same scale and added learners; each job's every field equal): a host that ran
+    `--figures fig2-cartpole` ran jobs of the plan of every figure, and its folder gathers into
+    that plan's."""
+    if any(small.get(k) != big.get(k) for k in IDENTITY if k != "figures"):
+        return False
+    theirs = {d["id"]: job_of(d) for d in big.get("jobs", [])}
+    mine = [job_of(d) for d in small.get("jobs", [])]
+    return bool(mine) and all(theirs.get(j.id) == j for j in mine)
+
+
 def read_plan(path: str) -> dict:
     with open(path) as f:
         return json.load(f)
