@@ -28,15 +28,19 @@ def no_gpus(monkeypatch):
 def test_a_dry_run_costs_the_plan_on_gpus_of_another_kind(tmp_path, no_gpus) -> None:
     out = str(tmp_path / "plan")
     said: list[str] = []
-    s = reproduce("fig2-cartpole", "paper", out, gpus=2, dry_run=True, device_kind=H200, log=said.append)
+    s = reproduce("fig2-cartpole", "paper", out, gpus=2, dry_run=True, device_kind=H200,
+                  log=said.append)
     times, used = estimate.load_times(H200)
     assert used == H200 and s["device_kind"] == H200 and s["times_of"] == H200 and s["gpus"] == 2
-    assert s["estimated_wall_s"] == pytest.approx(estimate.simulate(plan_jobs("fig2-cartpole", "paper"), times, 2).wall_s)
+    planned = estimate.simulate(plan_jobs("fig2-cartpole", "paper"), times, 2)
+    assert s["estimated_wall_s"] == pytest.approx(planned.wall_s)
     assert "on 2 NVIDIA H200 slot(s)" in said[-1] and "GPU-hours" in said[-1]
-    shared = reproduce("fig2-cartpole", "paper", out, dry_run=True, device_kind=H200, jobs_per_gpu=3,
-                       log=said.append)  # three slots on the one GPU, which this host does not have
+    # three slots on the one GPU, which this host does not have
+    shared = reproduce("fig2-cartpole", "paper", out, dry_run=True, device_kind=H200,
+                       jobs_per_gpu=3, log=said.append)
     assert shared["gpus"] == 1 and shared["jobs_per_gpu"] == 3
-    alone = reproduce("fig2-cartpole", "paper", out, dry_run=True, device_kind=H200, log=said.append)
+    alone = reproduce("fig2-cartpole", "paper", out, dry_run=True, device_kind=H200,
+                      log=said.append)
     assert shared["estimated_gpu_s"] < alone["estimated_gpu_s"]
     assert not os.path.exists(out)
 
@@ -44,11 +48,13 @@ def test_a_dry_run_costs_the_plan_on_gpus_of_another_kind(tmp_path, no_gpus) -> 
 def test_unknown_kinds_runs_and_gathers_are_refused(tmp_path, no_gpus) -> None:
     out = str(tmp_path / "plan")
     with pytest.raises(ValueError, match=r"--device-kind 'H200': the table times .*'NVIDIA H200'"):
-        reproduce("fig2-cartpole", "paper", out, dry_run=True, device_kind="H200", log=lambda _: None)
+        reproduce("fig2-cartpole", "paper", out, dry_run=True, device_kind="H200",
+                  log=lambda _: None)
     with pytest.raises(ValueError, match="add --dry-run"):
         reproduce("fig2-cartpole", "paper", out, device_kind=H200, log=lambda _: None)
     assert not os.path.exists(out)
-    r = subprocess.run([sys.executable, "-m", "bulbjax", "reproduce", "--out", out, "--gather", str(tmp_path),
-                        "--device-kind", H200], capture_output=True, text=True, timeout=120,
+    r = subprocess.run([sys.executable, "-m", "bulbjax", "reproduce", "--out", out,
+                        "--gather", str(tmp_path), "--device-kind", H200],
+                       capture_output=True, text=True, timeout=120,
                        env=dict(os.environ, JAX_PLATFORMS="cpu"))
     assert r.returncode == 2 and r.stderr.strip().count("\n") == 0 and "--device-kind" in r.stderr

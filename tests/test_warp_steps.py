@@ -1,8 +1,8 @@
-"""An env step's substeps as one MJX-Warp call (`envs.warp_steps.multi_step`, `EnvConfig.fuse_substeps`):
-the locomotion domains step in one call per env step, and their episodes are those of MJX's separate
-calls bit for bit (every leaf of the state: Data, observations, rewards, ends); the domains whose
-action is more than the controls, or that step once without a kinematics pass, keep the separate
-calls; bad values are one line."""
+"""An env step's substeps as one MJX-Warp call (`envs.warp_steps.multi_step`,
+`EnvConfig.fuse_substeps`): the locomotion domains step in one call per env step, and their
+episodes are those of MJX's separate calls bit for bit (every leaf of the state: Data,
+observations, rewards, ends); the domains whose action is more than the controls, or that step
+once without a kinematics pass, keep the separate calls; bad values are one line."""
 
 from __future__ import annotations
 
@@ -43,7 +43,8 @@ def test_fused_substeps_are_the_separate_calls_bit_for_bit(name):
 
 def test_only_domains_with_several_calls_and_plain_controls_fuse():
     assert warp_steps.available()
-    assert not bulbjax.make("CartPole", num_envs=2, render=False)._fused_substeps  # one step, no kinematics
+    cartpole = bulbjax.make("CartPole", num_envs=2, render=False)
+    assert not cartpole._fused_substeps  # one step, no kinematics
 
 
 def test_bad_values_are_one_line():

@@ -9,9 +9,9 @@ rollouts, and jobs sharing a GPU would gain more.
 
 Two workloads, each a jitted loop timed in its own process: `tiny` (a chain of dependent
 elementwise kernels on a [64, 32] array: launch- and latency-bound, as the rollouts) and `big`
-(bf16 matmuls of side `--big`, 8,192: the GPU full, as the learners). Timed alone, both at once without MPS,
-then both at once with an MPS control daemon started for the purpose (and quit after). Writes
-JSON to --out.
+(bf16 matmuls of side `--big`, 8,192: the GPU full, as the learners). Timed alone, both at
+once without MPS, then both at once with an MPS control daemon started for the purpose (and quit
+after). Writes JSON to --out.
 
     python benchmarks/diagnostics/mps_probe.py --out mps_probe.json
     CPU smoke run (no MPS there):  python benchmarks/diagnostics/mps_probe.py --seconds 1 --big 256
@@ -53,8 +53,9 @@ def worker(kind: str, seconds: float, big: int) -> None:
 
 
 def launch(kinds: list[str], seconds: float, big: int) -> dict[str, float]:
-    procs = [subprocess.Popen([sys.executable, __file__, "--worker", k, "--seconds", str(seconds), "--big", str(big)],
-                              stdout=subprocess.PIPE, text=True) for k in kinds]
+    argv = [sys.executable, __file__, "--seconds", str(seconds), "--big", str(big)]
+    procs = [subprocess.Popen([*argv, "--worker", k], stdout=subprocess.PIPE, text=True)
+             for k in kinds]
     out = {}
     for k, p in zip(kinds, procs):
         line = p.communicate()[0].strip().splitlines()[-1]
@@ -67,7 +68,8 @@ def main() -> None:
     p.add_argument("--worker", default="")
     p.add_argument("--seconds", type=float, default=8.0)
     p.add_argument("--out", default="mps_probe.json")
-    p.add_argument("--big", type=int, default=8192, help="the big workload's matrix side (CPU smoke run: 256)")
+    p.add_argument("--big", type=int, default=8192,
+                   help="the big workload's matrix side (CPU smoke run: 256)")
     a = p.parse_args()
     if a.worker:
         return worker(a.worker, a.seconds, a.big)
@@ -77,16 +79,19 @@ def main() -> None:
     ctl = shutil.which("nvidia-cuda-mps-control")
     res["mps_control"] = ctl
     if ctl:
-        env = dict(os.environ, CUDA_MPS_PIPE_DIRECTORY="/tmp/mps_pipe", CUDA_MPS_LOG_DIRECTORY="/tmp/mps_log")
+        dirs = {"CUDA_MPS_PIPE_DIRECTORY": "/tmp/mps_pipe",
+                "CUDA_MPS_LOG_DIRECTORY": "/tmp/mps_log"}
+        env = dict(os.environ, **dirs)
         os.makedirs("/tmp/mps_pipe", exist_ok=True)
         os.makedirs("/tmp/mps_log", exist_ok=True)
         started = subprocess.run([ctl, "-d"], env=env, capture_output=True, text=True)
         res["mps_start"] = {"rc": started.returncode, "err": started.stderr[-300:]}
-        os.environ.update(CUDA_MPS_PIPE_DIRECTORY="/tmp/mps_pipe", CUDA_MPS_LOG_DIRECTORY="/tmp/mps_log")
+        os.environ.update(dirs)
         try:
             if started.returncode == 0:
                 res["together_mps"] = launch(["tiny", "big"], a.seconds, a.big)
-                res["alone_mps"] = {**launch(["tiny"], a.seconds, a.big), **launch(["big"], a.seconds, a.big)}
+                res["alone_mps"] = {**launch(["tiny"], a.seconds, a.big),
+                                    **launch(["big"], a.seconds, a.big)}
         except Exception as err:  # noqa: BLE001 - a probe: say what failed
             res["mps_error"] = repr(err)
         finally:

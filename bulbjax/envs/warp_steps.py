@@ -87,8 +87,8 @@ def multi_step(n: int, kinematics: bool) -> Callable[[Any, Any], Any]:
 
     tag = f"_step{n}{'k' if kinematics else ''}"
     inner = forward._step_shim.__wrapped__
-    shim = ffi.format_args_for_warp(
-        _with_globals(inner, tag + "_shim", mjwarp=_Substeps(inner.__globals__["mjwarp"], n, kinematics)))
+    substeps = _Substeps(inner.__globals__["mjwarp"], n, kinematics)
+    shim = ffi.format_args_for_warp(_with_globals(inner, tag + "_shim", mjwarp=substeps))
     impl = _with_globals(forward._step_jax_impl, tag + "_jax_impl", **{_SHIM: shim})
 
     @jax.custom_batching.custom_vmap
