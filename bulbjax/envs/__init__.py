@@ -1,7 +1,8 @@
 """Environments: batched MJX physics with Warp-rendered frames and the true low-dim state.
 
 The core: `base` (`MjxPixelEnv`, the batched env every domain subclasses), `env_config`, `batch`,
-`resets`, `camera`, `colours`, `render`, `warp_graphs`, `models` (the MJCF files' folder). On it,
+`resets`, `camera`, `colours`, `render`, `warp_graphs`, `warp_steps` (an env step's substeps as one
+MJX-Warp call), `models` (the MJCF files' folder). On it,
 the single-body domains (`pendulum`, `locomotion`) and the multi-object scenes (`objects/`: Incline, Rearrange); on top,
 `registry` (`bulbjax.make`), the one module here that imports the domains."""
 
