@@ -83,9 +83,9 @@ def add_parser(sub: argparse._SubParsersAction,
                          "results page (default: none, run the plan)")
     rp.add_argument("--dry-run", action="store_true", help="print the jobs and the estimated time, run nothing")
     rp.add_argument("--device-kind", default=None, metavar="KIND",
-                    help="with --dry-run: estimate the plan on --gpus (default 1) GPUs of this kind, as "
-                         "nvidia-smi names it (e.g. 'NVIDIA H200'), not this host's: for a node without them "
-                         "(default: this host's devices)")
+                    help="with --dry-run: estimate the plan on --gpus GPUs (1 if not given) of this kind, "
+                         "as nvidia-smi names it (e.g. 'NVIDIA H200'), not this host's: for a node without "
+                         "them (default: this host's devices)")
     rp.add_argument("--overwrite", action="store_true", help="start afresh: delete the plan's folder first")
     rp.add_argument("--max-minutes", type=float, default=0.0,
                     help="stop every job (checkpointed) after this wall time; the same command continues "
