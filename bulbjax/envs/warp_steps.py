@@ -3,9 +3,10 @@
 Why: every MJX-Warp operation is a `warp.jax_callable`, and each call costs the host a ctypes
 callback under the GIL that reads every buffer's address (MJX's step passes ~470 buffers) to find
 its captured CUDA graph. A locomotion env step is `frame_skip` = 4 `mjx.step` calls and a
-`mjx.kinematics` call: five callbacks for ~0.3 ms of small kernels each. On one H200 the PPO
-phase of a HalfCheetah epoch (1,060 substeps) keeps the GPU busy 0.34 s of its 0.66 s
-(docs/performance.md, "The locomotion epoch"); the host is the bound.
+`mjx.kinematics` call: five callbacks for ~0.3 ms of small kernels each. One call per env step
+took a HalfCheetah epoch on one H200 from 1.785 s to 1.726 s (-3.3%, ~56 us per callback saved):
+the callbacks are not what bounds PPO's phase, the graphs' chains of small kernels are
+(docs/performance.md, "The locomotion epoch").
 
 `multi_step(n, kinematics)` is `mjx.step` applied `n` times (and `mjx.kinematics` after, when
 asked) as one callable: MJX's own generated step, with the single `mujoco_warp.step` call in its
@@ -13,7 +14,7 @@ body replaced by `n` of them (and the kinematics). The kernels, their order and 
 those of the separate calls, so the result is the same bit for bit (`tests/test_warp_steps.py`, on
 the CPU's Warp); one CUDA graph replays all of them per env step. It holds only where nothing
 changes between substeps but the physics: the action is the same controls at every substep
-(`BaseEnv._apply_action`'s default), which `BaseEnv.physics` checks before using it.
+(`MjxPixelEnv._apply_action`'s default), which `MjxPixelEnv.physics` checks before using it.
 
 It builds on MJX-Warp's generated module (`mujoco.mjx.warp.forward._step_shim` and
 `_step_jax_impl`, MuJoCo MJX 3.17): `available()` says whether this MJX has that shape, and the
