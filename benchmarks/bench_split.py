@@ -4,26 +4,35 @@ shorten the epoch? (issue 63: the measurement before building it)
 Why: on one GPU a seed's epoch runs its two halves one after the other on one stream: the
 environment's (PPO's rollouts and updates, the frames rendered: MuJoCo Warp's chains of small
 kernels, the GPU half idle) and the learners' updates (big kernels, the GPU full). `--overlap
-apart` runs them at once on two devices; on one GPU two processes take turns on it, and a pair of
-a latency-bound and a throughput-bound process overlaps well that way (`diagnostics/mps_probe.py`:
-106% + 77% of their rates alone). This times the two halves of a preset's epoch
+apart` runs them at once on two devices. This times the two halves of a preset's epoch
 (`Experiment.env_data` and `Learning.learn_phase`, each jitted on an initialised run state, the
 same inputs every call) in two processes: each alone, then both at once with their timed windows
 lined up (a barrier after both have compiled). The epoch apart on one GPU would take about the
 longer of the two halves at once (plus the small insert and probe program); the plain epoch about
 the sum of the two alone.
 
+Measured (fig2-halfcheetah, one seed, bf16, one H200, 2026-11-29; docs/performance.md): two
+processes time-sliced (no MPS) gain nothing (env 0.71 -> 1.30 s, learn 1.06 -> 2.21 s at once);
+under MPS (`--mps`) the learners keep their pace and the env side slows 2.2x (1.51 s at once,
+against 1.77 s one after the other). `--learn-sm-percent` and `--learn-priority` time the learn
+side with a smaller share of the SMs or a lower MPS client priority, so that the env side's small
+kernels wait less.
+
     python benchmarks/bench_split.py --preset fig2-halfcheetah --bf16 --seeds 1 --seconds 30 \
         --compile-cache /tmp/jc --out-dir "$OUT"
+    python benchmarks/bench_split.py --preset fig2-halfcheetah --bf16 --seeds 1 --seconds 15 \
+        --compile-cache /tmp/jc --mps --learn-sm-percent 100,70 --learn-priority normal,below
     python benchmarks/bench_split.py --preset fig2-halfcheetah --small --seeds 1 --seconds 3  # CPU
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import datetime as dt
 import json
 import os
+import shutil
 import statistics
 import subprocess
 import sys
@@ -97,23 +106,110 @@ def run_side(a: argparse.Namespace) -> dict[str, Any]:
             "first_call_s": compile_s}
 
 
-def _launch(a: argparse.Namespace, sides: tuple[str, ...]) -> dict[str, Any]:
-    """`sides` in processes of their own, at once; their results by side."""
+def _launch(a: argparse.Namespace, sides: tuple[str, ...], learn_env: dict[str, str] | None = None
+            ) -> dict[str, Any]:
+    """`sides` in processes of their own, at once; their results by side. `learn_env`: variables
+    for the learn side's process alone (its MPS share and priority)."""
     with tempfile.TemporaryDirectory() as folder:
         env = dict(os.environ, XLA_PYTHON_CLIENT_MEM_FRACTION=str(round(0.8 / len(sides), 2)),
                    BULBJAX_STABLE_WARP_IDS="1")
         argv = [sys.executable, __file__, *_config_argv(a), "--barrier", folder,
                 "--parties", str(len(sides))]
         procs = {s: subprocess.Popen([*argv, "--side", s], stdout=subprocess.PIPE, text=True,
-                                     env=env) for s in sides}
-        out = {}
-        for s, p in procs.items():
-            text = p.communicate()[0]
-            if p.returncode:
-                raise RuntimeError(f"the {s} side failed (exit {p.returncode}); its output:\n"
-                                   f"{text[-2000:]}")
-            out[s] = json.loads(text.strip().splitlines()[-1])
-        return out
+                                     env=dict(env, **(learn_env or {})) if s == "learn" else env)
+                 for s in sides}
+        try:
+            out = {}
+            for s, p in procs.items():
+                text = p.communicate()[0]
+                if p.returncode:
+                    raise RuntimeError(f"the {s} side failed (exit {p.returncode}); its output:\n"
+                                       f"{text[-2000:]}")
+                out[s] = json.loads(text.strip().splitlines()[-1])
+            return out
+        finally:  # stopped (a timeout's SIGTERM, an error): no side left running on the GPU
+            for p in procs.values():
+                if p.poll() is None:
+                    p.kill()
+
+
+class _Mps:
+    """An MPS control daemon for the processes this script starts (pipe and log folders of its
+    own), quit on leaving; `--mps`."""
+
+    def __init__(self) -> None:
+        self.ctl = shutil.which("nvidia-cuda-mps-control")
+        if not self.ctl:
+            raise SystemExit("--mps needs nvidia-cuda-mps-control on the PATH (a CUDA driver "
+                             "install)")
+        self.folder = tempfile.mkdtemp(prefix="bench_split_mps_")
+        self.env = {"CUDA_MPS_PIPE_DIRECTORY": os.path.join(self.folder, "pipe"),
+                    "CUDA_MPS_LOG_DIRECTORY": os.path.join(self.folder, "log")}
+
+    def __enter__(self) -> "_Mps":
+        for d in self.env.values():
+            os.makedirs(d, exist_ok=True)
+        os.environ.update(self.env)
+        started = subprocess.run([self.ctl, "-d"], capture_output=True, text=True)
+        if started.returncode:
+            raise SystemExit(f"the MPS control daemon did not start: "
+                             f"{started.stderr.strip()[-300:]}")
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        subprocess.run([self.ctl], input="quit\n", capture_output=True, text=True)
+
+
+def _settings(a: argparse.Namespace) -> list[tuple[int, str]]:
+    """The learn side's MPS settings to time beside the env side: (SM percent, priority)."""
+    sms = [int(x) for x in a.learn_sm_percent.split(",")]
+    prios = a.learn_priority.split(",")
+    bad = [x for x in sms if not 1 <= x <= 100] + [x for x in prios if x not in PRIORITIES]
+    if bad:
+        raise SystemExit(f"bad --learn-sm-percent / --learn-priority value(s) {bad}: SM percents "
+                         f"1-100, priorities {'/'.join(PRIORITIES)}")
+    if not a.mps and (sms != [100] or prios != ["normal"]):
+        raise SystemExit("--learn-sm-percent and --learn-priority are MPS settings: add --mps")
+    return [(sm, pr) for sm in sms for pr in prios]
+
+
+def _learn_env(sm: int, priority: str) -> dict[str, str]:
+    """The learn side's MPS variables for a setting (none for the defaults)."""
+    out = {"CUDA_MPS_ACTIVE_THREAD_PERCENTAGE": str(sm)} if sm != 100 else {}
+    if priority != "normal":
+        out["CUDA_MPS_CLIENT_PRIORITY"] = PRIORITIES[priority]
+    return out
+
+
+def measure(a: argparse.Namespace, res: dict[str, Any], save: Any) -> None:
+    """Each half alone (the learn side once per SM share), then both at once per setting; each
+    result printed and `save`d as it comes."""
+    def step(name: str, value: Any) -> None:
+        print(f"[{time.perf_counter() - T0:7.1f} s] {name}: {json.dumps(value)}", file=sys.stderr,
+              flush=True)
+        save()
+
+    res["alone"] = _launch(a, ("env",))
+    res["device_kind"] = res["alone"]["env"]["device_kind"]
+    step("env alone", res["alone"]["env"])
+    learn_alone: dict[int, Any] = {}
+    for sm, priority in _settings(a):
+        if sm not in learn_alone:
+            learn_alone[sm] = _launch(a, ("learn",), _learn_env(sm, "normal"))["learn"]
+            step("learn alone" + (f" at {sm}% of the SMs" if a.mps else ""), learn_alone[sm])
+        together = _launch(a, SIDES, _learn_env(sm, priority))
+        run = {"learn_sm_percent": sm, "learn_priority": priority, "learn_alone": learn_alone[sm],
+               "together": together,
+               "plain_epoch_estimate_s": (res["alone"]["env"]["median_s"]
+                                          + learn_alone[sm]["median_s"]),
+               "apart_one_gpu_epoch_estimate_s": max(together[s]["median_s"] for s in SIDES)}
+        res["settings"].append(run)
+        how = f", learn side at {sm}% of the SMs, {priority} priority" if a.mps else ""
+        step("together" + how, {s: round(together[s]["median_s"], 4) for s in SIDES})
+
+
+T0 = time.perf_counter()
+PRIORITIES = {"normal": "0", "below": "1"}  # CUDA_MPS_CLIENT_PRIORITY's values
 
 
 def main() -> None:
@@ -128,6 +224,15 @@ def main() -> None:
     p.add_argument("--compile-cache", default="",
                    help="JAX's persistent compilation cache folder for the sides' processes: "
                         "the side-by-side runs load what the runs alone compiled")
+    p.add_argument("--mps", action="store_true",
+                   help="run every process under an MPS control daemon started for the purpose "
+                        "(quit at the end): their kernels share the SMs instead of taking turns")
+    p.add_argument("--learn-sm-percent", default="100",
+                   help="with --mps: the learn side's share of the SMs "
+                        "(CUDA_MPS_ACTIVE_THREAD_PERCENTAGE), comma-separated to time several")
+    p.add_argument("--learn-priority", default="normal",
+                   help="with --mps: the learn side's MPS client priority, normal or below "
+                        "(CUDA_MPS_CLIENT_PRIORITY 0 / 1), comma-separated to time both")
     p.add_argument("--side", default="", choices=("",) + SIDES, help=argparse.SUPPRESS)
     p.add_argument("--barrier", default="", help=argparse.SUPPRESS)
     p.add_argument("--parties", type=int, default=1, help=argparse.SUPPRESS)
@@ -135,23 +240,25 @@ def main() -> None:
     if a.side:
         print(json.dumps(run_side(a)), flush=True)
         return
+    _settings(a)  # a bad setting refused before anything starts
     # no JAX in this process: it would hold GPU memory the two sides need
     res: dict[str, Any] = {"argv": sys.argv, "preset": a.preset, "seeds": a.seeds, "bf16": a.bf16,
-                           "small": a.small}
-    res["alone"] = {**_launch(a, ("env",)), **_launch(a, ("learn",))}
-    res["device_kind"] = res["alone"]["env"]["device_kind"]
-    res["together"] = _launch(a, SIDES)
-    alone, together = res["alone"], res["together"]
-    res["plain_epoch_estimate_s"] = alone["env"]["median_s"] + alone["learn"]["median_s"]
-    res["apart_one_gpu_epoch_estimate_s"] = max(together[s]["median_s"] for s in SIDES)
-    print(json.dumps(res, indent=1))
-    slug = res["device_kind"].lower().replace(" ", "_")
+                           "small": a.small, "mps": a.mps, "settings": []}
     os.makedirs(a.out_dir, exist_ok=True)
     stamp = dt.datetime.now().strftime("%Y%m%d_%H%M%S")
-    path = os.path.join(a.out_dir, f"split_{a.preset}_{slug}_{stamp}.json")
-    with open(path, "w") as f:
-        json.dump(res, f, indent=1)
-    print(f"written: {path}")
+    path = os.path.join(a.out_dir, f"split_{a.preset}{'_mps' if a.mps else ''}_{stamp}.json")
+
+    def save() -> None:  # after every launch: a run stopped early keeps what it measured
+        with open(path, "w") as f:
+            json.dump(res, f, indent=1)
+
+    with (_Mps() if a.mps else contextlib.nullcontext()):
+        measure(a, res, save)
+    slug = res["device_kind"].lower().replace(" ", "_")
+    final = path.replace(f"_{stamp}.json", f"_{slug}_{stamp}.json")
+    os.replace(path, final)
+    print(json.dumps(res, indent=1))
+    print(f"written: {final}")
 
 
 if __name__ == "__main__":
