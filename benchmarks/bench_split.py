@@ -33,6 +33,7 @@ import datetime as dt
 import json
 import os
 import shutil
+import signal
 import statistics
 import subprocess
 import sys
@@ -162,9 +163,11 @@ class _Mps:
 
 def _settings(a: argparse.Namespace) -> list[tuple[int, str]]:
     """The learn side's MPS settings to time beside the env side: (SM percent, priority)."""
-    sms = [int(x) for x in a.learn_sm_percent.split(",")]
+    given = a.learn_sm_percent.split(",")
+    sms = [int(x) if x.strip().isdigit() else -1 for x in given]
     prios = a.learn_priority.split(",")
-    bad = [x for x in sms if not 1 <= x <= 100] + [x for x in prios if x not in PRIORITIES]
+    bad = [x for x, sm in zip(given, sms) if not 1 <= sm <= 100]
+    bad += [x for x in prios if x not in PRIORITIES]
     if bad:
         raise SystemExit(f"bad --learn-sm-percent / --learn-priority value(s) {bad}: SM percents "
                          f"1-100, priorities {'/'.join(PRIORITIES)}")
@@ -241,6 +244,8 @@ def main() -> None:
         print(json.dumps(run_side(a)), flush=True)
         return
     _settings(a)  # a bad setting refused before anything starts
+    # a timeout's SIGTERM as an exit: the sides are killed and the MPS daemon quit on the way out
+    signal.signal(signal.SIGTERM, lambda *_: sys.exit(143))
     # no JAX in this process: it would hold GPU memory the two sides need
     res: dict[str, Any] = {"argv": sys.argv, "preset": a.preset, "seeds": a.seeds, "bf16": a.bf16,
                            "small": a.small, "mps": a.mps, "settings": []}
