@@ -21,7 +21,7 @@ kernels wait less.
     python benchmarks/bench_split.py --preset fig2-halfcheetah --bf16 --seeds 1 --seconds 30 \
         --compile-cache /tmp/jc --out-dir "$OUT"
     python benchmarks/bench_split.py --preset fig2-halfcheetah --bf16 --seeds 1 --seconds 15 \
-        --compile-cache /tmp/jc --mps --learn-sm-percent 100,70 --learn-priority normal,below
+        --compile-cache /tmp/jc --mps --learn-sm-percent 100,60 --learn-priority normal,below
     python benchmarks/bench_split.py --preset fig2-halfcheetah --small --seeds 1 --seconds 3  # CPU
 """
 
