@@ -32,7 +32,6 @@ import contextlib
 import datetime as dt
 import json
 import os
-import shutil
 import signal
 import statistics
 import subprocess
@@ -119,6 +118,7 @@ def _launch(a: argparse.Namespace, sides: tuple[str, ...], learn_env: dict[str, 
         procs = {s: subprocess.Popen([*argv, "--side", s], stdout=subprocess.PIPE, text=True,
                                      env=dict(env, **(learn_env or {})) if s == "learn" else env)
                  for s in sides}
+        _LIVE.extend(procs.values())
         try:
             out = {}
             for s, p in procs.items():
@@ -128,37 +128,26 @@ def _launch(a: argparse.Namespace, sides: tuple[str, ...], learn_env: dict[str, 
                                        f"{text[-2000:]}")
                 out[s] = json.loads(text.strip().splitlines()[-1])
             return out
-        finally:  # stopped (a timeout's SIGTERM, an error): no side left running on the GPU
+        finally:  # stopped by an error: no side left running on the GPU
             for p in procs.values():
                 if p.poll() is None:
                     p.kill()
+                _LIVE.remove(p)
 
 
-class _Mps:
-    """An MPS control daemon for the processes this script starts (pipe and log folders of its
-    own), quit on leaving; `--mps`."""
+_LIVE: list[subprocess.Popen] = []  # the sides running now
+_CLEANUP: list[Any] = []  # the MPS daemon while it runs
 
-    def __init__(self) -> None:
-        self.ctl = shutil.which("nvidia-cuda-mps-control")
-        if not self.ctl:
-            raise SystemExit("--mps needs nvidia-cuda-mps-control on the PATH (a CUDA driver "
-                             "install)")
-        self.folder = tempfile.mkdtemp(prefix="bench_split_mps_")
-        self.env = {"CUDA_MPS_PIPE_DIRECTORY": os.path.join(self.folder, "pipe"),
-                    "CUDA_MPS_LOG_DIRECTORY": os.path.join(self.folder, "log")}
 
-    def __enter__(self) -> "_Mps":
-        for d in self.env.values():
-            os.makedirs(d, exist_ok=True)
-        os.environ.update(self.env)
-        started = subprocess.run([self.ctl, "-d"], capture_output=True, text=True)
-        if started.returncode:
-            raise SystemExit(f"the MPS control daemon did not start: "
-                             f"{started.stderr.strip()[-300:]}")
-        return self
-
-    def __exit__(self, *exc: Any) -> None:
-        subprocess.run([self.ctl], input="quit\n", capture_output=True, text=True)
+def _on_term(*_: Any) -> None:
+    """SIGTERM (a timeout): kill the sides, quit the daemon, exit 143, here and now (an exception
+    raised from a handler can land in a garbage-collection callback and be dropped)."""
+    for p in _LIVE:
+        if p.poll() is None:
+            p.kill()
+    for d in _CLEANUP:
+        d.__exit__(None, None, None)
+    os._exit(143)
 
 
 def _settings(a: argparse.Namespace) -> list[tuple[int, str]]:
@@ -244,8 +233,7 @@ def main() -> None:
         print(json.dumps(run_side(a)), flush=True)
         return
     _settings(a)  # a bad setting refused before anything starts
-    # a timeout's SIGTERM as an exit: the sides are killed and the MPS daemon quit on the way out
-    signal.signal(signal.SIGTERM, lambda *_: sys.exit(143))
+    signal.signal(signal.SIGTERM, _on_term)
     # no JAX in this process: it would hold GPU memory the two sides need
     res: dict[str, Any] = {"argv": sys.argv, "preset": a.preset, "seeds": a.seeds, "bf16": a.bf16,
                            "small": a.small, "mps": a.mps, "settings": []}
@@ -257,8 +245,20 @@ def main() -> None:
         with open(path, "w") as f:
             json.dump(res, f, indent=1)
 
-    with (_Mps() if a.mps else contextlib.nullcontext()):
+    daemon: Any = contextlib.nullcontext()
+    if a.mps:  # here: bulbjax.reproduce imports JAX (no GPU memory taken: no backend started)
+        from bulbjax.reproduce.mps import MpsDaemon
+
+        try:  # no control program, or a daemon that did not start: one line
+            daemon = MpsDaemon().__enter__()
+        except (ValueError, RuntimeError) as err:
+            raise SystemExit(str(err)) from None
+        _CLEANUP.append(daemon)
+    try:
         measure(a, res, save)
+    finally:
+        _CLEANUP.clear()
+        daemon.__exit__(None, None, None)
     slug = res["device_kind"].lower().replace(" ", "_")
     final = path.replace(f"_{stamp}.json", f"_{slug}_{stamp}.json")
     os.replace(path, final)

@@ -11,7 +11,7 @@ from bulbjax.reproduce.plan import ENTRIES, SCALES
 # plan the folders hold and runs nothing)
 _RUN_ONLY = (("--figures", "all"), ("--scale", "paper"), ("--gpus", None), ("--shard", None), ("--jobs", None),
              ("--fit-minutes", 0.0), ("--learners-apart", False), ("--jobs-per-gpu", 1), ("--add-learner", None),
-             ("--overwrite", False), ("--max-minutes", 0.0), ("--device-kind", None))
+             ("--overwrite", False), ("--max-minutes", 0.0), ("--device-kind", None), ("--mps", False))
 
 
 def cmd_reproduce(args: argparse.Namespace) -> int:
@@ -30,7 +30,7 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
                         add_learners=args.add_learner or (), dry_run=args.dry_run, overwrite=args.overwrite,
                         max_minutes=args.max_minutes, progress_every=args.progress_every, jobs=args.jobs,
                         fit_minutes=args.fit_minutes, learners_apart=args.learners_apart,
-                        jobs_per_gpu=args.jobs_per_gpu, device_kind=args.device_kind)
+                        jobs_per_gpu=args.jobs_per_gpu, device_kind=args.device_kind, mps=args.mps)
     return 1 if summary.get("failed") else 0
 
 
@@ -74,6 +74,10 @@ def add_parser(sub: argparse._SubParsersAction,
                     help="N jobs side by side on each GPU, each its own process with 0.75/N of its memory: one "
                          "job's launch-bound rollouts beside another's learners (3 on one H200: 1.14x the "
                          "seed-epochs of one job at a time)")
+    rp.add_argument("--mps", action="store_true",
+                    help="run the jobs' processes under a CUDA MPS daemon started for the stretch (and quit at "
+                         "its end): jobs side by side on a GPU (--jobs-per-gpu) run their kernels at once instead "
+                         "of taking turns; needs nvidia-cuda-mps-control")
     rp.add_argument("--add-learner", action="append", metavar="SPEC",
                     help="a learner of your own (pkg.module:Name, docs/extending.md) run beside the paper's in "
                          "every figure; repeatable (default: none)")

@@ -10,6 +10,7 @@ time, each job's measured epoch time).
 
 from __future__ import annotations
 
+import contextlib
 import datetime
 import json
 import os
@@ -23,6 +24,7 @@ from bulbjax.reproduce import results
 from bulbjax.reproduce.estimate import (SHARED_GAIN, derived_fp32, fit_jobs, hms, hours_unit, job_cost, load_times,
                                        shared_times, simulate, table_kinds)
 from bulbjax.reproduce.estimate import device_kind as host_kind
+from bulbjax.reproduce.mps import MpsDaemon
 from bulbjax.reproduce.plan import (PLAN_FILE, Job, grown_from, parse_figures, parse_jobs, parse_shard,
                                     plan_differences, plan_jobs, plan_record, read_plan, shard_of)
 from bulbjax.reproduce.queue import SHARED_MEMORY, Queue, Slot
@@ -148,7 +150,8 @@ def reproduce(figures: str | Sequence[str] = "all", scale: str = "paper", out: s
               dry_run: bool = False, overwrite: bool = False, max_minutes: float = 0.0,
               progress_every: float = 30.0, log: Callable[[str], None] = print,
               jobs: str | Sequence[str] | None = None, fit_minutes: float = 0.0,
-              learners_apart: bool = False, jobs_per_gpu: int = 1, device_kind: str | None = None) -> dict[str, Any]:
+              learners_apart: bool = False, jobs_per_gpu: int = 1, device_kind: str | None = None,
+              mps: bool = False) -> dict[str, Any]:
     """Run (or with `dry_run`, only plan) the paper's `figures` at `scale` into `out`; returns the
     summary (also `out/summary.json`). Rerunning with the same arguments continues unfinished
     jobs and skips finished ones. `shard` "K/N": this host's share of a plan split over N hosts.
@@ -161,7 +164,9 @@ def reproduce(figures: str | Sequence[str] = "all", scale: str = "paper", out: s
     apart`: the same numbers; its epochs beside its PPO work). `jobs_per_gpu`: that many jobs side by
     side on each GPU, each its own process (`slots_of`); the summary's GPU-hours count each GPU
     once (its slots' busy time / `jobs_per_gpu`). `device_kind` (with `dry_run` only): estimate the
-    plan on `gpus` (default 1) GPUs of that kind, not this host's."""
+    plan on `gpus` (default 1) GPUs of that kind, not this host's. `mps`: the jobs' processes under
+    an MPS control daemon started for the stretch (`mps.MpsDaemon`), so that jobs side by side on
+    a GPU run their kernels at once instead of taking turns."""
     figs = parse_figures(figures)
     share = parse_shard(shard)
     if share is not None and overwrite:
@@ -175,6 +180,9 @@ def reproduce(figures: str | Sequence[str] = "all", scale: str = "paper", out: s
     names = learner_names(add_learners)
     all_jobs = plan_jobs(figs, scale, list(add_learners))
     slots, kind = slots_of(gpus, 2 if learners_apart else 1, jobs_per_gpu, as_kind=device_kind)
+    if mps and any(s.gpu is None for s in slots):
+        raise ValueError("--mps shares GPUs between processes and this host runs CPU workers: run without it")
+    daemon = MpsDaemon() if mps and not dry_run else None  # no control program: said before planning
     times, times_kind = load_times(kind)
     times = shared_times(times, jobs_per_gpu)
     costs = {j.id: job_cost(j, times) for j in all_jobs}
@@ -217,7 +225,8 @@ def reproduce(figures: str | Sequence[str] = "all", scale: str = "paper", out: s
     lines += derived_fp32(mine, times)
     if jobs_per_gpu > 1:
         lines.append(f"{jobs_per_gpu} jobs per GPU: estimated from one measurement (the GPU's seed-epochs "
-                     f"x {SHARED_GAIN} at 3 jobs per H200; bulbjax/reproduce/estimate.py)")
+                     f"x {SHARED_GAIN} at 3 jobs per H200; bulbjax/reproduce/estimate.py)"
+                     + (", time-sliced: under MPS not yet measured" if mps else ""))
     gpu_s = est.gpu_s / jobs_per_gpu
     note = "" if times_kind == kind else f" (estimates of an {times_kind}: none measured on this kind yet)"
     picked = (f", {len(mine)} picked" + (f" to fit {fit_minutes:g} min" if fit_minutes else " by --jobs")
@@ -230,7 +239,7 @@ def reproduce(figures: str | Sequence[str] = "all", scale: str = "paper", out: s
     summary: dict[str, Any] = {"gpus": len(slots) // jobs_per_gpu, "device_kind": kind, "times_of": times_kind,
                                "estimated_wall_s": est.wall_s, "estimated_gpu_s": gpu_s,
                                "shard": list(share) if share else None, "jobs_planned": len(mine),
-                               "learners_apart": learners_apart, "jobs_per_gpu": jobs_per_gpu}
+                               "learners_apart": learners_apart, "jobs_per_gpu": jobs_per_gpu, "mps": mps}
     if dry_run:
         return summary
     os.makedirs(out, exist_ok=True)
@@ -244,7 +253,8 @@ def reproduce(figures: str | Sequence[str] = "all", scale: str = "paper", out: s
               else f"status_{stamp}.json" if selected else "status.json")
     q = Queue(out, mine, all_jobs, slots, times, deadline, progress_every, learners_of, log, status,
               run_flags=("--overlap", "apart") if learners_apart else ())
-    ran = q.run()
+    with daemon or contextlib.nullcontext():
+        ran = q.run()
     for jid, r in ran["jobs"].items():  # what the plan estimated for each job it ran, beside what it took
         span = est.spans.get(jid)
         r["estimated_s"] = span[1] - span[0] if span and r.get("attempts") else None

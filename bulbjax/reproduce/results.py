@@ -250,7 +250,8 @@ def _summary_line(s: dict[str, Any]) -> str:
     est = s.get("estimated_wall_s")
     shared = s.get("jobs_per_gpu") or 1
     return (f"This stretch: {s.get('gpus')} {s.get('device_kind')} slot(s)"
-            + (f" ({shared} jobs side by side on each)" if shared > 1 else "") + ", "
+            + (f" ({shared} jobs side by side on each)" if shared > 1 else "")
+            + (" under an MPS daemon" if s.get("mps") else "") + ", "
             f"{hms(s.get('measured_wall_s', 0))} "
             f"wall (estimated {hms(est) if est is not None else '-'}), utilisation "
             f"{(s.get('utilisation') or 0):.0%}, {s.get('gpu_hours', 0):.2f} {hours_unit(s.get('device_kind', ''))}.")
