@@ -251,7 +251,7 @@ def main() -> None:
 
         try:  # no control program, or a daemon that did not start: one line
             daemon = MpsDaemon().__enter__()
-        except (ValueError, RuntimeError) as err:
+        except ValueError as err:
             raise SystemExit(str(err)) from None
         _CLEANUP.append(daemon)
     try:

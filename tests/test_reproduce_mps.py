@@ -53,7 +53,7 @@ def test_no_control_program_and_a_daemon_that_does_not_start_are_refused(tmp_pat
         MpsDaemon()
     monkeypatch.setenv(PIPE, "/somewhere/else")
     control, _ = _control(tmp_path, rc=1)
-    with pytest.raises(RuntimeError, match="did not start .*exited 1: An instance of this daemon is already running"):
+    with pytest.raises(ValueError, match="did not start .*exited 1: An instance of this daemon is already running"):
         with MpsDaemon(control):
             pass
     assert os.environ[PIPE] == "/somewhere/else"

@@ -27,7 +27,8 @@ CONTROL = "nvidia-cuda-mps-control"
 class MpsDaemon:
     """`with MpsDaemon(): ...`: an MPS control daemon for the processes started inside, quit on
     leaving (its folders removed, this process's environment restored). `control`: the control
-    program (default: `nvidia-cuda-mps-control` on the PATH)."""
+    program (default: `nvidia-cuda-mps-control` on the PATH). No control program, or a daemon
+    that does not start: ValueError, which the CLI says in one line."""
 
     def __init__(self, control: str | None = None) -> None:
         self.control = control or shutil.which(CONTROL)
@@ -49,8 +50,8 @@ class MpsDaemon:
         if started.returncode:
             self._restore()
             said = (started.stderr or started.stdout).strip()[-300:]
-            raise RuntimeError(f"the MPS control daemon did not start ({self.control} -d exited "
-                               f"{started.returncode}{': ' + said if said else ''}): run without --mps")
+            raise ValueError(f"the MPS control daemon did not start ({self.control} -d exited "
+                             f"{started.returncode}{': ' + said if said else ''}): run without --mps")
         return self
 
     def __exit__(self, *exc: Any) -> None:
