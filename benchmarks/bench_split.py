@@ -45,6 +45,8 @@ sys.path.insert(0, os.path.dirname(HERE))
 sys.path.insert(0, HERE)
 
 SIDES = ("env", "learn")
+PRIORITIES = {"normal": "0", "below": "1"}  # CUDA_MPS_CLIENT_PRIORITY's values
+T0 = time.perf_counter()
 
 
 def _config_argv(a: argparse.Namespace) -> list[str]:
@@ -173,9 +175,10 @@ def _learn_env(sm: int, priority: str) -> dict[str, str]:
     return out
 
 
-def measure(a: argparse.Namespace, res: dict[str, Any], save: Any) -> None:
-    """Each half alone (the learn side once per SM share), then both at once per setting; each
-    result printed and `save`d as it comes."""
+def measure(a: argparse.Namespace, settings: list[tuple[int, str]], res: dict[str, Any],
+            save: Any) -> None:
+    """Each half alone (the learn side once per SM share), then both at once per setting
+    (`_settings`); each result printed and `save`d as it comes."""
     def step(name: str, value: Any) -> None:
         print(f"[{time.perf_counter() - T0:7.1f} s] {name}: {json.dumps(value)}", file=sys.stderr,
               flush=True)
@@ -185,7 +188,7 @@ def measure(a: argparse.Namespace, res: dict[str, Any], save: Any) -> None:
     res["device_kind"] = res["alone"]["env"]["device_kind"]
     step("env alone", res["alone"]["env"])
     learn_alone: dict[int, Any] = {}
-    for sm, priority in _settings(a):
+    for sm, priority in settings:
         if sm not in learn_alone:
             learn_alone[sm] = _launch(a, ("learn",), _learn_env(sm, "normal"))["learn"]
             step("learn alone" + (f" at {sm}% of the SMs" if a.mps else ""), learn_alone[sm])
@@ -198,10 +201,6 @@ def measure(a: argparse.Namespace, res: dict[str, Any], save: Any) -> None:
         res["settings"].append(run)
         how = f", learn side at {sm}% of the SMs, {priority} priority" if a.mps else ""
         step("together" + how, {s: round(together[s]["median_s"], 4) for s in SIDES})
-
-
-T0 = time.perf_counter()
-PRIORITIES = {"normal": "0", "below": "1"}  # CUDA_MPS_CLIENT_PRIORITY's values
 
 
 def main() -> None:
@@ -232,7 +231,7 @@ def main() -> None:
     if a.side:
         print(json.dumps(run_side(a)), flush=True)
         return
-    _settings(a)  # a bad setting refused before anything starts
+    settings = _settings(a)  # a bad setting refused before anything starts
     signal.signal(signal.SIGTERM, _on_term)
     # no JAX in this process: it would hold GPU memory the two sides need
     res: dict[str, Any] = {"argv": sys.argv, "preset": a.preset, "seeds": a.seeds, "bf16": a.bf16,
@@ -255,7 +254,7 @@ def main() -> None:
             raise SystemExit(str(err)) from None
         _CLEANUP.append(daemon)
     try:
-        measure(a, res, save)
+        measure(a, settings, res, save)
     finally:
         _CLEANUP.clear()
         daemon.__exit__(None, None, None)
