@@ -29,7 +29,8 @@ def _control(tmp_path, rc: int = 0) -> tuple[str, str]:
     path = tmp_path / "nvidia-cuda-mps-control"
     path.write_text(f"#!/bin/sh\nif [ \"$1\" = -d ]; then echo \"start ${PIPE}\" >> {log}; "
                     f"else echo \"stdin $(cat)\" >> {log}; fi\n"
-                    + (f"echo 'An instance of this daemon is already running' >&2\nexit {rc}\n" if rc else ""))
+                    + (f"echo 'An instance of this daemon is already running' >&2\nexit {rc}\n"
+                       if rc else ""))
     path.chmod(path.stat().st_mode | stat.S_IEXEC)
     return str(path), log
 
@@ -40,20 +41,23 @@ def test_the_daemon_runs_with_folders_of_its_own_and_is_quit(tmp_path, monkeypat
     with MpsDaemon(control) as d:
         pipe = os.environ[PIPE]
         assert pipe.startswith(d.folder) and os.path.isdir(pipe)
-        child = subprocess.run(["sh", "-c", f"echo ${PIPE}"], capture_output=True, text=True).stdout.strip()
+        child = subprocess.run(["sh", "-c", f"echo ${PIPE}"], capture_output=True,
+                               text=True).stdout.strip()
         assert child == pipe  # what the jobs' processes see
     assert PIPE not in os.environ and not os.path.exists(d.folder)
     with open(log) as f:
         assert f.read().splitlines() == [f"start {pipe}", "stdin quit"]
 
 
-def test_no_control_program_and_a_daemon_that_does_not_start_are_refused(tmp_path, monkeypatch) -> None:
+def test_no_control_program_and_a_daemon_that_does_not_start_are_refused(tmp_path,
+                                                                          monkeypatch) -> None:
     monkeypatch.setenv("PATH", str(tmp_path))  # no nvidia-cuda-mps-control on it
     with pytest.raises(ValueError, match="--mps needs nvidia-cuda-mps-control on the PATH"):
         MpsDaemon()
     monkeypatch.setenv(PIPE, "/somewhere/else")
     control, _ = _control(tmp_path, rc=1)
-    with pytest.raises(ValueError, match="did not start .*exited 1: An instance of this daemon is already running"):
+    refused = "did not start .*exited 1: An instance of this daemon is already running"
+    with pytest.raises(ValueError, match=refused):
         with MpsDaemon(control):
             pass
     assert os.environ[PIPE] == "/somewhere/else"
@@ -76,18 +80,20 @@ def test_a_stretch_runs_its_jobs_under_the_daemon(tmp_path, monkeypatch) -> None
 
         def run(self) -> dict:
             seen.append(os.environ.get(PIPE))
-            return {"wall_s": 1.0, "utilisation": 1.0, "busy_s": 1.0, "failed": [], "unfinished": [], "jobs": {}}
+            return {"wall_s": 1.0, "utilisation": 1.0, "busy_s": 1.0, "failed": [],
+                    "unfinished": [], "jobs": {}}
 
     monkeypatch.setattr(rmain, "Queue", Queue)
     said: list[str] = []
-    s = rmain.reproduce("fig2-cartpole", "paper", str(tmp_path / "plan"), jobs="fig2-cartpole/seed0",
-                        jobs_per_gpu=2, mps=True, log=said.append)
+    s = rmain.reproduce("fig2-cartpole", "paper", str(tmp_path / "plan"),
+                        jobs="fig2-cartpole/seed0", jobs_per_gpu=2, mps=True, log=said.append)
     assert s["mps"] is True and seen[0] and seen[0].startswith("/") and PIPE not in os.environ
     with open(log) as f:
         assert f.read().splitlines() == [f"start {seen[0]}", "stdin quit"]
     assert any("time-sliced: under MPS not yet measured" in line for line in said)
-    assert "under an MPS daemon" in results._summary_line(dict(s, measured_wall_s=1.0, gpu_hours=0.1))
-    assert "MPS" not in results._summary_line(dict(s, mps=False, measured_wall_s=1.0, gpu_hours=0.1))
+    ran = dict(s, measured_wall_s=1.0, gpu_hours=0.1)
+    assert "under an MPS daemon" in results._summary_line(ran)
+    assert "MPS" not in results._summary_line(dict(ran, mps=False))
 
 
 def test_cpu_workers_and_gathers_refuse_it(tmp_path, monkeypatch) -> None:
@@ -95,10 +101,12 @@ def test_cpu_workers_and_gathers_refuse_it(tmp_path, monkeypatch) -> None:
 
     monkeypatch.setattr(local_processes, "visible_gpus", lambda: [])
     out = str(tmp_path / "plan")
-    with pytest.raises(ValueError, match="--mps shares GPUs between processes and this host runs CPU workers"):
+    with pytest.raises(ValueError,
+                       match="--mps shares GPUs between processes and this host runs CPU workers"):
         rmain.reproduce("fig2-cartpole", "tiny", out, mps=True, log=lambda _: None)
     assert not os.path.exists(out)
-    r = subprocess.run([sys.executable, "-m", "bulbjax", "reproduce", "--out", out, "--gather", str(tmp_path),
-                        "--mps"], capture_output=True, text=True, timeout=120,
+    r = subprocess.run([sys.executable, "-m", "bulbjax", "reproduce", "--out", out,
+                        "--gather", str(tmp_path), "--mps"], capture_output=True, text=True,
+                       timeout=120,
                        env=dict(os.environ, JAX_PLATFORMS="cpu"))
     assert r.returncode == 2 and r.stderr.strip().count("\n") == 0 and "--mps" in r.stderr

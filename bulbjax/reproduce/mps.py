@@ -33,8 +33,8 @@ class MpsDaemon:
     def __init__(self, control: str | None = None) -> None:
         self.control = control or shutil.which(CONTROL)
         if not self.control:
-            raise ValueError(f"--mps needs {CONTROL} on the PATH (it comes with the CUDA driver): run "
-                             "without --mps, or on a host that has it")
+            raise ValueError(f"--mps needs {CONTROL} on the PATH (it comes with the CUDA driver): "
+                             "run without --mps, or on a host that has it")
         self.folder = ""
         self._saved: dict[str, str | None] = {}
 
@@ -51,12 +51,14 @@ class MpsDaemon:
             self._restore()
             said = (started.stderr or started.stdout).strip()[-300:]
             raise ValueError(f"the MPS control daemon did not start ({self.control} -d exited "
-                             f"{started.returncode}{': ' + said if said else ''}): run without --mps")
+                             f"{started.returncode}{': ' + said if said else ''}): "
+                             "run without --mps")
         return self
 
     def __exit__(self, *exc: Any) -> None:
         try:
-            subprocess.run([self.control], input="quit\n", capture_output=True, text=True, timeout=60)
+            subprocess.run([self.control], input="quit\n", capture_output=True, text=True,
+                           timeout=60)
         finally:
             self._restore()
 
