@@ -11,6 +11,7 @@ import os
 import stat
 import subprocess
 import sys
+import time
 
 import pytest
 
@@ -47,6 +48,25 @@ def test_the_daemon_runs_with_folders_of_its_own_and_is_quit(tmp_path, monkeypat
     assert PIPE not in os.environ and not os.path.exists(d.folder)
     with open(log) as f:
         assert f.read().splitlines() == [f"start {pipe}", "stdin quit"]
+
+
+def test_leaving_waits_until_the_daemon_and_its_server_have_exited(tmp_path,
+                                                                   monkeypatch) -> None:
+    """A stand-in whose `-d` leaves a process of the daemon's name behind that exits a second
+    after `quit`: leaving returns only once it is gone (the next daemon's clients would wait)."""
+    monkeypatch.delenv(PIPE, raising=False)
+    log, flag = tmp_path / "control.log", tmp_path / "quit"
+    path = tmp_path / "nvidia-cuda-mps-control"
+    path.write_text(
+        "#!/bin/sh\n"
+        f"if [ \"$1\" = -d ]; then \"$0\" serve </dev/null >/dev/null 2>&1 &\n"
+        f"elif [ \"$1\" = serve ]; then until [ -f {flag} ]; do sleep 0.1; done; sleep 1; "
+        f"echo 'server gone' >> {log}\n"
+        f"else cat > /dev/null; touch {flag}; echo quit >> {log}; fi\n")
+    path.chmod(path.stat().st_mode | stat.S_IEXEC)
+    with MpsDaemon(str(path)):
+        time.sleep(0.3)
+    assert log.read_text().splitlines() == ["quit", "server gone"]
 
 
 def test_no_control_program_and_a_daemon_that_does_not_start_are_refused(tmp_path,
