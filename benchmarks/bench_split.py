@@ -16,7 +16,8 @@ processes time-sliced (no MPS) gain nothing (env 0.71 -> 1.30 s, learn 1.06 -> 2
 under MPS (`--mps`) the learners keep their pace and the env side slows 2.2x (1.51 s at once,
 against 1.77 s one after the other). `--learn-sm-percent` and `--learn-priority` time the learn
 side with a smaller share of the SMs or a lower MPS client priority, so that the env side's small
-kernels wait less.
+kernels wait less: below-normal priority gave env 1.26 s / learn 1.18 s at once (~1.26 s an
+epoch), 60% of the SMs env 0.97 s / learn 1.59 s (a fresh H200, the same day).
 
     python benchmarks/bench_split.py --preset fig2-halfcheetah --bf16 --seeds 1 --seconds 30 \
         --compile-cache /tmp/jc --out-dir "$OUT"

@@ -188,6 +188,46 @@ def test_learners_apart_gives_each_job_a_pair_of_devices(tmp_path, monkeypatch) 
     assert "--overlap" not in J.command(str(tmp_path / "o"), job, 1.0)
 
 
+def test_learners_apart_are_timed_by_their_rows_and_count_two_gpus(tmp_path, monkeypatch) -> None:
+    """With `--learners-apart` a job is timed by its preset's `<preset> apart` row (fig2-halfcheetah
+    on an H200: 1.096 s an epoch against 1.75 s on one GPU), a preset without one by its one-GPU
+    row, said in the plan; a job's GPU-hours count both its GPUs, in the estimate and the page."""
+    from bulbjax import local_processes
+    from bulbjax.reproduce import estimate, main, results
+
+    times, _ = estimate.load_times("NVIDIA H200")
+    apart = estimate.apart_times(times)
+    assert apart["fig2-halfcheetah"] == times["fig2-halfcheetah apart"]
+    assert apart["fig2-halfcheetah"].epoch_s < 0.7 * times["fig2-halfcheetah"].epoch_s
+    assert apart["fig2-cartpole"].epoch_s == times["fig2-cartpole"].epoch_s
+    assert "no apart row" in apart["fig2-cartpole"].derived
+    assert not [k for k in [*apart, *estimate.without_apart_rows(times)] if k.endswith(" apart")]
+    monkeypatch.setattr(main, "host_kind", lambda gpus: "NVIDIA H200")
+    monkeypatch.setattr(local_processes, "visible_gpus", lambda: ["0", "1"])
+    said: list[str] = []
+    two = reproduce("fig2-halfcheetah", "paper", str(tmp_path / "a"), dry_run=True, learners_apart=True,
+                    jobs="fig2-halfcheetah/seed0", log=said.append)
+    row = times["fig2-halfcheetah apart"]
+    chain = row.startup_cold_s + 1000 * row.epoch_s
+    assert two["gpus"] == 2 and two["estimated_wall_s"] == pytest.approx(chain)
+    assert two["estimated_gpu_s"] == pytest.approx(2 * chain)
+    assert "slot(s) of two GPUs each" in said[-1] and ": estimated" not in said[-1]
+    reproduce("fig2-cartpole", "paper", str(tmp_path / "c"), dry_run=True, learners_apart=True,
+              jobs="fig2-cartpole/seed0", log=said.append)
+    assert "fig2-cartpole: estimated, " in said[-1] and "no apart row" in said[-1]
+    one = reproduce("fig2-halfcheetah", "paper", str(tmp_path / "b"), dry_run=True,
+                    jobs="fig2-halfcheetah/seed0", log=lambda _: None)
+    assert one["estimated_wall_s"] > two["estimated_wall_s"] + 500  # the point of taking two GPUs
+    out = tmp_path / "page"
+    out.mkdir()
+    rec = {"learners_apart": True, "device_kind": "NVIDIA H200", "busy_s": 600.0, "finished_utc": "x",
+           "jobs": {"j": {"attempts": 1, "busy_s": 600.0}}}
+    (out / "summary_x.json").write_text(json.dumps(rec))
+    assert results.job_times(str(out))["j"]["busy_s"] == pytest.approx(1200.0)
+    (out / "summary_x.json").write_text(json.dumps({**rec, "device_kind": "cpu"}))  # a CPU worker: one
+    assert results.job_times(str(out))["j"]["busy_s"] == pytest.approx(600.0)
+
+
 def test_the_cli_says_a_bad_shard_in_one_line(tmp_path) -> None:
     r = subprocess.run([sys.executable, "-m", "bulbjax", "reproduce", "--shard", "3/2", "--out", str(tmp_path / "o")],
                        capture_output=True, text=True, timeout=120, env=dict(os.environ, JAX_PLATFORMS="cpu"))
@@ -440,6 +480,10 @@ def test_jobs_per_gpu_shares_each_gpu_and_counts_it_once(tmp_path, monkeypatch) 
     shared = estimate.shared_times(times, 3)
     assert shared["fig2-cartpole"].epoch_s == pytest.approx(times["fig2-cartpole"].epoch_s * 3 / estimate.SHARED_GAIN)
     assert estimate.shared_times(times, 1) is times
+    mps = estimate.shared_times(times, 2, mps=True)  # measured at 2 jobs per H200 under MPS: 1.51x
+    assert mps["fig2-invpend"].epoch_s == pytest.approx(times["fig2-invpend"].epoch_s * 2 / estimate.MPS_GAIN)
+    assert mps["fig2-invpend"].startup_warm_s == times["fig2-invpend"].startup_warm_s
+    assert estimate.MPS_GAIN > estimate.SHARED_GAIN
     one = reproduce("fig2-cartpole", "paper", str(tmp_path / "a"), dry_run=True, log=lambda _: None)
     three = reproduce("fig2-cartpole", "paper", str(tmp_path / "b"), dry_run=True, jobs_per_gpu=3,
                       log=lambda _: None)

@@ -82,28 +82,64 @@ def timing_of(job: Job, times: dict[str, Timing]) -> Timing:
                 "(bulbjax/reproduce/estimate.py)")
 
 
-# Jobs side by side on one GPU (`--jobs-per-gpu N`, N > 1): measured at N = 3 on one H200
-# (2026-11-29, fig2-cartpole seeds 3 and 4 and fig2-invpend seed 0, each its own process): 1.076-
-# 1.080 s per epoch each against 0.408-0.414 s alone, so the GPU did 1.14x the seed-epochs of one
-# job (it was 99% busy); start-up 283-286 s against 186 s alone on a fresh machine (three
-# compiles side by side). Other N are taken at the same gain (an estimate, said in --dry-run).
+# Jobs side by side on one GPU (`--jobs-per-gpu N`, N > 1), one H200, each job its own process.
+# Time-sliced (no MPS), at N = 3 (2026-11-29, fig2-cartpole seeds 3 and 4 and fig2-invpend seed 0):
+# 1.076-1.080 s per epoch each against 0.408-0.414 s alone, so the GPU did 1.14x the seed-epochs of
+# one job (it was 99% busy); start-up 283-286 s against 186 s alone on a fresh machine (three
+# compiles side by side). Under an MPS daemon (`--mps`), at N = 2 (2026-11-29, fig2-invpend seeds 2
+# and 3): 0.542-0.545 s per epoch each against 0.410 s alone, 1.51x; their start-ups 49-51 s warm
+# (the compile cache carried), as one job's warm start-up (52-54 s), so under MPS the warm start-up
+# is taken as it is and the cold one x SHARED_STARTUP (not measured under MPS). Other N are taken at
+# the same gains (an estimate, said in --dry-run).
 SHARED_GAIN = 1.14
 SHARED_STARTUP = 1.53
+MPS_GAIN = 1.51
 
 
-def shared_times(times: dict[str, Timing], jobs_per_gpu: int) -> dict[str, Timing]:
+def shared_times(times: dict[str, Timing], jobs_per_gpu: int, mps: bool = False) -> dict[str, Timing]:
     """The table's times for a job running beside `jobs_per_gpu - 1` others on its GPU: its
-    epochs `jobs_per_gpu / SHARED_GAIN` times as long, its start-ups `SHARED_STARTUP` times
-    (measured at 3 jobs per GPU); unchanged for 1."""
+    epochs `jobs_per_gpu / gain` times as long (`MPS_GAIN` under an MPS daemon, else
+    `SHARED_GAIN`), its cold start-up `SHARED_STARTUP` times, its warm one too unless under MPS
+    (measured so); unchanged for 1."""
     if jobs_per_gpu <= 1:
         return times
-    slow = jobs_per_gpu / SHARED_GAIN
-    note = f"{jobs_per_gpu} jobs per GPU: epochs x {slow:.2f}, start-ups x {SHARED_STARTUP} (estimate.SHARED_GAIN)"
+    gain = MPS_GAIN if mps else SHARED_GAIN
+    slow = jobs_per_gpu / gain
+    warm = 1.0 if mps else SHARED_STARTUP
+    note = (f"{jobs_per_gpu} jobs per GPU{' under MPS' if mps else ''}: epochs x {slow:.2f}, "
+            f"start-ups x {SHARED_STARTUP} cold / x {warm} warm (estimate.{'MPS' if mps else 'SHARED'}_GAIN)")
     return {k: dataclasses.replace(t, epoch_s=t.epoch_s * slow, extra_seed_s=t.extra_seed_s * slow,
                                    startup_cold_s=t.startup_cold_s * SHARED_STARTUP,
-                                   startup_warm_s=t.startup_warm_s * SHARED_STARTUP,
+                                   startup_warm_s=t.startup_warm_s * warm,
                                    derived="; ".join(x for x in (t.derived, note) if x))
             for k, t in times.items()}
+
+
+# A job whose learners run on a second GPU (`--learners-apart`, `bulbjax run --overlap apart`):
+# the table's row `<preset> apart` where one was measured (an epoch takes about the longer of its
+# two sides: fig2-halfcheetah 1.096 s against 1.747 s on one H200), else the preset's one-GPU row:
+# an upper bound (its two sides one after the other), marked derived.
+APART_ROW = "{preset} apart"
+
+
+def apart_times(times: dict[str, Timing]) -> dict[str, Timing]:
+    """The table's times for jobs with their learners on a GPU of their own: each row's
+    `<row> apart` where the table has one, else the row itself marked derived; the apart rows
+    themselves are not rows of the result."""
+    out = {}
+    for k, t in times.items():
+        if k.endswith(APART_ROW.format(preset="")):
+            continue
+        row = times.get(APART_ROW.format(preset=k))
+        note = "no apart row: its one-GPU times, an upper bound (estimate.apart_times)"
+        out[k] = row if row is not None else dataclasses.replace(
+            t, derived="; ".join(x for x in (t.derived, note) if x))
+    return out
+
+
+def without_apart_rows(times: dict[str, Timing]) -> dict[str, Timing]:
+    """The table's rows for jobs on one GPU each: every row but the `<preset> apart` ones."""
+    return {k: t for k, t in times.items() if not k.endswith(APART_ROW.format(preset=""))}
 
 
 def derived_fp32(jobs: Sequence[Job], times: dict[str, Timing]) -> list[str]:

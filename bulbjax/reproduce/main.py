@@ -21,8 +21,9 @@ from typing import Any, Callable, Sequence
 from bulbjax.config import PRESETS
 from bulbjax.reproduce import jobs as J
 from bulbjax.reproduce import results
-from bulbjax.reproduce.estimate import (SHARED_GAIN, derived_fp32, fit_jobs, hms, hours_unit, job_cost, load_times,
-                                       shared_times, simulate, table_kinds)
+from bulbjax.reproduce.estimate import (MPS_GAIN, SHARED_GAIN, apart_times, derived_fp32, fit_jobs, hms, hours_unit,
+                                       job_cost, load_times, shared_times, simulate, table_kinds,
+                                       without_apart_rows)
 from bulbjax.reproduce.estimate import device_kind as host_kind
 from bulbjax.reproduce.mps import MpsDaemon
 from bulbjax.reproduce.plan import (PLAN_FILE, Job, grown_from, parse_figures, parse_jobs, parse_shard,
@@ -184,7 +185,8 @@ def reproduce(figures: str | Sequence[str] = "all", scale: str = "paper", out: s
         raise ValueError("--mps shares GPUs between processes and this host runs CPU workers: run without it")
     daemon = MpsDaemon() if mps and not dry_run else None  # no control program: said before planning
     times, times_kind = load_times(kind)
-    times = shared_times(times, jobs_per_gpu)
+    times = shared_times(apart_times(times) if learners_apart else without_apart_rows(times), jobs_per_gpu, mps)
+    per_job = 2 if learners_apart and kind != "cpu" else 1  # GPUs a job holds (`results.gpu_share`)
     costs = {j.id: job_cost(j, times) for j in all_jobs}
     mine = all_jobs
     if share is not None:
@@ -225,18 +227,22 @@ def reproduce(figures: str | Sequence[str] = "all", scale: str = "paper", out: s
     lines += derived_fp32(mine, times)
     if jobs_per_gpu > 1:
         lines.append(f"{jobs_per_gpu} jobs per GPU: estimated from one measurement (the GPU's seed-epochs "
-                     f"x {SHARED_GAIN} at 3 jobs per H200; bulbjax/reproduce/estimate.py)"
-                     + (", time-sliced: under MPS not yet measured" if mps else ""))
-    gpu_s = est.gpu_s / jobs_per_gpu
+                     + (f"x {MPS_GAIN} at 2 jobs per H200 under MPS" if mps else f"x {SHARED_GAIN} at 3 jobs per H200")
+                     + "; bulbjax/reproduce/estimate.py)")
+    if learners_apart:
+        lines += [f"{p}: estimated, {t.derived}" for p, t in times.items()
+                  if "no apart row" in t.derived and any(j.preset == p and j.kind == "run" for j in mine)]
+    gpu_s = est.gpu_s * per_job / jobs_per_gpu
     note = "" if times_kind == kind else f" (estimates of an {times_kind}: none measured on this kind yet)"
     picked = (f", {len(mine)} picked" + (f" to fit {fit_minutes:g} min" if fit_minutes else " by --jobs")
               if fit_minutes or named is not None else "")
     log(f"plan: {len(mine)} job(s)" + (f", shard {share[0]}/{share[1]}" if share else "")
         + (f" of {len(all_jobs)}" if share or picked else "") + picked
-        + f", scale {scale}, on {len(slots)} {kind} slot(s){note}\n" + "\n".join(lines)
+        + f", scale {scale}, on {len(slots)} {kind} slot(s)"
+        + (" of two GPUs each (the learners apart)" if per_job == 2 else "") + f"{note}\n" + "\n".join(lines)
         + f"\nestimated: {gpu_s / 3600:.2f} {hours_unit(kind)}, {hms(est.wall_s)} wall on {len(slots)} slot(s) "
         f"(utilisation {est.utilisation:.0%})")
-    summary: dict[str, Any] = {"gpus": len(slots) // jobs_per_gpu, "device_kind": kind, "times_of": times_kind,
+    summary: dict[str, Any] = {"gpus": len(slots) * per_job // jobs_per_gpu, "device_kind": kind, "times_of": times_kind,
                                "estimated_wall_s": est.wall_s, "estimated_gpu_s": gpu_s,
                                "shard": list(share) if share else None, "jobs_planned": len(mine),
                                "learners_apart": learners_apart, "jobs_per_gpu": jobs_per_gpu, "mps": mps}
@@ -259,7 +265,7 @@ def reproduce(figures: str | Sequence[str] = "all", scale: str = "paper", out: s
         span = est.spans.get(jid)
         r["estimated_s"] = span[1] - span[0] if span and r.get("attempts") else None
     summary.update(measured_wall_s=ran["wall_s"], utilisation=ran["utilisation"], busy_s=ran["busy_s"],
-                   gpu_hours=ran["busy_s"] / 3600 / jobs_per_gpu, failed=ran["failed"], unfinished=ran["unfinished"],
+                   gpu_hours=ran["busy_s"] / 3600 * per_job / jobs_per_gpu, failed=ran["failed"], unfinished=ran["unfinished"],
                    jobs=ran["jobs"], finished_utc=datetime.datetime.now(datetime.timezone.utc).isoformat(
                        timespec="seconds"))
     ran_any = any(r["attempts"] for r in ran["jobs"].values())

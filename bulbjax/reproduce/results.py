@@ -115,7 +115,7 @@ def write(out: str, summary: dict[str, Any] | None = None, out_name: str | None 
                      f"{hms(r['startup_s']) if r.get('startup_s') else '-'} | {per} | {_against(r)} |")
     stretches = summaries(out)
     if stretches:
-        busy = sum(s.get("busy_s", 0.0) / (s.get("jobs_per_gpu") or 1) for s in stretches)
+        busy = sum(s.get("busy_s", 0.0) * gpu_share(s) for s in stretches)
         lines.append(f"\nGPU time of the stretches that ran jobs ({len(stretches)}, `summary*.json`): "
                      f"{busy / 3600:.2f} {hours_unit(stretches[-1].get('device_kind', ''))}.")
     lines.append("")
@@ -251,10 +251,18 @@ def _summary_line(s: dict[str, Any]) -> str:
     shared = s.get("jobs_per_gpu") or 1
     return (f"This stretch: {s.get('gpus')} {s.get('device_kind')} slot(s)"
             + (f" ({shared} jobs side by side on each)" if shared > 1 else "")
+            + (" (each job on two, its learners on the second)" if s.get("learners_apart") else "")
             + (" under an MPS daemon" if s.get("mps") else "") + ", "
             f"{hms(s.get('measured_wall_s', 0))} "
             f"wall (estimated {hms(est) if est is not None else '-'}), utilisation "
             f"{(s.get('utilisation') or 0):.0%}, {s.get('gpu_hours', 0):.2f} {hours_unit(s.get('device_kind', ''))}.")
+
+
+def gpu_share(s: dict[str, Any]) -> float:
+    """GPUs one of a stretch's jobs held (`s`: its summary): two with its learners apart (a CPU
+    worker counts as one), a share of one beside others on its GPU (`jobs_per_gpu`), else one."""
+    two = s.get("learners_apart") and s.get("device_kind") != "cpu"
+    return (2 if two else 1) / (s.get("jobs_per_gpu") or 1)
 
 
 def summaries(out: str) -> list[dict[str, Any]]:
@@ -278,8 +286,8 @@ def _against(r: dict[str, Any]) -> str:
 
 
 def job_times(out: str) -> dict[str, dict[str, Any]]:
-    """Each job's measured GPU time (`busy_s`, summed over the stretches that ran it; a job that
-    shared its GPU with others, `jobs_per_gpu`, counts its share), its wall time on its slot
+    """Each job's measured GPU time (`busy_s`, summed over the stretches that ran it, times the
+    GPUs it held: `gpu_share`), its wall time on its slot
     (`wall_s`) and what the plans estimated for it (`estimated_s`, None unless every stretch that
     ran it kept one), its last start-up (`startup_s`) and seconds per epoch (`epoch_s`), from
     every stretch's summary."""
@@ -289,7 +297,7 @@ def job_times(out: str) -> dict[str, dict[str, Any]]:
             if not r.get("attempts"):
                 continue
             t = times.setdefault(jid, {"busy_s": 0.0, "wall_s": 0.0, "estimated_s": 0.0})
-            t["busy_s"] += (r.get("busy_s") or 0.0) / (s.get("jobs_per_gpu") or 1)
+            t["busy_s"] += (r.get("busy_s") or 0.0) * gpu_share(s)
             t["wall_s"] += r.get("busy_s") or 0.0
             est = r.get("estimated_s")
             t["estimated_s"] = None if est is None or t["estimated_s"] is None else t["estimated_s"] + est
