@@ -16,14 +16,15 @@ import json
 import os
 import shutil
 import time
+from dataclasses import dataclass
 from typing import Any, Callable, Sequence
 
 from bulbjax.config import PRESETS
 from bulbjax.reproduce import jobs as J
 from bulbjax.reproduce import results
-from bulbjax.reproduce.estimate import (MPS_GAIN, SHARED_GAIN, apart_times, derived_fp32, fit_jobs, hms, hours_unit,
-                                       job_cost, load_times, shared_times, simulate, table_kinds,
-                                       without_apart_rows)
+from bulbjax.reproduce.estimate import (MPS_GAIN, SHARED_GAIN, Estimate, Timing, apart_times, derived_fp32,
+                                       fit_jobs, hms, hours_unit, job_cost, load_times, shared_times, simulate,
+                                       table_kinds, without_apart_rows)
 from bulbjax.reproduce.estimate import device_kind as host_kind
 from bulbjax.reproduce.mps import MpsDaemon
 from bulbjax.reproduce.plan import (PLAN_FILE, Job, grown_from, parse_figures, parse_jobs, parse_shard,
@@ -168,8 +169,95 @@ def reproduce(figures: str | Sequence[str] = "all", scale: str = "paper", out: s
     plan on `gpus` (default 1) GPUs of that kind, not this host's. `mps`: the jobs' processes under
     an MPS control daemon started for the stretch (`mps.MpsDaemon`), so that jobs side by side on
     a GPU run their kernels at once instead of taking turns."""
-    figs = parse_figures(figures)
-    share = parse_shard(shard)
+    figs, share = parse_figures(figures), parse_shard(shard)
+    _check_options(share, overwrite, max_minutes, device_kind, dry_run, fit_minutes)
+    names = learner_names(add_learners)
+    all_jobs = plan_jobs(figs, scale, list(add_learners))
+    host = host_of(gpus, learners_apart, jobs_per_gpu, mps, device_kind)
+    daemon = MpsDaemon() if mps and not dry_run else None  # no control program: said before planning
+    named = parse_jobs(jobs, all_jobs)
+    mine = _select(out, all_jobs, host, share, named, fit_minutes, overwrite, log)
+    _check_ycb(mine)  # --dry-run too: no plan of Fig. 5 without its models; before --overwrite clears anything
+    record = plan_record(figs, scale, list(add_learners), all_jobs)
+    grown = _open_out(out, record, overwrite, dry_run)
+    if grown:
+        joined = ", ".join(sorted({_job(all_jobs, i).figure for i in grown}))
+        log(f"{out} holds this plan as it was before {joined} joined --figures all: its "
+            f"{len(all_jobs) - len(grown)} jobs continue, {len(grown)} added")
+    picked = (f", {len(mine)} picked" + (f" to fit {fit_minutes:g} min" if fit_minutes else " by --jobs")
+              if fit_minutes or named is not None else "")
+    est = _announce(out, mine, host, f"plan: {len(mine)} job(s)" + (f", shard {share[0]}/{share[1]}" if share else "")
+                    + (f" of {len(all_jobs)}" if share or picked else "") + picked + f", scale {scale}", log)
+    summary: dict[str, Any] = {"gpus": len(host.slots) * host.per_job // jobs_per_gpu, "device_kind": host.kind,
+                               "times_of": host.times_kind, "estimated_wall_s": est.wall_s,
+                               "estimated_gpu_s": est.gpu_s * host.gpu_share, "shard": list(share) if share else None,
+                               "jobs_planned": len(mine), "learners_apart": learners_apart,
+                               "jobs_per_gpu": jobs_per_gpu, "mps": mps}
+    if dry_run:
+        return summary
+    os.makedirs(out, exist_ok=True)
+    with open(os.path.join(out, PLAN_FILE), "w") as f:
+        json.dump(record, f, indent=1)
+    stamp = datetime.datetime.now(datetime.timezone.utc).strftime("%Y%m%dT%H%M%SZ")
+    selected = bool(fit_minutes) or named is not None
+    status, summary_name = (_stretch_file(k, share, selected, stamp) for k in ("status", "summary"))
+    q = Queue(out, mine, all_jobs, host.slots, host.times,
+              time.monotonic() + 60 * max_minutes if max_minutes else None, progress_every, _learners_of(names),
+              log, status, run_flags=("--overlap", "apart") if learners_apart else ())
+    with daemon or contextlib.nullcontext():
+        ran = q.run()
+    return _finish(out, ran, est, host, summary, summary_name, log)
+
+
+@dataclass(frozen=True)
+class Host:
+    """Where a stretch runs: its slots and their device kind, the times its estimate reads (the
+    table's rows for that kind, or the fallback kind's, `times_kind`, as jobs hold GPUs here), and
+    how its jobs hold GPUs: two each with the learners apart, N jobs a GPU, under MPS or not."""
+
+    slots: list[Slot]
+    kind: str
+    times: dict[str, Timing]
+    times_kind: str
+    jobs_per_gpu: int = 1
+    learners_apart: bool = False
+    mps: bool = False
+
+    @property
+    def per_job(self) -> int:
+        """GPUs one job holds (a CPU worker with the learners apart counts as one)."""
+        return 2 if self.learners_apart and self.kind != "cpu" else 1
+
+    @property
+    def gpu_share(self) -> float:
+        """The GPUs one job's busy time counts for (`results.gpu_share` reads the summary so)."""
+        return self.per_job / self.jobs_per_gpu
+
+
+def host_of(gpus: int | None, learners_apart: bool = False, jobs_per_gpu: int = 1, mps: bool = False,
+            device_kind: str | None = None) -> Host:
+    """This host's (or, with `device_kind`, a host of that kind's) slots and the times its
+    estimate reads: the apart rows with `learners_apart`, slowed by the measured gain of
+    `jobs_per_gpu` jobs a GPU (under MPS or time-sliced; `estimate.shared_times`)."""
+    slots, kind = slots_of(gpus, 2 if learners_apart else 1, jobs_per_gpu, as_kind=device_kind)
+    if mps and any(s.gpu is None for s in slots):
+        raise ValueError("--mps shares GPUs between processes and this host runs CPU workers: run without it")
+    times, times_kind = load_times(kind)
+    times = shared_times(apart_times(times) if learners_apart else without_apart_rows(times), jobs_per_gpu, mps)
+    return Host(slots, kind, times, times_kind, jobs_per_gpu, learners_apart, mps)
+
+
+def _stretch_file(what: str, share: tuple[int, int] | None, selected: bool, stamp: str) -> str:
+    """The name of a stretch's `what` file ("status", "summary"): one per shard of a sharded plan,
+    one per stretch that selected its jobs (by its UTC start), else the plan's one."""
+    if share and not selected:
+        return f"{what}_shard{share[0]}of{share[1]}.json"
+    return f"{what}_{stamp}.json" if selected else f"{what}.json"
+
+
+def _check_options(share: tuple[int, int] | None, overwrite: bool, max_minutes: float,
+                   device_kind: str | None, dry_run: bool, fit_minutes: float) -> None:
+    """Refuse option pairs that cannot go together, each in one line that says what to do."""
     if share is not None and overwrite:
         raise ValueError("--overwrite deletes the plan's folder, which every shard shares: start afresh by "
                          "deleting it once (or with --overwrite on one host, without --shard)")
@@ -178,101 +266,80 @@ def reproduce(figures: str | Sequence[str] = "all", scale: str = "paper", out: s
     if device_kind is not None and not dry_run:
         raise ValueError(f"--device-kind {device_kind!r} estimates a plan for other hosts: add --dry-run (a run "
                          "uses this host's devices)")
-    names = learner_names(add_learners)
-    all_jobs = plan_jobs(figs, scale, list(add_learners))
-    slots, kind = slots_of(gpus, 2 if learners_apart else 1, jobs_per_gpu, as_kind=device_kind)
-    if mps and any(s.gpu is None for s in slots):
-        raise ValueError("--mps shares GPUs between processes and this host runs CPU workers: run without it")
-    daemon = MpsDaemon() if mps and not dry_run else None  # no control program: said before planning
-    times, times_kind = load_times(kind)
-    times = shared_times(apart_times(times) if learners_apart else without_apart_rows(times), jobs_per_gpu, mps)
-    per_job = 2 if learners_apart and kind != "cpu" else 1  # GPUs a job holds (`results.gpu_share`)
-    costs = {j.id: job_cost(j, times) for j in all_jobs}
+    if fit_minutes and overwrite:
+        raise ValueError("--fit-minutes picks among the plan's unfinished jobs: drop --overwrite")
+
+
+def _select(out: str, all_jobs: list[Job], host: Host, share: tuple[int, int] | None,
+            named: Sequence[Job] | None, fit_minutes: float, overwrite: bool,
+            log: Callable[[str], None]) -> list[Job]:
+    """This stretch's jobs: the shard's (`--shard K/N`, by estimated cost), those `--jobs` named,
+    less a Fig. 4 job whose run finished on another host (said), and of the unfinished rest those
+    that fit `fit_minutes` here (`estimate.fit_jobs`)."""
     mine = all_jobs
     if share is not None:
         k, n = share
-        where = shard_of(all_jobs, costs, n)
+        where = shard_of(all_jobs, {j.id: job_cost(j, host.times) for j in all_jobs}, n)
         mine = [j for j in all_jobs if where[j.id] == k - 1]
-    named = parse_jobs(jobs, all_jobs)
     if named is not None:
         mine = [j for j in mine if j in named]
-    record = plan_record(figs, scale, list(add_learners), all_jobs)
-    if fit_minutes and overwrite:
-        raise ValueError("--fit-minutes picks among the plan's unfinished jobs: drop --overwrite")
     lost = [] if overwrite else [j for j in mine if not J.is_done(out, j) and j.after
                                  and J.finished_elsewhere(out, _job(all_jobs, j.after))]
     for j in lost:  # its run finished on a host whose disk (and the checkpoint) went with it
         log(f"{j.id} left out: its run {j.after} finished on another host and left no checkpoint here to "
             f"draw from; delete {J.job_dir(out, _job(all_jobs, j.after))} to run both again")
     mine = [j for j in mine if j not in lost]
-    if fit_minutes:  # before the YCB check: Fig. 5 may not be among what fits
-        left = [j for j in mine if not J.is_done(out, j)]
-        from bulbjax.assets.ycb import YCB_DIR_ENV  # here: it imports trimesh
+    if not fit_minutes:
+        return mine
+    left = [j for j in mine if not J.is_done(out, j)]  # before the YCB check: Fig. 5 may not be among what fits
+    from bulbjax.assets.ycb import YCB_DIR_ENV  # here: it imports trimesh
 
-        if any("ycb" in j.preset for j in left) and not os.environ.get(YCB_DIR_ENV):
-            log("--fit-minutes: Fig. 5's jobs left out ($BULBJAX_YCB_DIR is not set)")
-            left = [j for j in left if "ycb" not in j.preset]
-        mine = fit_jobs(left, times, len(slots), fit_minutes, {j.id: J.epochs_done(out, j) for j in left})
-        if not mine and left:
-            shortest = min(job_cost(j, times) for j in left if j.kind == "run")
-            raise ValueError(f"--fit-minutes {fit_minutes:g}: no unfinished job fits (the shortest needs "
-                             f"{hms(shortest)} here); give more minutes")
-    _check_ycb(mine)  # --dry-run too: no plan of Fig. 5 without its models; before --overwrite clears anything
-    grown = _open_out(out, record, overwrite, dry_run)
-    if grown:
-        joined = ", ".join(sorted({_job(all_jobs, i).figure for i in grown}))
-        log(f"{out} holds this plan as it was before {joined} joined --figures all: its "
-            f"{len(all_jobs) - len(grown)} jobs continue, {len(grown)} added")
-    lines, est = plan_table(out, mine, times, len(slots))
-    lines += derived_fp32(mine, times)
-    if jobs_per_gpu > 1:
-        lines.append(f"{jobs_per_gpu} jobs per GPU: estimated from one measurement (the GPU's seed-epochs "
-                     + (f"x {MPS_GAIN} at 2 jobs per H200 under MPS" if mps else f"x {SHARED_GAIN} at 3 jobs per H200")
-                     + "; bulbjax/reproduce/estimate.py)")
-    if learners_apart:
-        lines += [f"{p}: estimated, {t.derived}" for p, t in times.items()
+    if any("ycb" in j.preset for j in left) and not os.environ.get(YCB_DIR_ENV):
+        log("--fit-minutes: Fig. 5's jobs left out ($BULBJAX_YCB_DIR is not set)")
+        left = [j for j in left if "ycb" not in j.preset]
+    mine = fit_jobs(left, host.times, len(host.slots), fit_minutes, {j.id: J.epochs_done(out, j) for j in left})
+    if not mine and left:
+        shortest = min(job_cost(j, host.times) for j in left if j.kind == "run")
+        raise ValueError(f"--fit-minutes {fit_minutes:g}: no unfinished job fits (the shortest needs "
+                         f"{hms(shortest)} here); give more minutes")
+    return mine
+
+
+def _announce(out: str, mine: list[Job], host: Host, what: str, log: Callable[[str], None]) -> Estimate:
+    """Say the plan before anything starts: `what` (its jobs, shard, scale), the slots, each job's
+    epochs, estimate and state, how derived times were worked out, the GPU-hours and wall time."""
+    lines, est = plan_table(out, mine, host.times, len(host.slots))
+    lines += derived_fp32(mine, host.times)
+    if host.jobs_per_gpu > 1:
+        lines.append(f"{host.jobs_per_gpu} jobs per GPU: estimated from one measurement (the GPU's seed-epochs "
+                     + (f"x {MPS_GAIN} at 2 jobs per H200 under MPS" if host.mps else
+                        f"x {SHARED_GAIN} at 3 jobs per H200") + "; bulbjax/reproduce/estimate.py)")
+    if host.learners_apart:
+        lines += [f"{p}: estimated, {t.derived}" for p, t in host.times.items()
                   if "no apart row" in t.derived and any(j.preset == p and j.kind == "run" for j in mine)]
-    gpu_s = est.gpu_s * per_job / jobs_per_gpu
-    note = "" if times_kind == kind else f" (estimates of an {times_kind}: none measured on this kind yet)"
-    picked = (f", {len(mine)} picked" + (f" to fit {fit_minutes:g} min" if fit_minutes else " by --jobs")
-              if fit_minutes or named is not None else "")
-    log(f"plan: {len(mine)} job(s)" + (f", shard {share[0]}/{share[1]}" if share else "")
-        + (f" of {len(all_jobs)}" if share or picked else "") + picked
-        + f", scale {scale}, on {len(slots)} {kind} slot(s)"
-        + (" of two GPUs each (the learners apart)" if per_job == 2 else "") + f"{note}\n" + "\n".join(lines)
-        + f"\nestimated: {gpu_s / 3600:.2f} {hours_unit(kind)}, {hms(est.wall_s)} wall on {len(slots)} slot(s) "
-        f"(utilisation {est.utilisation:.0%})")
-    summary: dict[str, Any] = {"gpus": len(slots) * per_job // jobs_per_gpu, "device_kind": kind, "times_of": times_kind,
-                               "estimated_wall_s": est.wall_s, "estimated_gpu_s": gpu_s,
-                               "shard": list(share) if share else None, "jobs_planned": len(mine),
-                               "learners_apart": learners_apart, "jobs_per_gpu": jobs_per_gpu, "mps": mps}
-    if dry_run:
-        return summary
-    os.makedirs(out, exist_ok=True)
-    with open(os.path.join(out, PLAN_FILE), "w") as f:
-        json.dump(record, f, indent=1)
-    learners_of = _learners_of(names)
-    deadline = time.monotonic() + 60 * max_minutes if max_minutes else None
-    stamp = datetime.datetime.now(datetime.timezone.utc).strftime("%Y%m%dT%H%M%SZ")
-    selected = fit_minutes or named is not None
-    status = (f"status_shard{share[0]}of{share[1]}.json" if share and not selected
-              else f"status_{stamp}.json" if selected else "status.json")
-    q = Queue(out, mine, all_jobs, slots, times, deadline, progress_every, learners_of, log, status,
-              run_flags=("--overlap", "apart") if learners_apart else ())
-    with daemon or contextlib.nullcontext():
-        ran = q.run()
+    note = "" if host.times_kind == host.kind else f" (estimates of an {host.times_kind}: none measured on this kind yet)"
+    n = len(host.slots)
+    log(f"{what}, on {n} {host.kind} slot(s)" + (" of two GPUs each (the learners apart)" if host.per_job == 2 else "")
+        + f"{note}\n" + "\n".join(lines)
+        + f"\nestimated: {est.gpu_s * host.gpu_share / 3600:.2f} {hours_unit(host.kind)}, {hms(est.wall_s)} wall "
+        f"on {n} slot(s) (utilisation {est.utilisation:.0%})")
+    return est
+
+
+def _finish(out: str, ran: dict[str, Any], est: Estimate, host: Host, summary: dict[str, Any],
+            summary_name: str, log: Callable[[str], None]) -> dict[str, Any]:
+    """After the queue: each job's estimate beside what it took, the stretch's summary (written
+    where a job ran) and the results page, said in one line."""
     for jid, r in ran["jobs"].items():  # what the plan estimated for each job it ran, beside what it took
         span = est.spans.get(jid)
         r["estimated_s"] = span[1] - span[0] if span and r.get("attempts") else None
     summary.update(measured_wall_s=ran["wall_s"], utilisation=ran["utilisation"], busy_s=ran["busy_s"],
-                   gpu_hours=ran["busy_s"] / 3600 * per_job / jobs_per_gpu, failed=ran["failed"], unfinished=ran["unfinished"],
-                   jobs=ran["jobs"], finished_utc=datetime.datetime.now(datetime.timezone.utc).isoformat(
-                       timespec="seconds"))
+                   gpu_hours=ran["busy_s"] / 3600 * host.gpu_share, failed=ran["failed"],
+                   unfinished=ran["unfinished"], jobs=ran["jobs"],
+                   finished_utc=datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"))
     ran_any = any(r["attempts"] for r in ran["jobs"].values())
     if ran_any:  # a rerun that found everything done keeps the summary of the stretch that ran
-        name = (f"summary_shard{share[0]}of{share[1]}.json" if share and not selected
-                else f"summary_{stamp}.json" if selected else "summary.json")
-        with open(os.path.join(out, name), "w") as f:
+        with open(os.path.join(out, summary_name), "w") as f:
             json.dump(summary, f, indent=1)
     page = results.write(out, summary if ran_any else results.read_summary(out), out_name=out)
     log(f"results: {page}" + (f"; failed: {', '.join(ran['failed'])}" if ran["failed"] else "")
