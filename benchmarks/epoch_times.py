@@ -77,8 +77,9 @@ def measured(summary: dict, jobs: list[Job]) -> dict[str, dict]:
 
 def from_summary(path: str) -> tuple[str, dict[str, dict]]:
     """Per-row figures from a `bulbjax reproduce` summary.json (its jobs of one seed): each job's
-    row as the estimate keys it (`estimate.timing_key`: an fp32 job's `<preset> fp32`), read
-    from the plan.json beside it; without one, the preset its id begins with."""
+    row as the estimate keys it (`estimate.timing_key`: an fp32 job's `<preset> fp32`; a stretch
+    with the learners apart: `<row> apart`), read from the plan.json beside it; without one, the
+    preset its id begins with."""
     with open(path) as f:
         s = json.load(f)
     if (s.get("jobs_per_gpu") or 1) > 1:
@@ -90,6 +91,8 @@ def from_summary(path: str) -> tuple[str, dict[str, dict]]:
     for jid, r in s["jobs"].items():
         if "/seed" in jid and r.get("epoch_s"):
             row = estimate.timing_key(planned[jid]) if jid in planned else jid.split("/")[0]
+            if s.get("learners_apart"):  # two GPUs a job: the row `estimate.apart_times` reads
+                row = estimate.APART_ROW.format(preset=row)
             by.setdefault(row, []).append(r)
     out = {p: {"epoch_s": round(statistics.median(r["epoch_s"] for r in rs), 3),
                **({"startup_cold_s": round(max(r["startup_s"] for r in rs if r.get("startup_s")))}

@@ -228,6 +228,23 @@ def test_learners_apart_are_timed_by_their_rows_and_count_two_gpus(tmp_path, mon
     assert results.job_times(str(out))["j"]["busy_s"] == pytest.approx(600.0)
 
 
+def test_epoch_times_reads_an_apart_stretch_into_its_apart_row(tmp_path) -> None:
+    """`benchmarks/epoch_times.py --from-summary` of a stretch with the learners apart measures
+    the `<preset> apart` row (two GPUs a job), never the preset's one-GPU row."""
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location(
+        "epoch_times", os.path.join(os.path.dirname(os.path.dirname(__file__)), "benchmarks", "epoch_times.py"))
+    et = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(et)
+    rec = {"device_kind": "NVIDIA H200", "jobs": {"fig2-halfcheetah/seed0": {"epoch_s": 1.1, "startup_s": 190.0}}}
+    for apart, row in ((True, "fig2-halfcheetah apart"), (False, "fig2-halfcheetah")):
+        path = tmp_path / f"summary_{apart}.json"
+        path.write_text(json.dumps({**rec, "learners_apart": apart}))
+        kind, found = et.from_summary(str(path))
+        assert kind == "NVIDIA H200" and found == {row: {"epoch_s": 1.1, "startup_cold_s": 190}}
+
+
 def test_the_cli_says_a_bad_shard_in_one_line(tmp_path) -> None:
     r = subprocess.run([sys.executable, "-m", "bulbjax", "reproduce", "--shard", "3/2", "--out", str(tmp_path / "o")],
                        capture_output=True, text=True, timeout=120, env=dict(os.environ, JAX_PLATFORMS="cpu"))
