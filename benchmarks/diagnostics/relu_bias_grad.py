@@ -11,7 +11,9 @@ column sums, runs at ~3 TB/s, the learners' updates lose ~0.3-0.4 ms each (~10%)
 
 For each layer shape of the conv stack it times, inside one jitted loop of `--steps` dependent
 iterations (so nothing is hoisted and no host dispatch is counted), XLA's form (`jnp.where` then
-`networks._bias_sum`, as autodiff and `add_bias(..., "split")` give it) and the Pallas form
+`networks._bias_sum`, as autodiff and `add_bias(..., "split")` give it), two other XLA forms
+(the masked gradient in a kernel of its own; the batch sum in blocks of 32 rows first), and the
+Pallas form
 (`pl.pallas_call` over (row, column) blocks of the [batch, pixels x channels] view, each block's
 column sums in f32, summed after) at several block sizes; checks the two agree (the masked
 gradient exactly, the bias gradient to f32 summation order) and prints GB/s (reads of the
@@ -53,6 +55,35 @@ def xla_form(g: Any, y: Any) -> tuple[Any, Any]:
 
     gx = jnp.where(y > 0, g, jnp.zeros_like(g))
     return gx, _bias_sum(gx)
+
+
+def xla_two_kernels(g: Any, y: Any) -> tuple[Any, Any]:
+    """XLA's form with the masked gradient written by a kernel of its own (a barrier after it),
+    the bias gradient's passes reading it back: 4 tensor passes instead of 3, each a plain
+    elementwise or reduction kernel rather than one multi-output fusion."""
+    import jax
+    import jax.numpy as jnp
+
+    from bulbjax.learners.networks import _bias_sum
+
+    gx = jax.lax.optimization_barrier(jnp.where(y > 0, g, jnp.zeros_like(g)))
+    return gx, _bias_sum(gx)
+
+
+def xla_row_blocks(g: Any, y: Any, rows: int = 32) -> tuple[Any, Any]:
+    """XLA's form with the batch sum taken in blocks of `rows` rows first ([B / rows, rows, N]
+    summed over its middle axis), then over the blocks and the pixels."""
+    import jax
+    import jax.numpy as jnp
+
+    b, c = g.shape[0], g.shape[-1]
+    gx = jnp.where(y > 0, g, jnp.zeros_like(g))
+    part = gx.reshape(b // rows, rows, -1).sum(1, dtype=jnp.float32)
+    part = jax.lax.optimization_barrier(part)
+    return gx, part.sum(0).reshape(-1, c).sum(0)
+
+
+XLA_FORMS = {"xla": xla_form, "xla_two_kernels": xla_two_kernels, "xla_row_blocks": xla_row_blocks}
 
 
 def pallas_form(g: Any, y: Any, rows: int, cols: int, interpret: bool = False) -> tuple[Any, Any]:
@@ -138,8 +169,8 @@ def timed_loop(form: Callable, g: Any, y: Any, steps: int) -> tuple[float, float
 
 def measure(name: str, shape: tuple[int, ...], blocks: list[tuple[str, int, int]], steps: int,
             interpret: bool) -> dict[str, Any]:
-    """One layer shape: XLA's form and each Pallas form ("grid" or "loop") at each block size
-    that divides it."""
+    """One layer shape: XLA's forms (`XLA_FORMS`) and each Pallas form ("grid" or "loop") at
+    each block size that divides it, each checked against XLA's form of today."""
     import jax
     import jax.numpy as jnp
     import numpy as np
@@ -150,16 +181,13 @@ def measure(name: str, shape: tuple[int, ...], blocks: list[tuple[str, int, int]
     moved = 3 * g.size * g.dtype.itemsize  # g and y read, the masked gradient written
     ref_gx, ref_gb = jax.jit(xla_form)(g, y)
     out: dict[str, Any] = {"shape": list(shape), "bytes_moved": moved}
-    s, first = timed_loop(xla_form, g, y, steps)
-    out["xla"] = {"s": s, "gb_per_s": moved / s / 1e9, "first_s": first}
-    print(f"{name}: XLA {s * 1e3:.3f} ms ({moved / s / 1e9:.0f} GB/s)", flush=True)
     n = math.prod(shape[1:])
-    for how, rows, cols in blocks:
-        if shape[0] % rows or n % cols:
-            continue
-        form = functools.partial(pallas_form if how == "grid" else pallas_loop_form, rows=rows,
-                                 cols=cols, interpret=interpret)
-        label = f"pallas_{how}_{rows}x{cols}"
+    forms = [(k, f) for k, f in XLA_FORMS.items() if k != "xla_row_blocks" or shape[0] % 32 == 0]
+    forms += [(f"pallas_{how}_{rows}x{cols}",
+               functools.partial(pallas_form if how == "grid" else pallas_loop_form, rows=rows,
+                                 cols=cols, interpret=interpret))
+              for how, rows, cols in blocks if not (shape[0] % rows or n % cols)]
+    for label, form in forms:
         try:
             gx, gb = jax.jit(form)(g, y)
             same_gx = bool(jnp.array_equal(gx, ref_gx))
@@ -171,11 +199,10 @@ def measure(name: str, shape: tuple[int, ...], blocks: list[tuple[str, int, int]
             print(f"{name}: {label}: {type(e).__name__}: {str(e)[:200]}", flush=True)
             continue
         out[label] = {"s": s, "gb_per_s": moved / s / 1e9, "first_s": first,
-                                        "masked_equal": same_gx, "bias_grad_rel_err": gb_err}
+                      "masked_equal": same_gx, "bias_grad_rel_err": gb_err}
         print(f"{name}: {label} {s * 1e3:.3f} ms ({moved / s / 1e9:.0f} GB/s), masked "
               f"gradient {'equal' if same_gx else 'DIFFERENT'}, bias gradient rel. err "
-              f"{gb_err:.1e}",
-              flush=True)
+              f"{gb_err:.1e}", flush=True)
     return out
 
 
