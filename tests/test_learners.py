@@ -206,7 +206,9 @@ def test_config_is_hashable_and_frozen() -> None:
 @pytest.mark.parametrize("impl,pad,bias_grad,edge", [
     ("subpixel", 1, "reduce", "strided"), ("dgrad", 1, "reduce", "strided"),
     ("dgrad", 8, "split", "strided"), ("subpixel", 1, "split", "strided"),
-    ("dgrad", 8, "split", "blocked"), ("dgrad", 1, "reduce", "blocked")])
+    ("dgrad", 8, "split", "blocked"), ("dgrad", 1, "reduce", "blocked"),
+    ("dgrad", 8, "split_apart", "blocked"), ("dgrad", 8, "pallas", "blocked"),
+    ("subpixel", 1, "pallas", "strided")])
 def test_decoder_forms_equal_transpose(impl: str, pad: int, bias_grad: str, edge: str) -> None:
     """The decoder forms share parameters and compute the same function (and gradients), so
     switching `deconv_impl` (or padding the 3 output channels, summing the bias gradients
@@ -241,7 +243,9 @@ def test_decoder_forms_equal_transpose(impl: str, pad: int, bias_grad: str, edge
 
 @pytest.mark.parametrize("pad,bias_grad,blocked", [(1, "reduce", False), (8, "reduce", False),
                                                    (8, "split", False), (4, "split", False),
-                                                   (1, "reduce", True), (8, "split", True)])
+                                                   (1, "reduce", True), (8, "split", True),
+                                                   (1, "split_apart", False), (8, "pallas", False),
+                                                   (8, "pallas", True)])
 def test_conv4x4_equals_flax_conv(pad: int, bias_grad: str, blocked: bool) -> None:
     """The encoder's layer has flax `nn.Conv`'s parameters (names, shapes, init values) and
     function and gradients, whatever its channel padding, bias-gradient form, or computed

@@ -30,12 +30,15 @@ outputs are float32.
 
 from __future__ import annotations
 
+import functools
 import math
 from typing import Any, Sequence
 
 import flax.linen as nn
 import jax
 import jax.numpy as jnp
+
+from bulbjax.learners.kernels import column_sum
 
 DEFAULT_FEATURES: tuple[int, ...] = (64, 64, 128, 256)
 
@@ -83,7 +86,7 @@ def check_frame_shape(
 
 
 _NHWC = ("NHWC", "HWIO", "NHWC")  # the convolution layouts of the encoder and decoder forms
-BIAS_GRADS: tuple[str, ...] = ("reduce", "split")  # add_bias
+BIAS_GRADS: tuple[str, ...] = ("reduce", "split", "split_apart", "pallas")  # add_bias
 # How the first conv and the decoder's last layer (the two at full resolution with 3 channels)
 # are computed: "strided" (4x4 stride-2 convolutions over pixels) or "blocked" (the same kernels
 # rearranged into 3x3 stride-1 convolutions over 2x2 pixel blocks; `blocked_conv_down`).
@@ -100,39 +103,48 @@ def pad_axis(x: jax.Array, axis: int, multiple: int) -> jax.Array:
     return jnp.pad(x, widths)
 
 
-def _bias_sum(g: jax.Array) -> jax.Array:
+def _bias_sum(g: jax.Array, form: str = "split") -> jax.Array:
     """sum of `g [B, ..., C]` over all but its last axis, in two passes: over the batch axis
     first (a reduction that keeps the H*W*C other entries, wide enough for the GPU's
     column-reduction kernels), then over the rest. In one pass, XLA keeps only C columns and
     runs slowly where C is small (3 for the decoder's output). The barrier stops XLA merging
-    the two back into one."""
-    first = jax.lax.optimization_barrier(g.reshape(g.shape[0], -1).sum(0, dtype=jnp.float32))
+    the two back into one. `form` ("split", "split_apart", "pallas"; `add_bias`): the first pass
+    as one XLA reduction fused with what made `g` (a ReLU's mask), the same after a barrier that
+    has `g` written by a kernel of its own, or as `kernels.column_sum`."""
+    if form == "pallas":
+        first = column_sum(g.reshape(g.shape[0], -1))
+    else:
+        if form == "split_apart":
+            g = jax.lax.optimization_barrier(g)
+        first = jax.lax.optimization_barrier(g.reshape(g.shape[0], -1).sum(0, dtype=jnp.float32))
     return first.reshape(-1, g.shape[-1]).sum(0)
 
 
-@jax.custom_vjp
-def _add_bias_split(h: jax.Array, b: jax.Array) -> jax.Array:
+@functools.partial(jax.custom_vjp, nondiff_argnums=(2,))
+def _add_bias_two_pass(h: jax.Array, b: jax.Array, form: str) -> jax.Array:
     return h + b
 
 
-def _add_bias_split_fwd(h: jax.Array, b: jax.Array) -> tuple[jax.Array, None]:
+def _add_bias_two_pass_fwd(h: jax.Array, b: jax.Array, form: str) -> tuple[jax.Array, None]:
     return h + b, None
 
 
-def _add_bias_split_bwd(_: None, g: jax.Array) -> tuple[jax.Array, jax.Array]:
-    return g, _bias_sum(g).astype(g.dtype)
+def _add_bias_two_pass_bwd(form: str, _: None, g: jax.Array) -> tuple[jax.Array, jax.Array]:
+    return g, _bias_sum(g, form).astype(g.dtype)
 
 
-_add_bias_split.defvjp(_add_bias_split_fwd, _add_bias_split_bwd)
+_add_bias_two_pass.defvjp(_add_bias_two_pass_fwd, _add_bias_two_pass_bwd)
 
 
 def add_bias(h: jax.Array, b: jax.Array, grad: str = "reduce") -> jax.Array:
     """`h + b` (b over the last axis); `grad` picks how the bias gradient is summed: "reduce"
-    (autodiff's one reduction) or "split" (`_bias_sum`, two passes). Same values."""
+    (autodiff's one reduction), "split" (`_bias_sum`, two passes), "split_apart" (the same with
+    the incoming gradient written by a kernel of its own first) or "pallas" (its first pass a
+    Pallas kernel, `kernels.column_sum`). Same values, summed in other orders."""
     if grad not in BIAS_GRADS:
         raise ValueError(f"unknown bias_grad {grad!r}; accepted: {', '.join(BIAS_GRADS)}")
     b = b.astype(h.dtype)
-    return h + b if grad == "reduce" else _add_bias_split(h, b)
+    return h + b if grad == "reduce" else _add_bias_two_pass(h, b, grad)
 
 
 def _conv_down(u: jax.Array, w: jax.Array) -> jax.Array:
