@@ -35,3 +35,16 @@ def test_column_sum_under_vmap() -> None:
     x = jax.random.normal(jax.random.PRNGKey(1), (2, 32, 512), jnp.float32)
     got = jax.vmap(kernels.column_sum)(x)
     np.testing.assert_allclose(np.asarray(got), np.asarray(x.sum(1)), rtol=1e-5, atol=1e-5)
+
+
+@pytest.mark.parametrize("shape", [(64, 4096), (1008, 192), (40, 105)])
+def test_masked_column_sum_is_the_relu_backward_and_its_batch_sum(shape: tuple[int, int]) -> None:
+    """The masked gradient equal to the ReLU's backward pass (exactly), its batch sum XLA's."""
+    kg, ky = jax.random.split(jax.random.PRNGKey(2))
+    g = jax.random.normal(kg, shape, jnp.bfloat16)
+    y = jax.nn.relu(jax.random.normal(ky, shape, jnp.bfloat16))
+    gx, sums = jax.jit(kernels.masked_column_sum)(g, y)
+    want = jnp.where(y > 0, g, jnp.zeros_like(g))
+    np.testing.assert_array_equal(np.asarray(gx, np.float32), np.asarray(want, np.float32))
+    np.testing.assert_allclose(np.asarray(sums), np.asarray(want.sum(0, dtype=jnp.float32)),
+                               rtol=1e-5, atol=1e-4)

@@ -208,7 +208,8 @@ def test_config_is_hashable_and_frozen() -> None:
     ("dgrad", 8, "split", "strided"), ("subpixel", 1, "split", "strided"),
     ("dgrad", 8, "split", "blocked"), ("dgrad", 1, "reduce", "blocked"),
     ("dgrad", 8, "split_apart", "blocked"), ("dgrad", 8, "pallas", "blocked"),
-    ("subpixel", 1, "pallas", "strided")])
+    ("subpixel", 1, "pallas", "strided"), ("dgrad", 8, "pallas_relu", "blocked"),
+    ("subpixel", 1, "pallas_relu", "strided")])
 def test_decoder_forms_equal_transpose(impl: str, pad: int, bias_grad: str, edge: str) -> None:
     """The decoder forms share parameters and compute the same function (and gradients), so
     switching `deconv_impl` (or padding the 3 output channels, summing the bias gradients
@@ -271,15 +272,34 @@ def test_conv4x4_equals_flax_conv(pad: int, bias_grad: str, blocked: bool) -> No
         np.testing.assert_allclose(np.asarray(h), np.asarray(g), rtol=1e-4, atol=1e-5)
 
 
-@pytest.mark.parametrize("name", ["vae", pytest.param("pred", marks=pytest.mark.slow)])
-def test_conv_forms_do_not_change_the_learner(name: str) -> None:
-    """A learner with padded frame channels, two-pass bias gradients and the edge layers over
-    pixel blocks starts from the same parameters and takes the same update as with the plain
-    forms."""
+@pytest.mark.parametrize("grad", ["split", "split_apart", "pallas", "pallas_relu"])
+def test_encoder_bias_gradient_forms_give_autodiffs_gradients(grad: str) -> None:
+    """The encoder's conv layers with their ReLUs (Conv4x4 with `relu`), the bias gradients in
+    each form, give autodiff's gradients (`reduce`): a scale error in a bias gradient shows here,
+    where a learner's first Adam step would hide it."""
+    from bulbjax.learners.networks import ConvEncoder
+
+    x = jax.random.uniform(jax.random.PRNGKey(7), (4, 32, 32, 3))
+    a = ConvEncoder(6, (8, 8, 16, 16), 32, channel_pad=8, bias_grad="reduce")
+    b = ConvEncoder(6, (8, 8, 16, 16), 32, channel_pad=8, bias_grad=grad)
+    params = jax.tree.map(lambda p: p + 0.05, a.init(jax.random.PRNGKey(8), x))
+    loss = lambda m, p: sum(jnp.sum(jnp.sin(o)) for o in m.apply(p, x))  # noqa: E731
+    ga, gb = jax.grad(lambda p: loss(a, p))(params), jax.grad(lambda p: loss(b, p))(params)
+    for u, v in zip(jax.tree.leaves(ga), jax.tree.leaves(gb)):
+        scale = float(np.abs(np.asarray(u)).max())
+        np.testing.assert_allclose(np.asarray(v), np.asarray(u), rtol=1e-4, atol=1e-5 * max(scale, 1.0))
+
+
+@pytest.mark.parametrize("name,grad", [("vae", "split"), ("vae", "pallas_relu"),
+                                       pytest.param("pred", "split", marks=pytest.mark.slow)])
+def test_conv_forms_do_not_change_the_learner(name: str, grad: str) -> None:
+    """A learner with padded frame channels, two-pass bias gradients (or the ReLU masks and bias
+    gradients in one Pallas kernel) and the edge layers over pixel blocks starts from the same
+    parameters and takes the same update as with the plain forms."""
     cfg = LearnerConfig(conv_features=(8, 8, 16, 16), hidden=32, batch_size=4, sequence_length=3,
                         pred_horizon=1)
     plain = make_learner(name, LATENT, dataclasses.replace(cfg, channel_pad=1, bias_grad="reduce"), action_dim=1)
-    padded = make_learner(name, LATENT, dataclasses.replace(cfg, channel_pad=8, bias_grad="split",
+    padded = make_learner(name, LATENT, dataclasses.replace(cfg, channel_pad=8, bias_grad=grad,
                                                             edge_layers="blocked"), action_dim=1)
     s0, s1 = plain.init(jax.random.PRNGKey(0), (32, 32, 3)), padded.init(jax.random.PRNGKey(0), (32, 32, 3))
     for p, q in zip(jax.tree.leaves(s0.params), jax.tree.leaves(s1.params)):

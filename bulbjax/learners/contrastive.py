@@ -69,7 +69,7 @@ class ContrastiveEncoder(nn.Module):
         at = max(len(self.features) - 2, 0)
         for i, f in enumerate(self.features):
             blocked = i == 0 and self.edge_layers == "blocked"
-            h = nn.relu(Conv4x4(f, self.dtype, self.channel_pad, self.bias_grad, blocked, name=f"conv{i}")(h))
+            h = Conv4x4(f, self.dtype, self.channel_pad, self.bias_grad, blocked, relu=True, name=f"conv{i}")(h)
             if i == at:
                 local = h
         dense = dict(param_dtype=jnp.float32, kernel_init=lecun_normal_flat)

@@ -4,9 +4,11 @@
 (rows, columns) blocks of it, each block's column sums written and the few block rows added
 after. It is the first pass of a conv layer's bias gradient (`networks._bias_sum`, with
 `LearnerConfig.bias_grad="pallas"`), where XLA's reduction fusions reach about a third of the
-card's bandwidth (docs/performance.md, "Learner updates"); whether this kernel does better is
-`benchmarks/diagnostics/relu_bias_grad.py`'s question, so it is an option, not the default.
-On a CPU it runs in Pallas's interpret mode (the same function, slowly), as the tests do.
+card's bandwidth (docs/performance.md, "Learner updates"). `masked_column_sum` does a ReLU's
+backward mask in the same kernel (`bias_grad="pallas_relu"`: the gradient and the ReLU's output
+read once, the masked gradient written once). Whether either does better than XLA is
+`benchmarks/diagnostics/relu_bias_grad.py`'s question, so they are options, not the default.
+On a CPU they run in Pallas's interpret mode (the same function, slowly), as the tests do.
 """
 
 from __future__ import annotations
@@ -26,6 +28,11 @@ def _pow2_divisor(n: int, cap: int) -> int:
     return d
 
 
+def _blocks(b: int, n: int) -> tuple[int, int]:
+    """(rows, columns) of a kernel's blocks over a [b, n] array; columns < MIN_COLS: none fits."""
+    return _pow2_divisor(b, MAX_ROWS), _pow2_divisor(n, MAX_COLS)
+
+
 def column_sum(x: jax.Array) -> jax.Array:
     """`x [B, N]` summed over its first axis, in float32 ([N]). Blocks of up to `MAX_ROWS` x
     `MAX_COLS` (powers of two dividing B and N); where N has no power-of-two divisor of at least
@@ -33,7 +40,7 @@ def column_sum(x: jax.Array) -> jax.Array:
     import jax.experimental.pallas as pl
 
     b, n = x.shape
-    rows, cols = _pow2_divisor(b, MAX_ROWS), _pow2_divisor(n, MAX_COLS)
+    rows, cols = _blocks(b, n)
     if cols < MIN_COLS:
         return x.sum(0, dtype=jnp.float32)
 
@@ -47,3 +54,32 @@ def column_sum(x: jax.Array) -> jax.Array:
         out_shape=jax.ShapeDtypeStruct((b // rows, n), jnp.float32),
         interpret=jax.default_backend() == "cpu")(x)
     return part.sum(0)
+
+
+def masked_column_sum(g: jax.Array, y: jax.Array) -> tuple[jax.Array, jax.Array]:
+    """A ReLU's backward pass and its layer's bias-gradient first pass in one kernel: `g [B, N]`
+    (the gradient at the ReLU's output) kept where `y [B, N]` (the ReLU's output) is positive,
+    and that masked gradient's sums over the first axis in float32 ([N]). Blocks as
+    `column_sum`'s; without one, XLA's ops."""
+    import jax.experimental.pallas as pl
+
+    b, n = g.shape
+    rows, cols = _blocks(b, n)
+    if cols < MIN_COLS:
+        gx = jnp.where(y > 0, g, jnp.zeros_like(g))
+        return gx, gx.sum(0, dtype=jnp.float32)
+
+    def kernel(g_ref, y_ref, gx_ref, part_ref):
+        gv = g_ref[...]
+        m = jnp.where(y_ref[...] > 0, gv, jnp.zeros_like(gv))
+        gx_ref[...] = m
+        part_ref[...] = jnp.sum(m.astype(jnp.float32), axis=0, keepdims=True)
+
+    block = pl.BlockSpec((rows, cols), lambda i, j: (i, j))
+    gx, part = pl.pallas_call(
+        kernel, grid=(b // rows, n // cols), in_specs=[block, block],
+        out_specs=[block, pl.BlockSpec((1, cols), lambda i, j: (i, j))],
+        out_shape=[jax.ShapeDtypeStruct((b, n), g.dtype),
+                   jax.ShapeDtypeStruct((b // rows, n), jnp.float32)],
+        interpret=jax.default_backend() == "cpu")(g, y)
+    return gx, part.sum(0)

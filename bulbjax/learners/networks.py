@@ -38,7 +38,7 @@ import flax.linen as nn
 import jax
 import jax.numpy as jnp
 
-from bulbjax.learners.kernels import column_sum
+from bulbjax.learners.kernels import column_sum, masked_column_sum
 
 DEFAULT_FEATURES: tuple[int, ...] = (64, 64, 128, 256)
 
@@ -86,7 +86,7 @@ def check_frame_shape(
 
 
 _NHWC = ("NHWC", "HWIO", "NHWC")  # the convolution layouts of the encoder and decoder forms
-BIAS_GRADS: tuple[str, ...] = ("reduce", "split", "split_apart", "pallas")  # add_bias
+BIAS_GRADS: tuple[str, ...] = ("reduce", "split", "split_apart", "pallas", "pallas_relu")  # add_bias
 # How the first conv and the decoder's last layer (the two at full resolution with 3 channels)
 # are computed: "strided" (4x4 stride-2 convolutions over pixels) or "blocked" (the same kernels
 # rearranged into 3x3 stride-1 convolutions over 2x2 pixel blocks; `blocked_conv_down`).
@@ -111,7 +111,7 @@ def _bias_sum(g: jax.Array, form: str = "split") -> jax.Array:
     the two back into one. `form` ("split", "split_apart", "pallas"; `add_bias`): the first pass
     as one XLA reduction fused with what made `g` (a ReLU's mask), the same after a barrier that
     has `g` written by a kernel of its own, or as `kernels.column_sum`."""
-    if form == "pallas":
+    if form in ("pallas", "pallas_relu"):  # the latter where no ReLU follows (`bias_relu`)
         first = column_sum(g.reshape(g.shape[0], -1))
     else:
         if form == "split_apart":
@@ -140,11 +140,39 @@ def add_bias(h: jax.Array, b: jax.Array, grad: str = "reduce") -> jax.Array:
     """`h + b` (b over the last axis); `grad` picks how the bias gradient is summed: "reduce"
     (autodiff's one reduction), "split" (`_bias_sum`, two passes), "split_apart" (the same with
     the incoming gradient written by a kernel of its own first) or "pallas" (its first pass a
-    Pallas kernel, `kernels.column_sum`). Same values, summed in other orders."""
+    Pallas kernel, `kernels.column_sum`; "pallas_relu" the same here, see `bias_relu`). Same
+    values, summed in other orders."""
     if grad not in BIAS_GRADS:
         raise ValueError(f"unknown bias_grad {grad!r}; accepted: {', '.join(BIAS_GRADS)}")
     b = b.astype(h.dtype)
     return h + b if grad == "reduce" else _add_bias_two_pass(h, b, grad)
+
+
+@jax.custom_vjp
+def _bias_relu_fused(h: jax.Array, b: jax.Array) -> jax.Array:
+    return jax.nn.relu(h + b)
+
+
+def _bias_relu_fused_fwd(h: jax.Array, b: jax.Array) -> tuple[jax.Array, jax.Array]:
+    y = jax.nn.relu(h + b)
+    return y, y
+
+
+def _bias_relu_fused_bwd(y: jax.Array, g: jax.Array) -> tuple[jax.Array, jax.Array]:
+    gx, first = masked_column_sum(g.reshape(g.shape[0], -1), y.reshape(y.shape[0], -1))
+    return gx.reshape(g.shape), first.reshape(-1, g.shape[-1]).sum(0).astype(g.dtype)
+
+
+_bias_relu_fused.defvjp(_bias_relu_fused_fwd, _bias_relu_fused_bwd)
+
+
+def bias_relu(h: jax.Array, b: jax.Array, grad: str = "reduce") -> jax.Array:
+    """`relu(h + b)`, a conv layer's bias and activation; `grad` as `add_bias` says, and with
+    "pallas_relu" the ReLU's backward mask and the bias gradient's first pass in one Pallas
+    kernel (`kernels.masked_column_sum`). Same values."""
+    if grad == "pallas_relu":
+        return _bias_relu_fused(h, b.astype(h.dtype))
+    return nn.relu(add_bias(h, b, grad))
 
 
 def _conv_down(u: jax.Array, w: jax.Array) -> jax.Array:
@@ -164,6 +192,7 @@ class Conv4x4(nn.Module):
     channel_pad: int = 1
     bias_grad: str = "reduce"
     blocked: bool = False  # compute it as a 3x3 convolution over 2x2 pixel blocks (see below)
+    relu: bool = False  # its ReLU too (`bias_relu`: with bias_grad "pallas_relu", one backward kernel)
 
     @nn.compact
     def __call__(self, x: jax.Array) -> jax.Array:
@@ -174,7 +203,7 @@ class Conv4x4(nn.Module):
         else:
             x = pad_axis(x.astype(self.dtype), -1, self.channel_pad)
             y = _conv_down(x, pad_axis(kernel, 2, self.channel_pad).astype(self.dtype))
-        return add_bias(y, bias, self.bias_grad)
+        return bias_relu(y, bias, self.bias_grad) if self.relu else add_bias(y, bias, self.bias_grad)
 
 
 def space_to_depth(x: jax.Array) -> jax.Array:
@@ -236,8 +265,7 @@ def conv_layers(x: jax.Array, features: tuple[int, ...], dtype: jnp.dtype, chann
     h = x.astype(dtype)
     for i, f in enumerate(features):
         blocked = i == 0 and edge_layers == "blocked"
-        h = Conv4x4(f, dtype, channel_pad, bias_grad, blocked, name=f"conv{i}")(h)
-        h = nn.relu(h)
+        h = Conv4x4(f, dtype, channel_pad, bias_grad, blocked, relu=True, name=f"conv{i}")(h)
     return h.reshape((h.shape[0], -1))
 
 
@@ -290,6 +318,11 @@ class _Deconv4x4(nn.Module):
     kernel_init: Any = lecun_normal_flat
     channel_pad: int = 1  # output channels padded to a multiple of this (see Conv4x4)
     bias_grad: str = "reduce"  # see add_bias
+    relu: bool = False  # its ReLU too (see Conv4x4)
+
+    def finish(self, y: jax.Array, bias: jax.Array) -> jax.Array:
+        """The bias, and the ReLU where the layer has one."""
+        return bias_relu(y, bias, self.bias_grad) if self.relu else add_bias(y, bias, self.bias_grad)
 
     def kernel_and_bias(self, cin: int) -> tuple[jax.Array, jax.Array]:
         kernel = self.param("kernel", self.kernel_init, (4, 4, cin, self.features), self.param_dtype)
@@ -315,7 +348,7 @@ class SubpixelConvTranspose(_Deconv4x4):
         y = jax.lax.conv_general_dilated(x.astype(self.dtype), k3, (1, 1), "SAME",
                                          dimension_numbers=_NHWC)
         y = depth_to_space(y[..., : 4 * self.features])
-        return add_bias(y, bias, self.bias_grad)
+        return self.finish(y, bias)
 
 
 @jax.custom_vjp
@@ -357,7 +390,7 @@ class DgradConvTranspose(_Deconv4x4):
         w = jnp.flip(kernel, (0, 1)).swapaxes(2, 3)
         w = pad_axis(w, 2, self.channel_pad).astype(self.dtype)  # zero output channels, cut below
         y = conv_up(x.astype(self.dtype), w)[..., : self.features]
-        return add_bias(y, bias, self.bias_grad)
+        return self.finish(y, bias)
 
 
 class DeconvDecoder(nn.Module):
@@ -397,16 +430,15 @@ class DeconvDecoder(nn.Module):
             if self.impl == "subpixel" or (last and self.edge_layers == "blocked"):
                 pad = self.channel_pad if last else 1
                 h = SubpixelConvTranspose(f, name=f"deconv{i}", channel_pad=pad,
-                                          bias_grad=self.bias_grad, **dense)(h)
+                                          bias_grad=self.bias_grad, relu=not last, **dense)(h)
             elif self.impl == "dgrad":
                 h = DgradConvTranspose(f, name=f"deconv{i}", channel_pad=self.channel_pad,
-                                       bias_grad=self.bias_grad, **dense)(h)
+                                       bias_grad=self.bias_grad, relu=not last, **dense)(h)
             else:
                 h = nn.ConvTranspose(
                     f, (4, 4), strides=(2, 2), padding="SAME", name=f"deconv{i}", **dense
                 )(h)
-            if i < len(out_features) - 1:
-                h = nn.relu(h)
+                h = h if last else nn.relu(h)
         return h.astype(jnp.float32)
 
 
