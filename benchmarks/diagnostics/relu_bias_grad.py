@@ -4,23 +4,21 @@ bandwidth, where XLA's fusions reach about a third of it? (issue 63)
 Why: in a VAE update (bf16, batch 1,024, one H200: 2.9 ms) ~0.6 ms are reduction fusions: each
 conv layer's ReLU mask applied to the incoming gradient, fused with the first pass of its bias
 gradient (`networks._bias_sum`: a sum over the batch axis, then over the pixels). The two at full
-resolution move ~200 MB each at ~1 TB/s (docs/performance.md, "Learner updates"). If one kernel
-that reads the gradient and the ReLU's output once, writes the masked gradient and per-block
-column sums, runs at ~3 TB/s, the learners' updates lose ~0.3-0.4 ms each (~10%), and the
-`add_bias` + ReLU pair gets a custom backward pass that calls it. If not, this leaves.
+resolution move ~200 MB each at ~1 TB/s (docs/performance.md, "Learner updates"). If a form below
+runs near ~3 TB/s, the learners' updates lose ~0.3-0.4 ms each (~10%): its `bias_grad` option
+(`networks.add_bias` / `bias_relu`) becomes the default. If none does, the options and this leave.
 
 For each layer shape of the conv stack it times, inside one jitted loop of `--steps` dependent
-iterations (so nothing is hoisted and no host dispatch is counted), XLA's form (`jnp.where` then
-`networks._bias_sum`, as autodiff and `add_bias(..., "split")` give it), two other XLA forms
-(the masked gradient in a kernel of its own; the batch sum in blocks of 32 rows first), and the
-Pallas form
-(`pl.pallas_call` over (row, column) blocks of the [batch, pixels x channels] view, each block's
-column sums in f32, summed after) at several block sizes; checks the two agree (the masked
-gradient exactly, the bias gradient to f32 summation order) and prints GB/s (reads of the
-gradient and the ReLU output, the write of the masked gradient).
+iterations (so nothing is hoisted and no host dispatch is counted), the forms the learners can
+run: XLA's mask with `networks._bias_sum` in its "split" (today's), "split_apart" and "pallas"
+forms, and `kernels.masked_column_sum` ("pallas_relu") at several block sizes; besides them two
+forms the learners do not have (the batch sum in 32-row blocks first; a Pallas kernel per column
+block walking its rows). Each is checked against today's (the masked gradient exactly, the bias
+gradient to f32 summation order) and its GB/s printed (reads of the gradient and the ReLU
+output, the write of the masked gradient).
 
     python benchmarks/diagnostics/relu_bias_grad.py --out-dir "$OUT"         # GPU
-    python benchmarks/diagnostics/relu_bias_grad.py --small --interpret      # CPU smoke
+    python benchmarks/diagnostics/relu_bias_grad.py --small   # CPU smoke (Pallas's interpret mode)
 """
 
 from __future__ import annotations
@@ -47,27 +45,23 @@ SHAPES = {"enc0 / dec2 (32x32x64)": (1024, 32, 32, 64),
 SMALL = {"small (8x8x16)": (64, 8, 8, 16)}
 
 
-def xla_form(g: Any, y: Any) -> tuple[Any, Any]:
-    """The masked gradient and the bias gradient as the learners compute them today."""
+def _masked(g: Any, y: Any) -> Any:
     import jax.numpy as jnp
 
+    return jnp.where(y > 0, g, jnp.zeros_like(g))
+
+
+def bias_grad_form(form: str) -> Callable:
+    """The masked gradient (XLA's, as a ReLU's autodiff gives it) and the bias gradient as
+    `networks._bias_sum(., form)` sums it: "split" (today's default), "split_apart" (the masked
+    gradient in a kernel of its own first), "pallas" (the batch sum as `kernels.column_sum`)."""
     from bulbjax.learners.networks import _bias_sum
 
-    gx = jnp.where(y > 0, g, jnp.zeros_like(g))
-    return gx, _bias_sum(gx)
+    def form_(g: Any, y: Any) -> tuple[Any, Any]:
+        gx = _masked(g, y)
+        return gx, _bias_sum(gx, form)
 
-
-def xla_two_kernels(g: Any, y: Any) -> tuple[Any, Any]:
-    """XLA's form with the masked gradient written by a kernel of its own (a barrier after it),
-    the bias gradient's passes reading it back: 4 tensor passes instead of 3, each a plain
-    elementwise or reduction kernel rather than one multi-output fusion."""
-    import jax
-    import jax.numpy as jnp
-
-    from bulbjax.learners.networks import _bias_sum
-
-    gx = jax.lax.optimization_barrier(jnp.where(y > 0, g, jnp.zeros_like(g)))
-    return gx, _bias_sum(gx)
+    return form_
 
 
 def xla_row_blocks(g: Any, y: Any, rows: int = 32) -> tuple[Any, Any]:
@@ -77,44 +71,27 @@ def xla_row_blocks(g: Any, y: Any, rows: int = 32) -> tuple[Any, Any]:
     import jax.numpy as jnp
 
     b, c = g.shape[0], g.shape[-1]
-    gx = jnp.where(y > 0, g, jnp.zeros_like(g))
+    gx = _masked(g, y)
     part = gx.reshape(b // rows, rows, -1).sum(1, dtype=jnp.float32)
     part = jax.lax.optimization_barrier(part)
     return gx, part.sum(0).reshape(-1, c).sum(0)
 
 
-XLA_FORMS = {"xla": xla_form, "xla_two_kernels": xla_two_kernels, "xla_row_blocks": xla_row_blocks}
-
-
-def pallas_form(g: Any, y: Any, rows: int, cols: int, interpret: bool = False) -> tuple[Any, Any]:
-    """The same two from one Pallas kernel over [rows, cols] blocks of the [B, H*W*C] view: each
-    block writes its masked gradient and its column sums (f32); the blocks' sums are added
-    after (a [B / rows, H*W*C] array: ~1/rows of the gradient's size)."""
-    import jax
-    import jax.numpy as jnp
-    from jax.experimental import pallas as pl
+def pallas_relu_form(g: Any, y: Any, rows: int, cols: int) -> tuple[Any, Any]:
+    """The mask and the batch sum in one kernel (`kernels.masked_column_sum`, as
+    `bias_grad="pallas_relu"` runs it) at `rows` x `cols` blocks of the [B, H*W*C] view."""
+    from bulbjax.learners.kernels import masked_column_sum
 
     b, c = g.shape[0], g.shape[-1]
-    n = math.prod(g.shape[1:])
-
-    def kernel(g_ref, y_ref, gx_ref, part_ref):
-        gv = g_ref[...]
-        m = jnp.where(y_ref[...] > 0, gv, jnp.zeros_like(gv))
-        gx_ref[...] = m
-        part_ref[...] = jnp.sum(m.astype(jnp.float32), axis=0, keepdims=True)
-
-    block = pl.BlockSpec((rows, cols), lambda i, j: (i, j))
-    gx, part = pl.pallas_call(
-        kernel, grid=(b // rows, n // cols), in_specs=[block, block],
-        out_specs=[block, pl.BlockSpec((1, cols), lambda i, j: (i, j))],
-        out_shape=[jax.ShapeDtypeStruct((b, n), g.dtype),
-                   jax.ShapeDtypeStruct((b // rows, n), jnp.float32)],
-        interpret=interpret)(g.reshape(b, n), y.reshape(b, n))
-    return gx.reshape(g.shape), part.sum(0).reshape(-1, c).sum(0)
+    gx, first = masked_column_sum(g.reshape(b, -1), y.reshape(b, -1), rows, cols)
+    return gx.reshape(g.shape), first.reshape(-1, c).sum(0)
 
 
-def pallas_loop_form(g: Any, y: Any, rows: int, cols: int,
-                     interpret: bool = False) -> tuple[Any, Any]:
+XLA_FORMS = {"xla": bias_grad_form("split"), "xla_two_kernels": bias_grad_form("split_apart"),
+             "xla_row_blocks": xla_row_blocks, "pallas_sum": bias_grad_form("pallas")}
+
+
+def pallas_loop_form(g: Any, y: Any, rows: int, cols: int) -> tuple[Any, Any]:
     """The same from a kernel whose program takes a whole column block ([B, cols]) and walks it
     `rows` rows at a time, its column sums held in f32 across the walk: no per-block partial
     sums written (the grid form writes B / rows of them)."""
@@ -141,7 +118,7 @@ def pallas_loop_form(g: Any, y: Any, rows: int, cols: int,
         out_specs=[block, pl.BlockSpec((1, cols), lambda j: (0, j))],
         out_shape=[jax.ShapeDtypeStruct((b, n), g.dtype),
                    jax.ShapeDtypeStruct((1, n), jnp.float32)],
-        interpret=interpret)(g.reshape(b, n), y.reshape(b, n))
+        interpret=jax.default_backend() == "cpu")(g.reshape(b, n), y.reshape(b, n))
     return gx.reshape(g.shape), sums.reshape(-1, c).sum(0)
 
 
@@ -167,8 +144,8 @@ def timed_loop(form: Callable, g: Any, y: Any, steps: int) -> tuple[float, float
     return best / steps, first
 
 
-def measure(name: str, shape: tuple[int, ...], blocks: list[tuple[str, int, int]], steps: int,
-            interpret: bool) -> dict[str, Any]:
+def measure(name: str, shape: tuple[int, ...], blocks: list[tuple[str, int, int]],
+            steps: int) -> dict[str, Any]:
     """One layer shape: XLA's forms (`XLA_FORMS`) and each Pallas form ("grid" or "loop") at
     each block size that divides it, each checked against XLA's form of today."""
     import jax
@@ -179,13 +156,13 @@ def measure(name: str, shape: tuple[int, ...], blocks: list[tuple[str, int, int]
     g = jax.random.normal(kg, shape, jnp.bfloat16)
     y = jax.nn.relu(jax.random.normal(ky, shape, jnp.bfloat16))
     moved = 3 * g.size * g.dtype.itemsize  # g and y read, the masked gradient written
-    ref_gx, ref_gb = jax.jit(xla_form)(g, y)
+    ref_gx, ref_gb = jax.jit(XLA_FORMS["xla"])(g, y)
     out: dict[str, Any] = {"shape": list(shape), "bytes_moved": moved}
     n = math.prod(shape[1:])
     forms = [(k, f) for k, f in XLA_FORMS.items() if k != "xla_row_blocks" or shape[0] % 32 == 0]
-    forms += [(f"pallas_{how}_{rows}x{cols}",
-               functools.partial(pallas_form if how == "grid" else pallas_loop_form, rows=rows,
-                                 cols=cols, interpret=interpret))
+    forms += [(f"pallas_{'relu' if how == 'grid' else how}_{rows}x{cols}",
+               functools.partial(pallas_relu_form, rows=rows, cols=cols) if how == "grid" else
+               functools.partial(pallas_loop_form, rows=rows, cols=cols))
               for how, rows, cols in blocks if not (shape[0] % rows or n % cols)]
     for label, form in forms:
         try:
@@ -209,7 +186,6 @@ def measure(name: str, shape: tuple[int, ...], blocks: list[tuple[str, int, int]
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--small", action="store_true", help="one small shape (a CPU smoke run)")
-    p.add_argument("--interpret", action="store_true", help="Pallas in interpret mode (CPU)")
     p.add_argument("--steps", type=int, default=50, help="calls in each timed loop")
     p.add_argument("--blocks", default="16x512,32x512,32x1024,L8x512,L16x256,L16x512,L32x256",
                    help="Pallas block sizes, rows x columns of the [batch, H*W*C] view; L: the "
@@ -223,8 +199,8 @@ def main() -> None:
               for b in ("16x256,L8x256" if a.small else a.blocks).split(",")]
     kind = jax.devices()[0].device_kind
     results = {"question": __doc__.split("\n\n")[0], "device_kind": kind, "jax": jax.__version__,
-               "steps": a.steps, "interpret": a.interpret,
-               "shapes": {n: measure(n, s, blocks, a.steps, a.interpret)
+               "steps": a.steps, "interpret": jax.default_backend() == "cpu",
+               "shapes": {n: measure(n, s, blocks, a.steps)
                           for n, s in (SMALL if a.small else SHAPES).items()}}
     slug = "".join(ch if ch.isalnum() else "_" for ch in kind.lower()).strip("_")
     stamp = dt.datetime.now().strftime("%Y%m%d_%H%M%S")

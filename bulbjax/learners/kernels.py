@@ -56,15 +56,18 @@ def column_sum(x: jax.Array) -> jax.Array:
     return part.sum(0)
 
 
-def masked_column_sum(g: jax.Array, y: jax.Array) -> tuple[jax.Array, jax.Array]:
+def masked_column_sum(g: jax.Array, y: jax.Array, rows: int | None = None,
+                      cols: int | None = None) -> tuple[jax.Array, jax.Array]:
     """A ReLU's backward pass and its layer's bias-gradient first pass in one kernel: `g [B, N]`
     (the gradient at the ReLU's output) kept where `y [B, N]` (the ReLU's output) is positive,
     and that masked gradient's sums over the first axis in float32 ([N]). Blocks as
-    `column_sum`'s; without one, XLA's ops."""
+    `column_sum`'s (or `rows` x `cols`, powers of two dividing B and N: the diagnostic's sweep);
+    without one, XLA's ops."""
     import jax.experimental.pallas as pl
 
     b, n = g.shape
-    rows, cols = _blocks(b, n)
+    auto = _blocks(b, n)
+    rows, cols = rows or auto[0], cols or auto[1]
     if cols < MIN_COLS:
         gx = jnp.where(y > 0, g, jnp.zeros_like(g))
         return gx, gx.sum(0, dtype=jnp.float32)

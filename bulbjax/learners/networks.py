@@ -166,10 +166,12 @@ def _bias_relu_fused_bwd(y: jax.Array, g: jax.Array) -> tuple[jax.Array, jax.Arr
 _bias_relu_fused.defvjp(_bias_relu_fused_fwd, _bias_relu_fused_bwd)
 
 
-def bias_relu(h: jax.Array, b: jax.Array, grad: str = "reduce") -> jax.Array:
-    """`relu(h + b)`, a conv layer's bias and activation; `grad` as `add_bias` says, and with
-    "pallas_relu" the ReLU's backward mask and the bias gradient's first pass in one Pallas
-    kernel (`kernels.masked_column_sum`). Same values."""
+def bias_relu(h: jax.Array, b: jax.Array, grad: str = "reduce", relu: bool = True) -> jax.Array:
+    """`relu(h + b)`, a conv layer's bias and activation (`h + b` alone where `relu` is False);
+    `grad` as `add_bias` says, and with "pallas_relu" the ReLU's backward mask and the bias
+    gradient's first pass in one Pallas kernel (`kernels.masked_column_sum`). Same values."""
+    if not relu:
+        return add_bias(h, b, grad)
     if grad == "pallas_relu":
         return _bias_relu_fused(h, b.astype(h.dtype))
     return nn.relu(add_bias(h, b, grad))
@@ -203,7 +205,7 @@ class Conv4x4(nn.Module):
         else:
             x = pad_axis(x.astype(self.dtype), -1, self.channel_pad)
             y = _conv_down(x, pad_axis(kernel, 2, self.channel_pad).astype(self.dtype))
-        return bias_relu(y, bias, self.bias_grad) if self.relu else add_bias(y, bias, self.bias_grad)
+        return bias_relu(y, bias, self.bias_grad, self.relu)
 
 
 def space_to_depth(x: jax.Array) -> jax.Array:
@@ -320,10 +322,6 @@ class _Deconv4x4(nn.Module):
     bias_grad: str = "reduce"  # see add_bias
     relu: bool = False  # its ReLU too (see Conv4x4)
 
-    def finish(self, y: jax.Array, bias: jax.Array) -> jax.Array:
-        """The bias, and the ReLU where the layer has one."""
-        return bias_relu(y, bias, self.bias_grad) if self.relu else add_bias(y, bias, self.bias_grad)
-
     def kernel_and_bias(self, cin: int) -> tuple[jax.Array, jax.Array]:
         kernel = self.param("kernel", self.kernel_init, (4, 4, cin, self.features), self.param_dtype)
         bias = self.param("bias", nn.initializers.zeros_init(), (self.features,), self.param_dtype)
@@ -348,7 +346,7 @@ class SubpixelConvTranspose(_Deconv4x4):
         y = jax.lax.conv_general_dilated(x.astype(self.dtype), k3, (1, 1), "SAME",
                                          dimension_numbers=_NHWC)
         y = depth_to_space(y[..., : 4 * self.features])
-        return self.finish(y, bias)
+        return bias_relu(y, bias, self.bias_grad, self.relu)
 
 
 @jax.custom_vjp
@@ -390,7 +388,7 @@ class DgradConvTranspose(_Deconv4x4):
         w = jnp.flip(kernel, (0, 1)).swapaxes(2, 3)
         w = pad_axis(w, 2, self.channel_pad).astype(self.dtype)  # zero output channels, cut below
         y = conv_up(x.astype(self.dtype), w)[..., : self.features]
-        return self.finish(y, bias)
+        return bias_relu(y, bias, self.bias_grad, self.relu)
 
 
 class DeconvDecoder(nn.Module):
