@@ -122,24 +122,22 @@ def shared_times(times: dict[str, Timing], jobs_per_gpu: int, mps: bool = False)
 APART_ROW = "{preset} apart"
 
 
+def without_apart_rows(times: dict[str, Timing]) -> dict[str, Timing]:
+    """The table's rows for jobs on one GPU each: every row but the `<preset> apart` ones."""
+    return {k: t for k, t in times.items() if not k.endswith(APART_ROW.format(preset=""))}
+
+
 def apart_times(times: dict[str, Timing]) -> dict[str, Timing]:
     """The table's times for jobs with their learners on a GPU of their own: each row's
     `<row> apart` where the table has one, else the row itself marked derived; the apart rows
     themselves are not rows of the result."""
     out = {}
-    for k, t in times.items():
-        if k.endswith(APART_ROW.format(preset="")):
-            continue
+    for k, t in without_apart_rows(times).items():
         row = times.get(APART_ROW.format(preset=k))
         note = "no apart row: its one-GPU times, an upper bound (estimate.apart_times)"
         out[k] = row if row is not None else dataclasses.replace(
             t, derived="; ".join(x for x in (t.derived, note) if x))
     return out
-
-
-def without_apart_rows(times: dict[str, Timing]) -> dict[str, Timing]:
-    """The table's rows for jobs on one GPU each: every row but the `<preset> apart` ones."""
-    return {k: t for k, t in times.items() if not k.endswith(APART_ROW.format(preset=""))}
 
 
 def derived_fp32(jobs: Sequence[Job], times: dict[str, Timing]) -> list[str]:

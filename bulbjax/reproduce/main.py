@@ -225,13 +225,13 @@ class Host:
 
     @property
     def per_job(self) -> int:
-        """GPUs one job holds (a CPU worker with the learners apart counts as one)."""
-        return 2 if self.learners_apart and self.kind != "cpu" else 1
+        """GPUs one job holds (`results.gpus_held`: a CPU worker with the learners apart, one)."""
+        return int(results.gpus_held(self.learners_apart, self.kind))
 
     @property
     def gpu_share(self) -> float:
-        """The GPUs one job's busy time counts for (`results.gpu_share` reads the summary so)."""
-        return self.per_job / self.jobs_per_gpu
+        """The GPUs one job's busy time counts for (`results.gpu_share` reads a summary so)."""
+        return results.gpus_held(self.learners_apart, self.kind, self.jobs_per_gpu)
 
 
 def host_of(gpus: int | None, learners_apart: bool = False, jobs_per_gpu: int = 1, mps: bool = False,

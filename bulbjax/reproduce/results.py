@@ -258,11 +258,15 @@ def _summary_line(s: dict[str, Any]) -> str:
             f"{(s.get('utilisation') or 0):.0%}, {s.get('gpu_hours', 0):.2f} {hours_unit(s.get('device_kind', ''))}.")
 
 
+def gpus_held(learners_apart: bool, device_kind: str, jobs_per_gpu: int = 1) -> float:
+    """GPUs one job holds: two with its learners apart (a CPU worker counts as one), a share of
+    one beside others on its GPU (`jobs_per_gpu`), else one."""
+    return (2 if learners_apart and device_kind != "cpu" else 1) / jobs_per_gpu
+
+
 def gpu_share(s: dict[str, Any]) -> float:
-    """GPUs one of a stretch's jobs held (`s`: its summary): two with its learners apart (a CPU
-    worker counts as one), a share of one beside others on its GPU (`jobs_per_gpu`), else one."""
-    two = s.get("learners_apart") and s.get("device_kind") != "cpu"
-    return (2 if two else 1) / (s.get("jobs_per_gpu") or 1)
+    """GPUs one of a stretch's jobs held (`s`: its summary; `gpus_held`)."""
+    return gpus_held(bool(s.get("learners_apart")), s.get("device_kind", ""), s.get("jobs_per_gpu") or 1)
 
 
 def summaries(out: str) -> list[dict[str, Any]]:
