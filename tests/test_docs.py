@@ -496,13 +496,13 @@ def test_merged_folder_regenerates_as_the_docs_say(monkeypatch):
     """README's headline figure is a merged folder: it holds no metrics, and docs/experiments.md
     gives the `--merge-seeds` command over the halves it pooled (issue 65: the docs said every
     committed folder redraws with `bulbjax report DIR`)."""
-    from bulbjax.report import report
+    from bulbjax.report import merge
 
     monkeypatch.chdir(ROOT)
     image = re.search(r"!\[[^\]]*\]\((docs/results/[^)]+)/fig2\.png\)", _read("README.md")).group(1)
     assert os.path.exists(os.path.join(image, "config.json")) and not any(
         os.path.exists(os.path.join(image, n)) for n in ("metrics.jsonl", "metrics.jsonl.gz")), image
-    halves = [os.path.normpath(h) for h in report.merge_sources(image)]
+    halves = [os.path.normpath(h) for h in merge.merge_sources(image)]
     commands = [line for _, line in _code_lines(_read("docs/experiments.md"))
                 if "--merge-seeds" in line and os.path.dirname(image) in line]
     assert commands, f"docs/experiments.md gives no --merge-seeds command for {image}"

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from bulbjax.config import preset, read_run_config
-from bulbjax.report import records, report
+from bulbjax.report import merge, records
 
 
 def _run_dir(path: str, seeds: int, base_seed: int, level: float, epochs: int = 3, **changes) -> str:
@@ -38,7 +38,7 @@ def test_merge_pools_seeds(tmp_path) -> None:
     a = _run_dir(str(tmp_path / "a"), 2, 0, 0.5)
     b = _run_dir(str(tmp_path / "b"), 3, 1, 0.9, epochs=2)  # one epoch behind: left out
     out = str(tmp_path / "m")
-    report.merge_seeds([a, b], out)
+    merge.merge_seeds([a, b], out)
     cfg, raw = read_run_config(out)
     assert cfg.seeds == 5 and [s["merged_seeds"] for s in raw["merged_from"]] == [[0, 1], [2, 4]]
     recs = records.read_jsonl(os.path.join(out, "metrics.jsonl"))
@@ -60,8 +60,43 @@ def test_merge_refuses_mismatch(tmp_path) -> None:
     b = _run_dir(str(tmp_path / "b"), 2, 0, 0.5)
     c = _run_dir(str(tmp_path / "c"), 2, 1, 0.5, num_envs=32)
     with pytest.raises(ValueError, match="share base seed 0"):
-        report.merge_seeds([a, b], str(tmp_path / "m1"))
+        merge.merge_seeds([a, b], str(tmp_path / "m1"))
     with pytest.raises(ValueError, match="num_envs"):
-        report.merge_seeds([a, c], str(tmp_path / "m2"))
+        merge.merge_seeds([a, c], str(tmp_path / "m2"))
     with pytest.raises(ValueError, match="none of the runs"):
-        report.merge_seeds([a, c], a)
+        merge.merge_seeds([a, c], a)
+
+
+def test_merging_again_replaces_the_merge(tmp_path) -> None:
+    """`bulbjax reproduce` merges a preset's seeds again after every stretch into the same
+    folder: the second merge's records are the first's, not twice them (the campaign's sixth
+    allocation found each seed's epochs doubled, and the probe-protocol table refusing them)."""
+    a = _run_dir(str(tmp_path / "a"), 2, 0, 0.5)
+    b = _run_dir(str(tmp_path / "b"), 1, 2, 0.9)
+    out = str(tmp_path / "m")
+    merge.merge_seeds([a, b], out, figures=False)
+    first = records.read_jsonl(os.path.join(out, "metrics.jsonl"))
+    merge.merge_seeds([a, b], out, figures=False)
+    assert records.read_jsonl(os.path.join(out, "metrics.jsonl")) == first and len(first) == 3 * 3
+
+
+def test_a_merged_folder_without_its_metrics_pools_its_runs_again(tmp_path) -> None:
+    """A plan folder of `bulbjax reproduce` (runs under `runs/<preset>/seedK`, their merge under
+    `<figure>/<preset>`), copied to another place without the merge's own metrics (committed
+    results keep one copy of the records): its runs are found under the copy, and its records
+    are the merge's."""
+    plan = tmp_path / "plan"
+    runs = [_run_dir(str(plan / "runs" / "p" / f"seed{s}"), 1, s, 0.5 + s / 10) for s in range(3)]
+    merged = str(plan / "fig2" / "p")
+    merge.merge_seeds(runs, merged, figures=False)
+    pooled = records.read_jsonl(os.path.join(merged, "metrics.jsonl"))
+    moved = tmp_path / "elsewhere" / "plan_copy"
+    os.makedirs(moved.parent)
+    os.rename(plan, moved)
+    os.remove(moved / "fig2" / "p" / "metrics.jsonl")
+    found = merge.merge_sources(str(moved / "fig2" / "p"))
+    assert found == [str(moved / "runs" / "p" / f"seed{s}") for s in range(3)]
+    assert merge.run_records(str(moved / "fig2" / "p")) == pooled
+    os.rename(moved / "runs" / "p" / "seed1", moved / "runs" / "p" / "other")
+    with pytest.raises(ValueError, match="base seed 1 .* neither beside it, at that path, nor under a folder above"):
+        merge.merge_sources(str(moved / "fig2" / "p"))

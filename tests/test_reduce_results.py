@@ -16,7 +16,7 @@ import pytest
 
 from bulbjax.config import preset
 from bulbjax.envs.registry import env_class
-from bulbjax.report import records, report
+from bulbjax.report import merge, records, report
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 EPOCHS, SEEDS, PROBED = 12, 3, (0, 4, 8, 11)
@@ -175,7 +175,7 @@ def test_probed_every_keeps_what_a_merge_beside_reads(tmp_path) -> None:
     a = _fake_run(str(tmp_path / "seed0"), epochs=12, probed=range(12), base_seed=0)
     b = _fake_run(str(tmp_path / "seed1"), epochs=20, probed=range(20), base_seed=1)
     merged = str(tmp_path / "merged")
-    report.merge_seeds([a, b], merged, figures=False)
+    merge.merge_seeds([a, b], merged, figures=False)
     before = {n: open(os.path.join(merged, n)).read() for n in ("table.md", "findings.md")}
     assert "epoch 9, 10, 11;" in before["table.md"]
     assert not {10, 11} <= rr.kept_probed_epochs(range(20), 8)  # seed1's own rule lacks them
@@ -185,6 +185,6 @@ def test_probed_every_keeps_what_a_merge_beside_reads(tmp_path) -> None:
     kept = {r["epoch"] for r in records.read_jsonl(os.path.join(b, "metrics.jsonl.gz")) if r["probes"]}
     assert {9, 10, 11} <= kept and 12 not in kept and 15 not in kept
     again = str(tmp_path / "again")
-    report.merge_seeds(report.merge_sources(merged), again, figures=False)
+    merge.merge_seeds(merge.merge_sources(merged), again, figures=False)
     for name, text in before.items():
         assert open(os.path.join(again, name)).read() == text, name

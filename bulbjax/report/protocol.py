@@ -16,16 +16,18 @@ from typing import Sequence
 
 from bulbjax.config import read_run_config
 from bulbjax.report import findings
-from bulbjax.report.records import metrics_path, probed, read_jsonl
+from bulbjax.report.merge import run_records
+from bulbjax.report.records import probed
 from bulbjax.report.report import report_spec
 
 
 def _load(run_dir: str) -> tuple[object, list[dict], tuple]:
-    """A run folder's config, its records of complete epochs (every seed written) and its spec."""
+    """A run folder's config, its records of complete epochs (every seed written) and its spec (a
+    merged folder without its metrics: its runs pooled again, `merge.run_records`)."""
     from bulbjax.envs.registry import env_class
 
     cfg, _ = read_run_config(run_dir)
-    recs = read_jsonl(metrics_path(run_dir), tolerate_partial=True)
+    recs = run_records(run_dir)
     seeds = {r["seed"] for r in recs}
     count: dict[int, int] = {}
     for r in recs:

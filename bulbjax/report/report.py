@@ -11,13 +11,13 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from bulbjax.config import read_run_config, run_options_of
+from bulbjax.config import read_run_config
 from bulbjax.eval import objects
 from bulbjax.eval.spec import StateEntry
 from bulbjax.report import findings
 from bulbjax.report.records import (STREAMS, VARIANT_SOURCES, band, ci90, epochs_to_reach, excluded_groups, groups_of,
                                     has_linear, has_objects, last_returns, metrics_path, per_seed_error, probed,
-                                    read_jsonl, rl_curve, variants_of, write_jsonl)
+                                    read_jsonl, rl_curve, variants_of)
 from bulbjax.report.report_plots import OLD_NORM_NOTE, has_reference_spread, norm_note, plot, plot_objects, rl_band
 
 
@@ -316,98 +316,6 @@ def redraw_offline(run_dir: str, raw: dict[str, Any], figures: bool = True) -> s
                                  offline_title(raw["source"], base.seeds, records),
                                  footer=f"redrawn by `bulbjax report` from {len(records)} records",
                                  figures=figures)
-
-
-def merge_seeds(run_dirs: Sequence[str], out_dir: str, figures: bool = True) -> str:
-    """`bulbjax report RUN_A RUN_B ... --merge-seeds --out DIR`: one report over the seeds of
-    several runs of one configuration made with different base seeds (`--seed`): e.g. half the
-    seeds on each of two GPUs side by side, or in two sessions. Seeds are renumbered run after
-    run; the reports keep the epochs that every seed has written. Writes `config.json` (the
-    merged config and where each seed came from), `metrics.jsonl` and the reports into
-    `out_dir`; returns the table. Runs that differ in anything but `seeds` and `epochs`, or share
-    a base seed (their seeds would be the same draws), are an error."""
-    import dataclasses
-
-    from bulbjax.envs.registry import env_class
-
-    if len(run_dirs) < 2:
-        raise ValueError("--merge-seeds needs two or more RUN_DIRs")
-    if any(os.path.abspath(out_dir) == os.path.abspath(d) for d in run_dirs):
-        raise ValueError("--merge-seeds writes a new folder: give an --out that is none of the runs")
-    runs = [(d, *read_run_config(d)) for d in run_dirs]
-    d0, c0, raw0 = runs[0]
-    opts0 = run_options_of(raw0)
-    ref = dataclasses.asdict(c0.replace(seeds=1, epochs=1))
-    base_seeds: dict[int, str] = {}
-    merged: list[dict[str, Any]] = []
-    sources = []
-    for d, c, raw in runs:
-        mine = dataclasses.asdict(c.replace(seeds=1, epochs=1))
-        diff = sorted(k for k in ref if ref[k] != mine[k])
-        opts = run_options_of(raw)
-        if opts["probe_every"] != opts0["probe_every"]:
-            diff.append("probe_every")
-        if diff:
-            raise ValueError(f"--merge-seeds: {d} differs from {d0} in {', '.join(diff)}; only runs of "
-                             "one configuration (seeds and epochs aside) can be merged")
-        seed = opts["seed"] if opts["seed"] is not None else 0
-        if seed in base_seeds:
-            raise ValueError(f"--merge-seeds: {d} and {base_seeds[seed]} share base seed {seed}: their "
-                             "seeds are the same draws; rerun one with another --seed")
-        base_seeds[seed] = d
-        offset = sum(s["seeds"] for s in sources)  # by config: a run may not have written every seed yet
-        recs = read_jsonl(metrics_path(d), tolerate_partial=True)
-        merged += [{**r, "seed": offset + r["seed"]} for r in recs]
-        sources.append({"run_dir": d, "base_seed": seed, "seeds": c.seeds,
-                        "merged_seeds": [offset, offset + c.seeds - 1],
-                        "provenance": raw.get("provenance")})
-    os.makedirs(out_dir, exist_ok=True)
-    total = sum(c.seeds for _, c, _ in runs)
-    cfg = c0.replace(seeds=total)
-    with open(os.path.join(out_dir, "config.json"), "w") as f:
-        json.dump({"experiment": dataclasses.asdict(cfg), "run": {**opts0, "seed": None},
-                   "merged_from": sources}, f, indent=1)
-    write_jsonl(os.path.join(out_dir, "metrics.jsonl"), merged)
-    cls = env_class(cfg.env)
-    names = ", ".join(f"{s['run_dir']} (seed {s['base_seed']}: {s['seeds']} seeds)" for s in sources)
-    return write_reports(out_dir, merged, cfg, report_spec(cls.state_spec, merged), cls.solved_return,
-                         footer=f"seeds of {len(runs)} runs merged by `bulbjax report --merge-seeds`: {names}",
-                         figures=figures)
-
-
-def merge_sources(merged_dir: str) -> list[str]:
-    """The run folders a merged folder (`--merge-seeds --out`) pooled, in its order, found again
-    where they are now: for each `merged_from` entry of its config.json, the one folder beside it
-    whose config.json has that base seed and seed count (results are committed as `seed0/`,
-    `seed1/`, `merged/` side by side; the recorded `run_dir` is the path on the machine that
-    merged them), else the recorded path if it exists. A clear error when neither is found."""
-    with open(os.path.join(merged_dir, "config.json")) as f:
-        sources = json.load(f).get("merged_from")
-    if not sources:
-        raise ValueError(f"{merged_dir} is no merged folder (its config.json has no merged_from)")
-    parent = os.path.dirname(os.path.normpath(merged_dir))
-    beside = []  # (folder, base seed, seeds) of the runs beside it
-    for name in sorted(os.listdir(parent or ".")):
-        d = os.path.join(parent, name)
-        if os.path.samefile(d, merged_dir) or not os.path.isfile(os.path.join(d, "config.json")):
-            continue
-        with open(os.path.join(d, "config.json")) as f:
-            raw = json.load(f)
-        if "merged_from" in raw or "offline" in raw:
-            continue
-        seed = run_options_of(raw)["seed"]
-        beside.append((d, 0 if seed is None else seed, read_run_config(d)[0].seeds))
-    out = []
-    for s in sources:
-        hits = [d for d, seed, n in beside if seed == s["base_seed"] and n == s["seeds"]]
-        if len(hits) == 1:
-            out.append(hits[0])
-        elif os.path.isdir(s["run_dir"]):
-            out.append(s["run_dir"])
-        else:
-            raise ValueError(f"{merged_dir}: the run of base seed {s['base_seed']} ({s['seeds']} seeds, "
-                             f"merged from {s['run_dir']}) is neither beside it nor at that path")
-    return out
 
 
 def rl_compare(run_dirs: Sequence[str], out_dir: str, solved_return: float | None = None) -> str:
