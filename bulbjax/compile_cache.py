@@ -4,11 +4,14 @@ A six-learner epoch takes minutes to compile; with the cache a rerun of the same
 loads the compiled executables from disk and starts in seconds. The cache lives in
 `$BULBJAX_COMPILE_CACHE` if set (`off`, `0` or empty turns it off), else under the bulbjax
 cache directory (`$BULBJAX_CACHE_DIR`, default `~/.cache/bulbjax`) in `jax/`. Library use
-(`import bulbjax`) leaves JAX's settings alone: call `enable()` yourself.
+(`import bulbjax`) leaves JAX's settings alone: call `enable()` yourself. `bulbjax reproduce`
+notes in it which of its jobs' programs it holds (`mark_warm`, `warm_keys`), for warm start-ups in
+its estimate.
 """
 
 from __future__ import annotations
 
+import json
 import os
 
 OFF_VALUES = ("", "0", "off", "false", "no")
@@ -95,3 +98,41 @@ def write_from_every_process() -> bool:
     cache_write._bulbjax_every_process = True  # type: ignore[attr-defined]
     compiler._cache_write = cache_write
     return True
+
+
+WARM_FILE = "bulbjax_warm.json"  # in the cache directory: what has compiled into it, per device kind
+
+
+def mark_warm(kind: str, key: str) -> None:
+    """Note that a job timed by `key` (`bulbjax reproduce`'s row: a preset, `<preset> fp32`)
+    reached its first epoch on a `kind` host with this cache: its programs are in it, so the next
+    job of that key starts warm. The note travels with the cache directory (a cache carried to the
+    next GPU allocation keeps it), so a plan made there estimates warm start-ups. Nothing when the
+    cache is off."""
+    path = cache_dir()
+    if path is None:
+        return
+    table = _warm_table(path)
+    if key in table.get(kind, []):
+        return
+    table[kind] = sorted({*table.get(kind, []), key})
+    os.makedirs(path, exist_ok=True)
+    tmp = os.path.join(path, f"{WARM_FILE}.tmp{os.getpid()}")
+    with open(tmp, "w") as f:
+        json.dump(table, f, indent=1)
+    os.replace(tmp, os.path.join(path, WARM_FILE))
+
+
+def warm_keys(kind: str) -> frozenset[str]:
+    """The keys `mark_warm` noted for `kind` in this cache (none when the cache is off)."""
+    path = cache_dir()
+    return frozenset(_warm_table(path).get(kind, [])) if path is not None else frozenset()
+
+
+def _warm_table(path: str) -> dict[str, list[str]]:
+    try:
+        with open(os.path.join(path, WARM_FILE)) as f:
+            table = json.load(f)
+    except (OSError, ValueError):  # none yet, or unreadable: nothing known warm (a cold estimate)
+        return {}
+    return table if isinstance(table, dict) else {}

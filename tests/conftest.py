@@ -62,6 +62,19 @@ COMPILE_BOUND = (
 )
 
 
+@pytest.fixture(autouse=True)
+def _cold_reproduce_estimates(request, monkeypatch):
+    """`bulbjax reproduce`'s estimates in the suite are cold: the session's one compile cache
+    gathers the warm notes (`compile_cache.mark_warm`) of whichever tiny plans ran before, so an
+    estimate would depend on the order tests ran in. tests/test_reproduce_warm.py gives each test
+    a cache of its own and checks the notes."""
+    if request.path.name != "test_reproduce_warm.py":
+        from bulbjax import compile_cache
+
+        monkeypatch.setattr(compile_cache, "warm_keys", lambda kind: frozenset())
+    yield
+
+
 @pytest.fixture(autouse=True, scope="module")
 def _least_xla_effort_for_compile_bound_files(request):
     if request.path.name not in COMPILE_BOUND:

@@ -21,7 +21,7 @@ import json
 import subprocess
 from dataclasses import dataclass
 from importlib import resources
-from typing import Any, Sequence
+from typing import Any, Collection, Sequence
 
 from bulbjax.reproduce.plan import Job
 
@@ -214,11 +214,13 @@ class Estimate:
 
 
 def simulate(jobs: Sequence[Job], times: dict[str, Timing], gpus: int,
-             epochs_done: dict[str, int] | None = None, finished: Sequence[str] = ()) -> Estimate:
+             epochs_done: dict[str, int] | None = None, finished: Sequence[str] = (),
+             warm: Collection[str] = ()) -> Estimate:
     """The schedule the queue makes of `jobs` on `gpus` GPUs (jobs in `finished` skipped, runs
     continued from `epochs_done`): each free GPU takes the first job of `queue_order` whose
     input job (`after`) has ended; a job starts warm when a job of its preset has started and
-    compiled (its cold start-up passed) on this host before."""
+    compiled (its cold start-up passed) on this host before, or its `timing_key` is in `warm`
+    (the compile cache holds its programs: `compile_cache.warm_keys`)."""
     if gpus < 1:
         raise ValueError(f"a plan needs at least one GPU (or CPU slot), got {gpus}")
     done = dict.fromkeys(finished, 0.0)
@@ -228,7 +230,7 @@ def simulate(jobs: Sequence[Job], times: dict[str, Timing], gpus: int,
     todo = [j for j in queue_order(jobs, times) if j.id not in done]
     free = [(0.0, g) for g in range(gpus)]
     heapq.heapify(free)
-    compiled: dict[str, float] = {}  # preset -> when its programs are in the cache
+    compiled: dict[str, float] = dict.fromkeys(warm, 0.0)  # key -> when its programs are in the cache
     spans: dict[str, tuple[float, float]] = {}
     end_of: dict[str, float] = dict(done)
     gpu_s = 0.0
@@ -256,9 +258,9 @@ def simulate(jobs: Sequence[Job], times: dict[str, Timing], gpus: int,
 
 
 def fit_jobs(jobs: Sequence[Job], times: dict[str, Timing], gpus: int, minutes: float,
-             epochs_done: dict[str, int] | None = None) -> list[Job]:
+             epochs_done: dict[str, int] | None = None, warm: Collection[str] = ()) -> list[Job]:
     """The unfinished `jobs` (runs continued from `epochs_done`) that fit `minutes` of wall time
-    on `gpus` GPUs by `simulate`'s schedule: longest first, a job kept when the schedule with it
+    on `gpus` GPUs by `simulate`'s schedule (`warm`: its keys start warm): longest first, a job kept when the schedule with it
     still ends in time, a Fig. 4 job only with the run it reads (both kept, or neither). For a
     host held for a limited time (an allocation, a SLURM task's time limit): what it can finish,
     since a job cut short without its checkpoint (a wiped disk) is lost."""
@@ -272,7 +274,7 @@ def fit_jobs(jobs: Sequence[Job], times: dict[str, Timing], gpus: int, minutes: 
     chosen: list[Job] = []
     for unit in sorted(units, key=lambda u: -sum(cost[j.id] for j in u)):
         trial = chosen + unit
-        if simulate(trial, times, gpus, epochs_done).wall_s <= 60 * minutes:
+        if simulate(trial, times, gpus, epochs_done, warm=warm).wall_s <= 60 * minutes:
             chosen = trial
     return [j for j in jobs if j in chosen]
 

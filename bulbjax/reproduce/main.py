@@ -16,15 +16,16 @@ import json
 import os
 import shutil
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any, Callable, Sequence
 
+from bulbjax import compile_cache
 from bulbjax.config import PRESETS
 from bulbjax.reproduce import jobs as J
 from bulbjax.reproduce import results
 from bulbjax.reproduce.estimate import (MPS_GAIN, SHARED_GAIN, Estimate, Timing, apart_times, derived_fp32,
                                        fit_jobs, hms, hours_unit, job_cost, load_times, shared_times, simulate,
-                                       table_kinds, without_apart_rows)
+                                       table_kinds, timing_key, without_apart_rows)
 from bulbjax.reproduce.estimate import device_kind as host_kind
 from bulbjax.reproduce.mps import MpsDaemon
 from bulbjax.reproduce.plan import (PLAN_FILE, Job, grown_from, parse_figures, parse_jobs, parse_shard,
@@ -133,10 +134,11 @@ def _open_out(out: str, record: dict, overwrite: bool, dry_run: bool) -> list[st
     return []
 
 
-def plan_table(out: str, jobs: Sequence[Job], times: dict, est_gpus: int) -> tuple[list[str], Any]:
+def plan_table(out: str, jobs: Sequence[Job], times: dict, est_gpus: int,
+               warm: frozenset[str] = frozenset()) -> tuple[list[str], Any]:
     done = {j.id for j in jobs if J.is_done(out, j)}
     ep = {j.id: J.epochs_done(out, j) for j in jobs if j.id not in done}
-    est = simulate(jobs, times, est_gpus, ep, finished=sorted(done))
+    est = simulate(jobs, times, est_gpus, ep, finished=sorted(done), warm=warm)
     lines = [f"{'job':<28} {'epochs':>11} {'estimate':>9}  state"]
     for j in jobs:
         state = "done" if j.id in done else f"continue from epoch {ep[j.id]}" if ep.get(j.id) else "new"
@@ -203,7 +205,8 @@ def reproduce(figures: str | Sequence[str] = "all", scale: str = "paper", out: s
     status, summary_name = (_stretch_file(k, share, selected, stamp) for k in ("status", "summary"))
     q = Queue(out, mine, all_jobs, host.slots, host.times,
               time.monotonic() + 60 * max_minutes if max_minutes else None, progress_every, _learners_of(names),
-              log, status, run_flags=("--overlap", "apart") if learners_apart else ())
+              log, status, run_flags=("--overlap", "apart") if learners_apart else (),
+              on_first_epoch=lambda j: compile_cache.mark_warm(host.cache_kind, timing_key(j)))
     with daemon or contextlib.nullcontext():
         ran = q.run()
     return _finish(out, ran, est, host, summary, summary_name, log)
@@ -222,6 +225,13 @@ class Host:
     jobs_per_gpu: int = 1
     learners_apart: bool = False
     mps: bool = False
+    warm: frozenset[str] = frozenset()  # timing keys whose programs the compile cache holds here
+
+    @property
+    def cache_kind(self) -> str:
+        """What `compile_cache.mark_warm` files this host's programs under: the device kind, and
+        whether the learners run apart (other programs)."""
+        return self.kind + (" learners apart" if self.learners_apart else "")
 
     @property
     def per_job(self) -> int:
@@ -244,7 +254,8 @@ def host_of(gpus: int | None, learners_apart: bool = False, jobs_per_gpu: int = 
         raise ValueError("--mps shares GPUs between processes and this host runs CPU workers: run without it")
     times, times_kind = load_times(kind)
     times = shared_times(apart_times(times) if learners_apart else without_apart_rows(times), jobs_per_gpu, mps)
-    return Host(slots, kind, times, times_kind, jobs_per_gpu, learners_apart, mps)
+    host = Host(slots, kind, times, times_kind, jobs_per_gpu, learners_apart, mps)
+    return replace(host, warm=compile_cache.warm_keys(host.cache_kind))
 
 
 def _stretch_file(what: str, share: tuple[int, int] | None, selected: bool, stamp: str) -> str:
@@ -297,7 +308,8 @@ def _select(out: str, all_jobs: list[Job], host: Host, share: tuple[int, int] | 
     if any("ycb" in j.preset for j in left) and not os.environ.get(YCB_DIR_ENV):
         log("--fit-minutes: Fig. 5's jobs left out ($BULBJAX_YCB_DIR is not set)")
         left = [j for j in left if "ycb" not in j.preset]
-    mine = fit_jobs(left, host.times, len(host.slots), fit_minutes, {j.id: J.epochs_done(out, j) for j in left})
+    mine = fit_jobs(left, host.times, len(host.slots), fit_minutes, {j.id: J.epochs_done(out, j) for j in left},
+                    warm=host.warm)
     if not mine and left:
         shortest = min(job_cost(j, host.times) for j in left if j.kind == "run")
         raise ValueError(f"--fit-minutes {fit_minutes:g}: no unfinished job fits (the shortest needs "
@@ -308,8 +320,12 @@ def _select(out: str, all_jobs: list[Job], host: Host, share: tuple[int, int] | 
 def _announce(out: str, mine: list[Job], host: Host, what: str, log: Callable[[str], None]) -> Estimate:
     """Say the plan before anything starts: `what` (its jobs, shard, scale), the slots, each job's
     epochs, estimate and state, how derived times were worked out, the GPU-hours and wall time."""
-    lines, est = plan_table(out, mine, host.times, len(host.slots))
+    lines, est = plan_table(out, mine, host.times, len(host.slots), host.warm)
     lines += derived_fp32(mine, host.times)
+    warm = sorted({timing_key(j) for j in mine} & host.warm)
+    if warm:
+        lines.append(f"warm start-ups for {', '.join(warm)}: the compile cache ({compile_cache.cache_dir()}) holds "
+                     "their programs (a job of each reached its first epoch with it)")
     if host.jobs_per_gpu > 1:
         lines.append(f"{host.jobs_per_gpu} jobs per GPU: estimated from one measurement (the GPU's seed-epochs "
                      + (f"x {MPS_GAIN} at 2 jobs per H200 under MPS" if host.mps else

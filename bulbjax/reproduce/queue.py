@@ -88,12 +88,14 @@ class Track:
 class Queue:
     """Runs `jobs` (in `queue_order`) on `slots`. `out`: the plan's folder. `times`: the epoch and
     start-up estimates. `deadline`: a `time.monotonic()` after which no job starts and running
-    ones are asked to stop (None: none). `learners_of`: each job's learners (Fig. 4's columns)."""
+    ones are asked to stop (None: none). `learners_of`: each job's learners (Fig. 4's columns).
+    `on_first_epoch`: called with a run job once its first epoch is written (its programs compiled)."""
 
     def __init__(self, out: str, jobs: Sequence[Job], all_jobs: Sequence[Job], slots: Sequence[Slot],
                  times: dict[str, Timing], deadline: float | None = None, progress_every: float = 30.0,
                  learners_of: Callable[[Job], Sequence[str]] = lambda j: (), log: Callable[[str], None] = print,
-                 status_file: str = "status.json", poll_s: float = 1.0, run_flags: Sequence[str] = ()):
+                 status_file: str = "status.json", poll_s: float = 1.0, run_flags: Sequence[str] = (),
+                 on_first_epoch: Callable[[Job], None] = lambda j: None):
         self.out, self.slots, self.times, self.deadline = out, list(slots), times, deadline
         self.by_id = {j.id: j for j in all_jobs}
         self.tracks = {j.id: Track(j) for j in queue_order(jobs, times)}
@@ -101,6 +103,7 @@ class Queue:
         self.status_path = os.path.join(out, status_file)
         self.poll_s = poll_s
         self.run_flags = tuple(run_flags)  # `J.command`'s: how a fresh run job runs on its slot
+        self.on_first_epoch = on_first_epoch  # a run job's first epoch written (its programs compiled)
         self.stopping: str | None = None
         self.t0 = time.monotonic()
         for t in self.tracks.values():
@@ -244,6 +247,7 @@ class Queue:
                 if n > t.epochs_at_start:
                     t.first_epoch_at, t.epochs_at_first = now, n
                     t.startup_s = now - t.started
+                    self.on_first_epoch(t.job)
 
     # ------------------------------------------------------------------ what it says
     def _rate(self, t: Track) -> float | None:

@@ -1,0 +1,85 @@
+"""Warm start-ups in `bulbjax reproduce`'s estimate: a job that reached its first epoch notes in
+the compile cache that its programs are there (`compile_cache.mark_warm`, per device kind), and a
+plan made with that cache (the next stretch, or the next GPU allocation with the cache carried)
+estimates that preset's first job warm, and says so. The sixth allocation's estimate took cold
+start-ups (271 s) for jobs that started in 38-41 s with the caches carried: 13:34 against 9:33."""
+
+from __future__ import annotations
+
+import json
+import os
+import time
+
+import pytest
+
+from bulbjax import compile_cache
+from bulbjax.reproduce import estimate
+from bulbjax.reproduce.main import reproduce
+from bulbjax.reproduce.plan import Job, plan_jobs
+from bulbjax.reproduce.queue import Queue, Slot
+
+H200 = "NVIDIA H200"
+
+
+@pytest.fixture
+def cache(tmp_path, monkeypatch):
+    from bulbjax import local_processes
+
+    monkeypatch.setattr(local_processes, "visible_gpus", lambda: [])
+    path = tmp_path / "cache"
+    monkeypatch.setenv("BULBJAX_COMPILE_CACHE", str(path))
+    return path
+
+
+def test_a_plan_with_the_programs_cached_estimates_them_warm(tmp_path, cache) -> None:
+    job = "fig2-invpend/seed4"
+    said: list[str] = []
+    cold = reproduce("fig2-invpend", "paper", str(tmp_path / "a"), dry_run=True, device_kind=H200, jobs=job,
+                     log=said.append)
+    assert "warm start-ups" not in said[-1]
+    compile_cache.mark_warm(H200, "fig2-invpend")
+    compile_cache.mark_warm(H200, "fig2-invpend")  # once is enough: noted once
+    compile_cache.mark_warm("cpu", "fig2-cartpole")
+    assert json.loads((cache / compile_cache.WARM_FILE).read_text()) == {H200: ["fig2-invpend"],
+                                                                        "cpu": ["fig2-cartpole"]}
+    warm = reproduce("fig2-invpend", "paper", str(tmp_path / "a"), dry_run=True, device_kind=H200, jobs=job,
+                     log=said.append)
+    t = estimate.load_times(H200)[0]["fig2-invpend"]
+    assert cold["estimated_wall_s"] == pytest.approx(t.startup_cold_s + 1000 * t.epoch_s)
+    assert warm["estimated_wall_s"] == pytest.approx(t.startup_warm_s + 1000 * t.epoch_s)
+    assert f"warm start-ups for fig2-invpend: the compile cache ({cache}) holds" in said[-1]
+    # the fp32 job compiles other programs, and with the learners apart every job does
+    fp32 = reproduce("fig2-invpend,fp32", "paper", str(tmp_path / "b"), dry_run=True, device_kind=H200,
+                     jobs="fp32/fig2-invpend/seed1", log=said.append)
+    t32 = estimate.timing_of(next(j for j in plan_jobs("fig2-invpend,fp32", "paper")
+                                  if j.id == "fp32/fig2-invpend/seed1"), estimate.load_times(H200)[0])
+    assert fp32["estimated_wall_s"] == pytest.approx(t32.startup_cold_s + 1000 * t32.epoch_s)
+    apart = reproduce("fig2-invpend", "paper", str(tmp_path / "c"), dry_run=True, device_kind=H200, gpus=2,
+                      jobs=job, learners_apart=True, log=said.append)
+    assert "warm start-ups" not in said[-1] and apart["estimated_wall_s"] == pytest.approx(cold["estimated_wall_s"])
+
+
+def test_the_queue_notes_a_job_at_its_first_epoch_once(tmp_path, cache) -> None:
+    job = Job("fig2-cartpole/seed0", "fig2", "run", "fig2-cartpole", 0, 3, "runs/fig2-cartpole/seed0")
+    seen: list[str] = []
+    q = Queue(str(tmp_path), [job], [job], [Slot("cpu0", None)], estimate.load_times("cpu")[0],
+              on_first_epoch=lambda j: seen.append(j.id))
+    t = q.tracks[job.id]
+    t.started = time.monotonic()
+    q._watch([t])
+    assert seen == []  # no epoch written yet: still compiling
+    run = tmp_path / "runs" / "fig2-cartpole" / "seed0"
+    os.makedirs(run)
+    (run / "metrics.jsonl").write_text(json.dumps({"epoch": 0, "seed": 0}) + "\n")
+    q._watch([t])
+    (run / "metrics.jsonl").write_text(json.dumps({"epoch": 1, "seed": 0}) + "\n")
+    q._watch([t])
+    assert seen == [job.id] and t.startup_s is not None
+
+
+def test_an_unreadable_note_is_a_cold_estimate(cache) -> None:
+    os.makedirs(cache)
+    (cache / compile_cache.WARM_FILE).write_text("{not json")
+    assert compile_cache.warm_keys(H200) == frozenset()
+    compile_cache.mark_warm(H200, "fig2-cartpole")
+    assert compile_cache.warm_keys(H200) == {"fig2-cartpole"}
