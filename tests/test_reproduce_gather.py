@@ -18,10 +18,13 @@ ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 CAMPAIGN = os.path.join(ROOT, "docs", "results", "paper_h200")
 # what the allocations after the first finished: the second (CartPole seed 4, InvertedPendulum seed 0
 # and its Fig. 4), the third (the first fp32 job, whose gathering grew the plan by the fp32 entry),
-# the fourth (InvertedPendulum seed 1), the fifth (InvertedPendulum seeds 2 and 3 under MPS)
-LATER = ("runs/fig2-cartpole/seed4", "runs/fig2-invpend", "fig4", "runs/fp32")
+# the fourth (InvertedPendulum seed 1), the fifth (InvertedPendulum seeds 2 and 3 under MPS), the
+# sixth (InvertedPendulum seeds 4 and 5 under MPS, whose gathering merged the preset's six seeds
+# into fig2/ and the probe-protocol table; fp32 seed 1)
+LATER = ("runs/fig2-cartpole/seed4", "runs/fig2-invpend", "fig4", "runs/fp32", "fig2", "probe_protocol")
 LATER_JOBS = ["fig2-cartpole/seed4", "fig2-invpend/seed0", "fig2-invpend/seed1", "fig2-invpend/seed2",
-              "fig2-invpend/seed3", "fig4/fig2-invpend", "fp32/fig2-invpend/seed0"]
+              "fig2-invpend/seed3", "fig2-invpend/seed4", "fig2-invpend/seed5", "fig4/fig2-invpend",
+              "fp32/fig2-invpend/seed0", "fp32/fig2-invpend/seed1"]
 
 def _before_second(dest: str) -> str:
     """The campaign folder as it was before its second allocation: without what that one and the
