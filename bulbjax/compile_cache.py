@@ -107,8 +107,9 @@ def mark_warm(kind: str, key: str) -> None:
     """Note that a job timed by `key` (`bulbjax reproduce`'s row: a preset, `<preset> fp32`)
     reached its first epoch on a `kind` host with this cache: its programs are in it, so the next
     job of that key starts warm. The note travels with the cache directory (a cache carried to the
-    next GPU allocation keeps it), so a plan made there estimates warm start-ups. Nothing when the
-    cache is off."""
+    next GPU allocation keeps it), so a plan made there estimates warm start-ups. It cannot see a
+    change of code or JAX that changes the programs (they compile again: that job's estimate is
+    then short by a cold start-up less a warm one). Nothing when the cache is off."""
     path = cache_dir()
     if path is None:
         return
