@@ -89,8 +89,9 @@ def timing_of(job: Job, times: dict[str, Timing]) -> Timing:
 # compiles side by side). Under an MPS daemon (`--mps`), at N = 2 (2026-11-29, fig2-invpend seeds 2
 # and 3): 0.542-0.545 s per epoch each against 0.410 s alone, 1.51x; their start-ups 49-51 s warm
 # (the compile cache carried), as one job's warm start-up (52-54 s), so under MPS the warm start-up
-# is taken as it is and the cold one x SHARED_STARTUP (not measured under MPS). Other N are taken at
-# the same gains (an estimate, said in --dry-run).
+# is taken as it is and the cold one x SHARED_STARTUP (not measured under MPS). Seeds 4 and 5 the
+# same way (the sixth allocation): 0.533 s each, 1.54x, start-ups 38-41 s warm; MPS_GAIN keeps the
+# lower of the two. Other N are taken at the same gains (an estimate, said in --dry-run).
 SHARED_GAIN = 1.14
 SHARED_STARTUP = 1.53
 MPS_GAIN = 1.51
