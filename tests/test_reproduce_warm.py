@@ -34,33 +34,34 @@ def cache(tmp_path, monkeypatch):
 def test_a_plan_with_the_programs_cached_estimates_them_warm(tmp_path, cache) -> None:
     job = "fig2-invpend/seed4"
     said: list[str] = []
-    cold = reproduce("fig2-invpend", "paper", str(tmp_path / "a"), dry_run=True, device_kind=H200, jobs=job,
-                     log=said.append)
+    plan = dict(dry_run=True, device_kind=H200, log=said.append)
+    cold = reproduce("fig2-invpend", "paper", str(tmp_path / "a"), jobs=job, **plan)
     assert "warm start-ups" not in said[-1]
     compile_cache.mark_warm(H200, "fig2-invpend")
     compile_cache.mark_warm(H200, "fig2-invpend")  # once is enough: noted once
     compile_cache.mark_warm("cpu", "fig2-cartpole")
     assert json.loads((cache / compile_cache.WARM_FILE).read_text()) == {H200: ["fig2-invpend"],
                                                                         "cpu": ["fig2-cartpole"]}
-    warm = reproduce("fig2-invpend", "paper", str(tmp_path / "a"), dry_run=True, device_kind=H200, jobs=job,
-                     log=said.append)
+    warm = reproduce("fig2-invpend", "paper", str(tmp_path / "a"), jobs=job, **plan)
     t = estimate.load_times(H200)[0]["fig2-invpend"]
     assert cold["estimated_wall_s"] == pytest.approx(t.startup_cold_s + 1000 * t.epoch_s)
     assert warm["estimated_wall_s"] == pytest.approx(t.startup_warm_s + 1000 * t.epoch_s)
     assert f"warm start-ups for fig2-invpend: the compile cache ({cache}) holds" in said[-1]
     # the fp32 job compiles other programs, and with the learners apart every job does
-    fp32 = reproduce("fig2-invpend,fp32", "paper", str(tmp_path / "b"), dry_run=True, device_kind=H200,
-                     jobs="fp32/fig2-invpend/seed1", log=said.append)
-    t32 = estimate.timing_of(next(j for j in plan_jobs("fig2-invpend,fp32", "paper")
-                                  if j.id == "fp32/fig2-invpend/seed1"), estimate.load_times(H200)[0])
+    id32 = "fp32/fig2-invpend/seed1"
+    fp32 = reproduce("fig2-invpend,fp32", "paper", str(tmp_path / "b"), jobs=id32, **plan)
+    job32 = next(j for j in plan_jobs("fig2-invpend,fp32", "paper") if j.id == id32)
+    t32 = estimate.timing_of(job32, estimate.load_times(H200)[0])
     assert fp32["estimated_wall_s"] == pytest.approx(t32.startup_cold_s + 1000 * t32.epoch_s)
-    apart = reproduce("fig2-invpend", "paper", str(tmp_path / "c"), dry_run=True, device_kind=H200, gpus=2,
-                      jobs=job, learners_apart=True, log=said.append)
-    assert "warm start-ups" not in said[-1] and apart["estimated_wall_s"] == pytest.approx(cold["estimated_wall_s"])
+    apart = reproduce("fig2-invpend", "paper", str(tmp_path / "c"), gpus=2, jobs=job,
+                      learners_apart=True, **plan)
+    assert "warm start-ups" not in said[-1]
+    assert apart["estimated_wall_s"] == pytest.approx(cold["estimated_wall_s"])
 
 
 def test_the_queue_notes_a_job_at_its_first_epoch_once(tmp_path, cache) -> None:
-    job = Job("fig2-cartpole/seed0", "fig2", "run", "fig2-cartpole", 0, 3, "runs/fig2-cartpole/seed0")
+    job = Job("fig2-cartpole/seed0", "fig2", "run", "fig2-cartpole", 0, 3,
+              "runs/fig2-cartpole/seed0")
     seen: list[str] = []
     q = Queue(str(tmp_path), [job], [job], [Slot("cpu0", None)], estimate.load_times("cpu")[0],
               on_first_epoch=lambda j: seen.append(j.id))

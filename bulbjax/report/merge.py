@@ -17,7 +17,10 @@ from bulbjax.report.records import metrics_path, read_jsonl, write_jsonl_atomic
 from bulbjax.report.report import report_spec, write_reports
 
 
-def pool(run_dirs: Sequence[str]) -> tuple[Any, dict[str, Any], list[dict[str, Any]], list[dict[str, Any]]]:
+Records = list[dict[str, Any]]
+
+
+def pool(run_dirs: Sequence[str]) -> tuple[Any, dict[str, Any], Records, Records]:
     """The runs' records as one run's: (merged config, its run options, the records with seeds
     renumbered run after run, where each seed came from). Runs that differ in anything but
     `seeds` and `epochs`, or share a base seed (their seeds would be the same draws), are an
@@ -36,14 +39,15 @@ def pool(run_dirs: Sequence[str]) -> tuple[Any, dict[str, Any], list[dict[str, A
         if opts["probe_every"] != opts0["probe_every"]:
             diff.append("probe_every")
         if diff:
-            raise ValueError(f"--merge-seeds: {d} differs from {d0} in {', '.join(diff)}; only runs of "
-                             "one configuration (seeds and epochs aside) can be merged")
+            raise ValueError(f"--merge-seeds: {d} differs from {d0} in {', '.join(diff)}; only "
+                             "runs of one configuration (seeds and epochs aside) can be merged")
         seed = opts["seed"] if opts["seed"] is not None else 0
         if seed in base_seeds:
-            raise ValueError(f"--merge-seeds: {d} and {base_seeds[seed]} share base seed {seed}: their "
-                             "seeds are the same draws; rerun one with another --seed")
+            raise ValueError(f"--merge-seeds: {d} and {base_seeds[seed]} share base seed {seed}: "
+                             "their seeds are the same draws; rerun one with another --seed")
         base_seeds[seed] = d
-        offset = sum(s["seeds"] for s in sources)  # by config: a run may not have written every seed yet
+        # by config: a run may not have written every seed yet
+        offset = sum(s["seeds"] for s in sources)
         recs = read_jsonl(metrics_path(d), tolerate_partial=True)
         merged += [{**r, "seed": offset + r["seed"]} for r in recs]
         sources.append({"run_dir": d, "base_seed": seed, "seeds": c.seeds,
@@ -66,20 +70,23 @@ def merge_seeds(run_dirs: Sequence[str], out_dir: str, figures: bool = True) -> 
     if len(run_dirs) < 2:
         raise ValueError("--merge-seeds needs two or more RUN_DIRs")
     if any(os.path.abspath(out_dir) == os.path.abspath(d) for d in run_dirs):
-        raise ValueError("--merge-seeds writes a new folder: give an --out that is none of the runs")
+        raise ValueError("--merge-seeds writes a new folder: give an --out that is none of the "
+                         "runs")
     cfg, opts, merged, sources = pool(run_dirs)
     os.makedirs(out_dir, exist_ok=True)
     with open(os.path.join(out_dir, "config.json"), "w") as f:
-        json.dump({"experiment": dataclasses.asdict(cfg), "run": opts, "merged_from": sources}, f, indent=1)
+        json.dump({"experiment": dataclasses.asdict(cfg), "run": opts, "merged_from": sources}, f,
+                  indent=1)
     write_jsonl_atomic(os.path.join(out_dir, "metrics.jsonl"), merged)
     stale = os.path.join(out_dir, "metrics.jsonl.gz")  # a compressed copy of an earlier merge
     if os.path.exists(stale):
         os.remove(stale)
     cls = env_class(cfg.env)
-    names = ", ".join(f"{s['run_dir']} (seed {s['base_seed']}: {s['seeds']} seeds)" for s in sources)
-    return write_reports(out_dir, merged, cfg, report_spec(cls.state_spec, merged), cls.solved_return,
-                         footer=f"seeds of {len(run_dirs)} runs merged by `bulbjax report --merge-seeds`: {names}",
-                         figures=figures)
+    names = ", ".join(f"{s['run_dir']} (seed {s['base_seed']}: {s['seeds']} seeds)"
+                      for s in sources)
+    footer = f"seeds of {len(run_dirs)} runs merged by `bulbjax report --merge-seeds`: {names}"
+    return write_reports(out_dir, merged, cfg, report_spec(cls.state_spec, merged),
+                         cls.solved_return, footer=footer, figures=figures)
 
 
 def is_merged(run_dir: str) -> bool:
@@ -136,17 +143,19 @@ def merge_sources(merged_dir: str) -> list[str]:
     if not sources:
         raise ValueError(f"{merged_dir} is no merged folder (its config.json has no merged_from)")
     parent = os.path.dirname(os.path.normpath(merged_dir))
-    beside = [(d, _identity(d)) for d in (os.path.join(parent, n) for n in sorted(os.listdir(parent or ".")))
+    names = sorted(os.listdir(parent or "."))
+    beside = [(d, _identity(d)) for d in (os.path.join(parent, n) for n in names)
               if not os.path.samefile(d, merged_dir)]
     out = []
     for s in sources:
         want = (s["base_seed"], s["seeds"])
         hits = [d for d, ident in beside if ident == want]
         if len(hits) != 1:
-            hits = [d for d in [s["run_dir"], *_moved(s["run_dir"], merged_dir)] if _identity(d) == want][:1]
+            places = [s["run_dir"], *_moved(s["run_dir"], merged_dir)]
+            hits = [d for d in places if _identity(d) == want][:1]
         if not hits:
-            raise ValueError(f"{merged_dir}: the run of base seed {s['base_seed']} ({s['seeds']} seeds, "
-                             f"merged from {s['run_dir']}) is neither beside it, at that path, nor "
-                             "under a folder above it")
+            raise ValueError(f"{merged_dir}: the run of base seed {s['base_seed']} ({s['seeds']} "
+                             f"seeds, merged from {s['run_dir']}) is neither beside it, at that "
+                             "path, nor under a folder above it")
         out.append(hits[0])
     return out
