@@ -124,15 +124,15 @@ def kept_probed_epochs(epochs: Iterable[int], every: int) -> set[int]:
 
 def merged_read_epochs(run_dir: str, every: int) -> set[int]:
     """The probed epochs of `run_dir` that merged folders beside it (`bulbjax report
-    --merge-seeds`, committed as `seed0/ seed1/ merged/`; `report.merge_sources` finds their
+    --merge-seeds`, committed as `seed0/ seed1/ merged/`; `merge.merge_sources` finds their
     halves) read: `kept_probed_epochs` of the epochs at which every seed of every half was
     probed, and the epochs among those that any half keeps by its own rule (so that every half
     keeps the same ones there: the merged reports leave out epochs probed at some seeds only).
     A merge reads the last epochs *all* halves have, which for a half that ran longer are not
     its own last ones (fig2_invpend_h100_6seeds: seed0's metrics end at 943, so the merge reads
     920-940, which seed1's own rule, keeping 980-999, dropped)."""
+    from bulbjax.report.merge import merge_sources
     from bulbjax.report.records import metrics_path
-    from bulbjax.report.report import merge_sources
 
     here, parent = os.path.abspath(run_dir), os.path.dirname(os.path.abspath(run_dir))
     out: set[int] = set()

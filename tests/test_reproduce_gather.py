@@ -169,3 +169,42 @@ def test_a_plan_of_fewer_figures_gathers_into_the_whole_and_the_whole_into_it(tm
     (host / "plan.json").write_text(json.dumps(changed))
     with pytest.raises(ValueError, match="its plan differs from"):
         gather(str(tmp_path / "out"), [str(host)], log=lambda _: None)
+
+
+def test_campaign_gather_commits_an_allocation_as_the_readme_says(tmp_path) -> None:
+    """benchmarks/campaign_gather.py over a folder brought back as an allocation leaves it (a run's
+    metrics plain and in full, its own fig2.png, the consoles): the runs it finished arrive
+    reduced and gzipped, without their fig2.png; no logs; the page is the committed one; a
+    second pass takes nothing and changes nothing."""
+    import gzip
+    import importlib.util
+
+    path = os.path.join(ROOT, "benchmarks", "campaign_gather.py")
+    spec = importlib.util.spec_from_file_location("campaign_gather", path)
+    cg = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(cg)
+    out = _before_second(str(tmp_path / "out"))
+    host = str(tmp_path / "host")
+    shutil.copytree(CAMPAIGN, host)
+    run = os.path.join(host, "runs", "fig2-invpend", "seed4")
+    with gzip.open(os.path.join(run, "metrics.jsonl.gz"), "rb") as f:
+        committed = f.read()
+    with open(os.path.join(run, "metrics.jsonl"), "wb") as f:  # as the run wrote it (here: reduced)
+        f.write(committed)
+    os.remove(os.path.join(run, "metrics.jsonl.gz"))
+    shutil.copy(os.path.join(CAMPAIGN, "fig2", "fig2-invpend", "fig2.png"), os.path.join(run, "fig2.png"))
+    os.makedirs(os.path.join(host, "logs"), exist_ok=True)
+    said: list[str] = []
+    taken = cg.campaign_gather(out, [host], log=said.append)
+    assert sorted(taken) == LATER_JOBS
+    mine = os.path.join(out, "runs", "fig2-invpend", "seed4")
+    assert sorted(os.listdir(mine)) == sorted(os.listdir(os.path.join(CAMPAIGN, "runs", "fig2-invpend", "seed4")))
+    with gzip.open(os.path.join(mine, "metrics.jsonl.gz"), "rb") as f:
+        assert f.read() == committed
+    assert not os.path.exists(os.path.join(out, "logs"))
+    with open(os.path.join(CAMPAIGN, "results.md")) as f, open(os.path.join(out, "results.md")) as g:
+        assert f.read() == g.read().replace(out, "docs/results/paper_h200")
+    before = {n: os.path.getsize(os.path.join(d, n)) for d, _, ns in os.walk(out) for n in ns}
+    assert cg.campaign_gather(out, [host], log=said.append) == []
+    assert {n: os.path.getsize(os.path.join(d, n)) for d, _, ns in os.walk(out) for n in ns} == before
+    assert "job(s) taken" in said[-1] and "MB as committed" in said[-1]
