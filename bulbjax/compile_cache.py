@@ -109,7 +109,8 @@ def mark_warm(kind: str, key: str) -> None:
     job of that key starts warm. The note travels with the cache directory (a cache carried to the
     next GPU allocation keeps it), so a plan made there estimates warm start-ups. It cannot see a
     change of code or JAX that changes the programs (they compile again: that job's estimate is
-    then short by a cold start-up less a warm one). Nothing when the cache is off."""
+    then short by a cold start-up less a warm one). Nothing when the cache is off; a cache that
+    cannot be written is said in a warning, never an error (the note only shortens an estimate)."""
     path = cache_dir()
     if path is None:
         return
@@ -117,11 +118,17 @@ def mark_warm(kind: str, key: str) -> None:
     if key in table.get(kind, []):
         return
     table[kind] = sorted({*table.get(kind, []), key})
-    os.makedirs(path, exist_ok=True)
     tmp = os.path.join(path, f"{WARM_FILE}.tmp{os.getpid()}")
-    with open(tmp, "w") as f:
-        json.dump(table, f, indent=1)
-    os.replace(tmp, os.path.join(path, WARM_FILE))
+    try:
+        os.makedirs(path, exist_ok=True)
+        with open(tmp, "w") as f:
+            json.dump(table, f, indent=1)
+        os.replace(tmp, os.path.join(path, WARM_FILE))
+    except OSError as ex:
+        import warnings
+
+        warnings.warn(f"the compile cache {path} takes no note of {key!r} ({ex}): later plans estimate "
+                      "its first job cold", stacklevel=2)
 
 
 def warm_keys(kind: str) -> frozenset[str]:

@@ -78,6 +78,15 @@ def test_the_queue_notes_a_job_at_its_first_epoch_once(tmp_path, cache) -> None:
     assert seen == [job.id] and t.startup_s is not None
 
 
+def test_a_cache_that_cannot_be_written_warns_and_stops_nothing(tmp_path, monkeypatch) -> None:
+    blocked = tmp_path / "file"
+    blocked.write_text("not a folder")
+    monkeypatch.setenv("BULBJAX_COMPILE_CACHE", str(blocked / "cache"))
+    with pytest.warns(UserWarning, match="takes no note of 'fig2-cartpole'"):
+        compile_cache.mark_warm(H200, "fig2-cartpole")
+    assert compile_cache.warm_keys(H200) == frozenset()
+
+
 def test_an_unreadable_note_is_a_cold_estimate(cache) -> None:
     os.makedirs(cache)
     (cache / compile_cache.WARM_FILE).write_text("{not json")

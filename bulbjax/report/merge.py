@@ -91,7 +91,10 @@ def merge_seeds(run_dirs: Sequence[str], out_dir: str, figures: bool = True) -> 
 
 def is_merged(run_dir: str) -> bool:
     """Whether `run_dir` is a `--merge-seeds` folder (its config.json names the runs it pooled)."""
-    with open(os.path.join(run_dir, "config.json")) as f:
+    path = os.path.join(run_dir, "config.json")
+    if not os.path.isfile(path):
+        return False
+    with open(path) as f:
         return "merged_from" in json.load(f)
 
 

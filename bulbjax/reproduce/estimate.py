@@ -261,8 +261,9 @@ def simulate(jobs: Sequence[Job], times: dict[str, Timing], gpus: int,
 def fit_jobs(jobs: Sequence[Job], times: dict[str, Timing], gpus: int, minutes: float,
              epochs_done: dict[str, int] | None = None, warm: Collection[str] = ()) -> list[Job]:
     """The unfinished `jobs` (runs continued from `epochs_done`) that fit `minutes` of wall time
-    on `gpus` GPUs by `simulate`'s schedule (`warm`: its keys start warm): longest first, a job kept when the schedule with it
-    still ends in time, a Fig. 4 job only with the run it reads (both kept, or neither). For a
+    on `gpus` GPUs by `simulate`'s schedule (`warm`: keys that start warm): longest first, a job
+    kept when the schedule with it still ends in time, a Fig. 4 job only with the run it reads
+    (both kept, or neither). For a
     host held for a limited time (an allocation, a SLURM task's time limit): what it can finish,
     since a job cut short without its checkpoint (a wiped disk) is lost."""
     if minutes <= 0:
