@@ -33,6 +33,9 @@ IN_HISTORY = {
     "docs/results/fig2_invpend_h100_1000/seed0": "45add11",
     "docs/results/fig2_invpend_h100_1000/seed1": "45add11",
     "docs/results/fig2_invpend_h100_1000/merged": "45add11",
+    "docs/results/fig2_invpend_h100_6seeds/seed0": "2d445d2",
+    "docs/results/fig2_invpend_h100_6seeds/seed1": "2d445d2",
+    "docs/results/fig2_invpend_h100_6seeds/merged": "2d445d2",
     "benchmarks/results/multigpu_run_fig2-invpend_2xh200_20261125": "8962cf7~1",
 }
 # folders whose metrics were never committed: their table.md is the run's record of itself
