@@ -15,7 +15,6 @@ folder must be one of the three. CPU only.
 from __future__ import annotations
 
 import glob
-import json
 import os
 import shutil
 import subprocess
@@ -70,8 +69,7 @@ def _readable(folder: str) -> bool:
 
 
 def _merged(folder: str) -> bool:
-    with open(os.path.join(folder, "config.json")) as f:
-        return "merged_from" in json.load(f)
+    return merge.is_merged(folder)
 
 
 def protocol_tables() -> list[str]:

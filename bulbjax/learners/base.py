@@ -70,8 +70,9 @@ class LearnerConfig:
     # `channel_pad` in the first conv and the decoder's last (1: none; 0: 8 in bf16, where cuDNN's
     # tensor-core kernels want multiples of 8, else 1), and the convs' bias gradients summed in one
     # reduction ("reduce") or in two passes ("split": faster on the H100 and on the CPU; also
-    # "split_apart", "pallas" and "pallas_relu", networks.add_bias / bias_relu, not yet timed on a GPU:
-    # benchmarks/diagnostics/relu_bias_grad.py).
+    # "split_apart", "pallas" and "pallas_relu", networks.add_bias / bias_relu: on an H200 the VAE
+    # update ~3%, ~3% and 6.4% faster than "split", not yet understood, so not the default:
+    # docs/performance.md, "Learner updates"; benchmarks/diagnostics/relu_bias_grad.py).
     # benchmarks/README.md, "Padded channels, two-pass bias gradients", has the figures.
     channel_pad: int = 0
     bias_grad: str = "split"

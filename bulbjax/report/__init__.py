@@ -1,8 +1,9 @@
 """The report: host-side reading of what a run or a fit wrote. Its records (`records.py`:
 `metrics.jsonl`, appended whole, and the statistics over it), the report files made of them
 (`report.py`: `fig2.png`, `table.md`, `findings.md`; `report_plots`, `plot_limits`), the seeds of
-several runs pooled into one report (`merge`), the paper's claims checked on them (`findings`, `findings_objects`, `protocol`), reconstruction figures of
-given learners (`figures`), and an offline fit's records and reports (`offline`).
+several runs pooled into one report (`merge`), the paper's claims checked on them (`findings`,
+`findings_objects`, `protocol`), reconstruction figures of given learners (`figures`), and an
+offline fit's records and reports (`offline`).
 
 Imports `bulbjax.config` (config.json read back), from the epoch's face only what the probes
 regress (`probe_targets`), and the layers below; never `bulbjax.run`, which uses this face."""

@@ -99,12 +99,15 @@ def is_merged(run_dir: str) -> bool:
 
 
 def run_records(run_dir: str) -> list[dict[str, Any]]:
-    """A run folder's records: its metrics file; a merged folder without one, its runs pooled
-    again (`merge_sources`, `pool`), the same records `merge_seeds` wrote."""
-    if is_merged(run_dir) and not any(os.path.exists(os.path.join(run_dir, n))
-                                      for n in ("metrics.jsonl", "metrics.jsonl.gz")):
-        return pool(merge_sources(run_dir))[2]
-    return read_jsonl(metrics_path(run_dir), tolerate_partial=True)
+    """A run folder's records: its metrics file (`metrics_path`); a merged folder without one,
+    its runs pooled again (`merge_sources`, `pool`), the same records `merge_seeds` wrote."""
+    try:
+        path = metrics_path(run_dir)
+    except ValueError:
+        if is_merged(run_dir):
+            return pool(merge_sources(run_dir))[2]
+        raise
+    return read_jsonl(path, tolerate_partial=True)
 
 
 def _moved(recorded: str, merged_dir: str) -> list[str]:
