@@ -9,8 +9,9 @@ session to the next:
 2. `bulbjax reproduce --out DEST --gather SRC,...` takes them, with the stretches' summaries, and
    writes the results page again (a preset whose seeds are all in is merged and drawn);
 3. the consoles it copied (`DEST/logs`) go (not committed), and the merged presets' `fig2.png`
-   become palette PNGs (`reduce_results.reduce_png`); a merged preset's pooled `metrics.jsonl`
-   stays out of git (.gitignore: it is read again from the runs).
+   and Fig. 4's reconstructions (`fig4/<preset>/recon_*.png`, ~245 KB -> ~50 KB for a locomotion
+   grid) become palette PNGs where faithful (`reduce_results.reduce_png`); a merged preset's
+   pooled `metrics.jsonl` stays out of git (.gitignore: it is read again from the runs).
 
     python benchmarks/campaign_gather.py docs/results/paper_h200 /tmp/l6a/paper /tmp/l6b/paper
 
@@ -70,7 +71,9 @@ def campaign_gather(dest: str, sources: Sequence[str], log=print) -> list[str]:
                 shrink(J.job_dir(src, job), rr)
     gather_and_report(dest, list(sources), log=log)
     shutil.rmtree(os.path.join(dest, "logs"), ignore_errors=True)
-    for png in sorted(glob.glob(os.path.join(dest, "*", "*", "fig2.png"))):
+    pngs = glob.glob(os.path.join(dest, "*", "*", "fig2.png"))
+    pngs += glob.glob(os.path.join(dest, "fig4", "*", "recon_*.png"))
+    for png in sorted(pngs):
         if os.sep + "runs" + os.sep not in png:
             rr.reduce_png(png)
     size = sum(os.path.getsize(os.path.join(d, n)) for d, _, names in os.walk(dest) for n in names

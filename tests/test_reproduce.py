@@ -77,6 +77,9 @@ def test_the_estimate_is_the_queue_simulated() -> None:
     est = simulate([*run, recon], t, 2)
     assert est.spans["fig4/a"][0] == est.spans["a/seed0"][1]  # drawn once its run has ended
     assert simulate([recon], t, 1).wall_s == 30.0  # its run finished before: ready at once
+    # a preset's own recon row where the table has one (locomotion's grids take longer)
+    assert simulate([recon], {**t, "recon a": Timing(0.0, 50.0, 50.0)}, 1).wall_s == 50.0
+    assert simulate([recon], {**t, "recon b": Timing(0.0, 50.0, 50.0)}, 1).wall_s == 30.0
     assert simulate(run, t, 1, epochs_done={"a/seed0": 10, "a/seed1": 5}).wall_s == 100 + 20 + 50
 
 

@@ -20,11 +20,13 @@ CAMPAIGN = os.path.join(ROOT, "docs", "results", "paper_h200")
 # and its Fig. 4), the third (the first fp32 job, whose gathering grew the plan by the fp32 entry),
 # the fourth (InvertedPendulum seed 1), the fifth (InvertedPendulum seeds 2 and 3 under MPS), the
 # sixth (InvertedPendulum seeds 4 and 5 under MPS, whose gathering merged the preset's six seeds
-# into fig2/ and the probe-protocol table; fp32 seed 1)
-LATER = ("runs/fig2-cartpole/seed4", "runs/fig2-invpend", "fig4", "runs/fp32", "fig2", "probe_protocol")
-LATER_JOBS = ["fig2-cartpole/seed4", "fig2-invpend/seed0", "fig2-invpend/seed1", "fig2-invpend/seed2",
-              "fig2-invpend/seed3", "fig2-invpend/seed4", "fig2-invpend/seed5", "fig4/fig2-invpend",
-              "fp32/fig2-invpend/seed0", "fp32/fig2-invpend/seed1"]
+# into fig2/ and the probe-protocol table; fp32 seed 1), the seventh (HalfCheetah seed 0 with the
+# learners on a second GPU, and its Fig. 4)
+LATER = ("runs/fig2-cartpole/seed4", "runs/fig2-invpend", "fig4", "runs/fp32", "fig2", "probe_protocol",
+         "runs/fig2-halfcheetah")
+LATER_JOBS = ["fig2-cartpole/seed4", "fig2-halfcheetah/seed0", "fig2-invpend/seed0", "fig2-invpend/seed1",
+              "fig2-invpend/seed2", "fig2-invpend/seed3", "fig2-invpend/seed4", "fig2-invpend/seed5", "fig4/fig2-halfcheetah",
+              "fig4/fig2-invpend", "fp32/fig2-invpend/seed0", "fp32/fig2-invpend/seed1"]
 
 def _before_second(dest: str) -> str:
     """The campaign folder as it was before its second allocation: without what that one and the
@@ -174,10 +176,12 @@ def test_a_plan_of_fewer_figures_gathers_into_the_whole_and_the_whole_into_it(tm
 def test_campaign_gather_commits_an_allocation_as_the_readme_says(tmp_path) -> None:
     """benchmarks/campaign_gather.py over a folder brought back as an allocation leaves it (a run's
     metrics plain and in full, its own fig2.png, the consoles): the runs it finished arrive
-    reduced and gzipped, without their fig2.png; no logs; the page is the committed one; a
-    second pass takes nothing and changes nothing."""
+    reduced and gzipped, without their fig2.png; Fig. 4's grids as palette PNGs; no logs; the
+    page is the committed one; a second pass takes nothing and changes nothing."""
     import gzip
     import importlib.util
+
+    from PIL import Image
 
     path = os.path.join(ROOT, "benchmarks", "campaign_gather.py")
     spec = importlib.util.spec_from_file_location("campaign_gather", path)
@@ -194,6 +198,9 @@ def test_campaign_gather_commits_an_allocation_as_the_readme_says(tmp_path) -> N
     os.remove(os.path.join(run, "metrics.jsonl.gz"))
     shutil.copy(os.path.join(CAMPAIGN, "fig2", "fig2-invpend", "fig2.png"), os.path.join(run, "fig2.png"))
     os.makedirs(os.path.join(host, "logs"), exist_ok=True)
+    recon = os.path.join("fig4", "fig2-halfcheetah", "recon_1000.png")
+    with Image.open(os.path.join(CAMPAIGN, recon)) as im:  # as the job drew it: RGBA
+        im.convert("RGBA").save(os.path.join(host, recon))
     said: list[str] = []
     taken = cg.campaign_gather(out, [host], log=said.append)
     assert sorted(taken) == LATER_JOBS
@@ -202,6 +209,8 @@ def test_campaign_gather_commits_an_allocation_as_the_readme_says(tmp_path) -> N
     with gzip.open(os.path.join(mine, "metrics.jsonl.gz"), "rb") as f:
         assert f.read() == committed
     assert not os.path.exists(os.path.join(out, "logs"))
+    with Image.open(os.path.join(out, recon)) as im:
+        assert im.mode == "P"
     with open(os.path.join(CAMPAIGN, "results.md")) as f, open(os.path.join(out, "results.md")) as g:
         assert f.read() == g.read().replace(out, "docs/results/paper_h200")
     before = {n: os.path.getsize(os.path.join(d, n)) for d, _, ns in os.walk(out) for n in ns}

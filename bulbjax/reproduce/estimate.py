@@ -60,6 +60,9 @@ def is_fp32(job: Job) -> bool:
     return job.kind == "run" and job.figure == "fp32" and "--bf16" not in job.flags and "--small" not in job.flags
 
 
+RECON_ROW = "recon {preset}"
+
+
 def timing_key(job: Job) -> str:
     """The table row that times `job`, and the programs it compiles (a job starts warm after one
     of the same key): "recon", `<preset> fp32` for an fp32 run (`is_fp32`), else its preset."""
@@ -69,11 +72,14 @@ def timing_key(job: Job) -> str:
 
 
 def timing_of(job: Job, times: dict[str, Timing]) -> Timing:
-    """`job`'s times: its row (`timing_key`); for an fp32 run without a row of its own, its
-    preset's bf16 row with the epoch times x `FP32_EPOCH_FACTOR` (start-ups as they are), its
-    `derived` saying so."""
+    """`job`'s times: its row (`timing_key`); a recon job its preset's `recon <preset>` row where
+    the table has one (a locomotion grid took 59 s where InvertedPendulum's took 45), else the
+    "recon" row; for an fp32 run without a row of its own, its preset's bf16 row with the epoch
+    times x `FP32_EPOCH_FACTOR` (start-ups as they are), its `derived` saying so."""
     key = timing_key(job)
-    if key in times or key == job.preset or key == "recon":
+    if key == "recon":
+        return times.get(RECON_ROW.format(preset=job.preset), times[key])
+    if key in times or key == job.preset:
         return times[key]
     t = times[job.preset]
     return dataclasses.replace(
