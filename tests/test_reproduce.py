@@ -388,7 +388,7 @@ def test_the_docs_give_the_python_signature() -> None:
 def test_fig2_runs_carry_the_probe_variants_and_the_page_their_table(tmp_path):
     """Paper and quick Fig. 2 jobs run with the probe protocol's variants (issue 59's question
     answered by the reproduction's own runs); the results page writes their table across domains
-    from the merged runs that carry them (here the committed InvertedPendulum run), and nothing
+    from the merged runs that carry them (here a campaign InvertedPendulum seed), and nothing
     for runs without them."""
     from run_folders import write_synthetic_run
 
@@ -399,7 +399,7 @@ def test_fig2_runs_carry_the_probe_variants_and_the_page_their_table(tmp_path):
         fig2 = [j for j in plan_jobs("fig2", scale) if j.kind == "run"]
         assert fig2 and all("--probe-variants" in j.flags for j in fig2)
     assert not any("--probe-variants" in j.flags for j in plan_jobs("fig3,fig5", "paper") if j.kind == "run")
-    run = os.path.join(ROOT, "docs", "results", "fig2_invpend_variants_2xh200")
+    run = os.path.join(ROOT, "docs", "results", "paper_h200", "runs", "fig2-invpend", "seed0")
     merged = tmp_path / "out" / "fig2" / "fig2-invpend"
     shutil.copytree(run, merged)
     lines = results._protocol_section(str(tmp_path / "out"), [str(merged), str(tmp_path / "out" / "fig2" / "unfinished")])

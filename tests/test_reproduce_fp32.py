@@ -196,10 +196,10 @@ def test_the_probe_protocol_table_takes_the_fp32_run_of_its_domain(tmp_path) -> 
     """The Fig. 2 protocol table (over the merged runs with the probe variants) gets the fp32
     entry's merged run of the same domain as its "fp32 run" column, `bulbjax report
     --probe-protocol --fp32`'s own table; an fp32 run of a domain without such a run is left out,
-    not an error. (The committed InvertedPendulum run stands in for both sides.)"""
+    not an error. (A campaign InvertedPendulum seed stands in for both sides.)"""
     from bulbjax.report.protocol import probe_protocol_table
 
-    run = os.path.join(ROOT, "docs", "results", "fig2_invpend_variants_2xh200")
+    run = os.path.join(ROOT, "docs", "results", "paper_h200", "runs", "fig2-invpend", "seed0")
     merged, fp32 = tmp_path / "out" / "fig2" / "fig2-invpend", tmp_path / "out" / "fp32" / "fig2-invpend"
     shutil.copytree(run, merged)
     shutil.copytree(run, fp32)

@@ -35,6 +35,7 @@ IN_HISTORY = {
     "docs/results/fig2_invpend_h100_6seeds/seed0": "2d445d2",
     "docs/results/fig2_invpend_h100_6seeds/seed1": "2d445d2",
     "docs/results/fig2_invpend_h100_6seeds/merged": "2d445d2",
+    "docs/results/fig2_invpend_variants_2xh200": "23306e6",
     "benchmarks/results/multigpu_run_fig2-invpend_2xh200_20261125": "8962cf7~1",
 }
 # folders whose metrics were never committed: their table.md is the run's record of itself
