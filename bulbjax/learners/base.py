@@ -71,8 +71,9 @@ class LearnerConfig:
     # tensor-core kernels want multiples of 8, else 1), and the convs' bias gradients summed in one
     # reduction ("reduce") or in two passes ("split": faster on the H100 and on the CPU; also
     # "split_apart", "pallas" and "pallas_relu", networks.add_bias / bias_relu: on an H200 the VAE
-    # update ~3%, ~3% and 6.4% faster than "split", not yet understood, so not the default:
-    # docs/performance.md, "Learner updates"; benchmarks/diagnostics/relu_bias_grad.py).
+    # update ~3%, ~3% and 6.4% faster than "split", as XLA's own masked reductions are slower
+    # inside the update than alone; not the default until a same-seeds run on a GPU gives the
+    # default's numbers: docs/performance.md, "Learner updates").
     # benchmarks/README.md, "Padded channels, two-pass bias gradients", has the figures.
     channel_pad: int = 0
     bias_grad: str = "split"

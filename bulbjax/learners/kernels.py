@@ -7,8 +7,9 @@ after. It is the first pass of a conv layer's bias gradient (`networks._bias_sum
 card's bandwidth (docs/performance.md, "Learner updates"). `masked_column_sum` does a ReLU's
 backward mask in the same kernel (`bias_grad="pallas_relu"`: the gradient and the ReLU's output
 read once, the masked gradient written once). Alone both are slower than XLA's fusion on an
-H200, yet the VAE update is ~3% and 6.4% faster with them (docs/performance.md, "Learner
-updates"): options until that is understood (`benchmarks/diagnostics/relu_bias_grad.py`).
+H200, yet the VAE update is ~3% and 6.4% faster with them: inside the update XLA does not make
+the fusion a layer alone gets (the update's kernel list: docs/performance.md, "Learner
+updates"). Options until a same-seeds run on a GPU gives the default's numbers.
 On a CPU they run in Pallas's interpret mode (the same function, slowly), as the tests do.
 """
 
