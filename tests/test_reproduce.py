@@ -193,7 +193,7 @@ def test_learners_apart_gives_each_job_a_pair_of_devices(tmp_path, monkeypatch) 
 
 def test_learners_apart_are_timed_by_their_rows_and_count_two_gpus(tmp_path, monkeypatch) -> None:
     """With `--learners-apart` a job is timed by its preset's `<preset> apart` row (fig2-halfcheetah
-    on an H200: 1.096 s an epoch against 1.75 s on one GPU), a preset without one by its one-GPU
+    on an H200: 1.133 s an epoch against 1.75 s on one GPU), a preset without one by its one-GPU
     row, said in the plan; a job's GPU-hours count both its GPUs, in the estimate and the page."""
     from bulbjax import local_processes
     from bulbjax.reproduce import estimate, main, results
@@ -229,6 +229,9 @@ def test_learners_apart_are_timed_by_their_rows_and_count_two_gpus(tmp_path, mon
     assert results.job_times(str(out))["j"]["busy_s"] == pytest.approx(1200.0)
     (out / "summary_x.json").write_text(json.dumps({**rec, "device_kind": "cpu"}))  # a CPU worker: one
     assert results.job_times(str(out))["j"]["busy_s"] == pytest.approx(600.0)
+    # the page's stretch line counts the GPUs and the slots they make
+    line = results._summary_line({**rec, "gpus": 2, "measured_wall_s": 600.0})
+    assert line.startswith("This stretch: 2 NVIDIA H200 GPUs, 1 slot(s) of two")
 
 
 def test_epoch_times_reads_an_apart_stretch_into_its_apart_row(tmp_path) -> None:

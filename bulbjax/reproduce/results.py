@@ -249,9 +249,12 @@ def precision_section(out: str, preset: str, bf16: Sequence[Job], fp32: Sequence
 def _summary_line(s: dict[str, Any]) -> str:
     est = s.get("estimated_wall_s")
     shared = s.get("jobs_per_gpu") or 1
-    return (f"This stretch: {s.get('gpus')} {s.get('device_kind')} slot(s)"
+    gpus = s.get("gpus")
+    where = (f"{gpus} {s.get('device_kind')} GPUs, {gpus // 2} slot(s) of two (each job's learners on "
+             "the second)" if s.get("learners_apart") and isinstance(gpus, int)
+             else f"{gpus} {s.get('device_kind')} slot(s)")
+    return (f"This stretch: {where}"
             + (f" ({shared} jobs side by side on each)" if shared > 1 else "")
-            + (" (each job on two, its learners on the second)" if s.get("learners_apart") else "")
             + (" under an MPS daemon" if s.get("mps") else "") + ", "
             f"{hms(s.get('measured_wall_s', 0))} "
             f"wall (estimated {hms(est) if est is not None else '-'}), utilisation "
