@@ -30,9 +30,19 @@ def test_the_kit_runs_a_stretch_and_brings_it_back(tmp_path) -> None:
             g.write(f.read())
     env = {**os.environ, "LEASE_ROOT": str(lease), "LEASE_PYTHON": sys.executable, "HOME": str(tmp_path),
            "OUT": str(out)}
+    # caches brought from an earlier machine, packed as collect.sh packs them
+    earlier = tmp_path / "earlier"
+    (earlier / "bjcache" / "jax").mkdir(parents=True)
+    (earlier / "bjcache" / "jax" / "entry").write_text("program")
+    (earlier / ".cache" / "warp").mkdir(parents=True)
+    (earlier / ".cache" / "warp" / "kernel").write_text("kernel")
+    subprocess.run(["tar", "czf", str(lease / "stage" / "caches.tgz.aa"), "-C", str(earlier / "bjcache"), ".",
+                    "-C", str(earlier / ".cache"), "warp"], check=True)
     said = _sh("launch.sh", "--jobs fig2-ant/seed1 --learners-apart --dry-run --device-kind 'NVIDIA H200' "
                "--gpus 2", env=env)
-    assert "install: no parts" in said and "launched" in said
+    assert "install: no parts" in said and "caches unpacked" in said and "launched" in said
+    assert (lease / "bjcache" / "jax" / "entry").read_text() == "program"
+    assert (tmp_path / ".cache" / "warp" / "kernel").read_text() == "kernel"
     assert not os.path.exists(lease / "bj" / ".venv") and os.path.exists(lease / "bj" / "pyproject.toml")
     said = _sh("poll.sh", "240", env=env)
     assert "rc: 0" in said, said
