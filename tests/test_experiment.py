@@ -40,15 +40,16 @@ def run():
     retained0 = jax.device_get(rs0.buffers[buffer_key(0.5)])
     windows0 = jax.device_get(rs0.windows[buffer_key(0.5)])
     rs1, m1 = exp.epoch(rs0, jax.random.PRNGKey(1))
-    rs1 = jax.device_get(rs1)
-    rs, m2 = exp.epoch(rs1, jax.random.PRNGKey(2))
-    return exp, retained0, jax.device_get(rs), jax.device_get(m1), jax.device_get(m2), windows0, rs1
+    rs1_host = jax.tree.map(np.array, rs1)  # a copy: the epoch donates rs1, which it takes on the device as it
+    rs, m2 = exp.epoch(rs1, jax.random.PRNGKey(2))  # left it (host arrays compiled the epoch a second time)
+    return exp, retained0, jax.device_get(rs), jax.device_get(m1), jax.device_get(m2), windows0, rs1_host
 
 
 def test_epoch_shapes_over_seeds(run):
     exp, _, rs, m1, *_ = run
     d = exp.env.state_dim
     assert int(rs.epoch) == 2
+    assert exp.epoch._cache_size() == 1  # the second epoch ran the first's program
     assert m1["rl_return"].shape == (SEEDS,)
     for name in ("vae", "vae_rpl"):
         assert m1["learners"][name]["loss"].shape == (SEEDS,)
