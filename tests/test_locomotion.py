@@ -60,14 +60,22 @@ def _zeros(env: MjxPixelEnv) -> jax.Array:
     return jnp.zeros((env.num_envs, env.action_size), jnp.float32)
 
 
+_forward = None  # the worlds' kinematics, jitted once (a new jit per call traced it again)
+
+
 def _set(s: EnvState, b: Bundle, qpos: np.ndarray, qvel: np.ndarray | None = None) -> EnvState:
     """Place every world at `qpos` (and `qvel`, default rest) with kinematics computed."""
+    global _forward
     from mujoco import mjx
+    if _forward is None:
+        _forward = jax.jit(jax.vmap(mjx.forward, in_axes=(None, 0)))
     n = b.env.num_envs
     qpos = jnp.broadcast_to(jnp.asarray(qpos, jnp.float32), (n, b.env.mj_model.nq))
     qvel = jnp.zeros((n, b.env.mj_model.nv)) if qvel is None else jnp.broadcast_to(jnp.asarray(qvel, jnp.float32), (n, b.env.mj_model.nv))
     data = s.data.replace(qpos=qpos, qvel=qvel)
-    data = jax.jit(jax.vmap(mjx.forward, in_axes=(None, 0)))(b.env.mx, data)
+    # on the host, as `reset` hands its state to `step` (no placement): placed with the model
+    # (`env.mx`), the kinematics' outputs made `step` compile a second time for each robot
+    data = jax.device_get(_forward(b.env.mx, data))
     return s.replace(data=data, step_count=jnp.zeros_like(s.step_count),
                      episode_return=jnp.zeros_like(s.episode_return))
 
