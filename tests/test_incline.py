@@ -185,7 +185,7 @@ def test_point_cloud_holds_the_object_only():
 def test_determinism_under_a_key(geom_env):
     env = geom_env
     reset, step = jax.jit(env.reset), jax.jit(env.step)
-    a = jnp.full((N, 1), 0.3)
+    a = jnp.full((N, 1), 0.3, jnp.float32)  # not weakly typed: the step program the other tests compiled
     s1, s2 = reset(jax.random.PRNGKey(5)), reset(jax.random.PRNGKey(5))
     for _ in range(2):
         s1, s2 = step(s1, a), step(s2, a)
