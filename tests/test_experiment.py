@@ -40,8 +40,10 @@ def run():
     retained0 = jax.device_get(rs0.buffers[buffer_key(0.5)])
     windows0 = jax.device_get(rs0.windows[buffer_key(0.5)])
     rs1, m1 = exp.epoch(rs0, jax.random.PRNGKey(1))
-    rs1_host = jax.tree.map(np.array, rs1)  # a copy: the epoch donates rs1, which it takes on the device as it
-    rs, m2 = exp.epoch(rs1, jax.random.PRNGKey(2))  # left it (host arrays compiled the epoch a second time)
+    # a host copy for the tests (the epoch donates rs1); the epoch takes rs1 on the device as it
+    # left it (host arrays compiled the epoch a second time)
+    rs1_host = jax.tree.map(np.array, rs1)
+    rs, m2 = exp.epoch(rs1, jax.random.PRNGKey(2))
     return exp, retained0, jax.device_get(rs), jax.device_get(m1), jax.device_get(m2), windows0, rs1_host
 
 
