@@ -36,7 +36,7 @@ PY
 if [ -n "${BULBJAX_YCB_DIR:-}" ]; then
   tar czf "$w/ycb.tgz" -C "$(dirname "$BULBJAX_YCB_DIR")" "$(basename "$BULBJAX_YCB_DIR")"
 fi
-rm -rf .lease && mkdir -p .lease
+rm -rf .lease/p[0-9]* .lease/part_* && mkdir -p .lease  # .lease/caches (carried caches) stays
 (cd "$w" && tar cf - .) | split -b "${PART_MB:-38}M" - .lease/part_
 rm -rf "$w"
 n=0
