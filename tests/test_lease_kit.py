@@ -6,6 +6,7 @@ poll waits for it, collect packs the plan folder without checkpoints and the cac
 from __future__ import annotations
 
 import os
+import shutil
 import subprocess
 import sys
 import tarfile
@@ -21,28 +22,28 @@ def _sh(script: str, *args: str, env: dict, cwd: str = ROOT) -> str:
     return done.stdout
 
 
-def test_the_kit_runs_a_stretch_and_brings_it_back(tmp_path) -> None:
-    lease, out = tmp_path / "lease", tmp_path / "out"
+def _stage(lease) -> None:
+    """The kit's scripts where the last part puts them (no wheel parts: nothing to install)."""
     (lease / "stage").mkdir(parents=True)
-    out.mkdir()
     for name in ("install.sh", "launch.sh", "jobs.sh", "poll.sh", "collect.sh"):
         with open(os.path.join(KIT, name)) as f, open(lease / "stage" / name, "w") as g:
             g.write(f.read())
-    env = {**os.environ, "LEASE_ROOT": str(lease), "LEASE_PYTHON": sys.executable, "HOME": str(tmp_path),
+
+
+def test_the_kit_runs_a_stretch_and_brings_it_back(tmp_path) -> None:
+    lease, out, home = tmp_path / "lease", tmp_path / "out", tmp_path / "home"
+    _stage(lease)
+    out.mkdir()
+    env = {**os.environ, "LEASE_ROOT": str(lease), "LEASE_PYTHON": sys.executable, "HOME": str(home),
            "OUT": str(out)}
-    # caches brought from an earlier machine, packed as collect.sh packs them
-    earlier = tmp_path / "earlier"
-    (earlier / "bjcache" / "jax").mkdir(parents=True)
-    (earlier / "bjcache" / "jax" / "entry").write_text("program")
-    (earlier / ".cache" / "warp").mkdir(parents=True)
-    (earlier / ".cache" / "warp" / "kernel").write_text("kernel")
-    subprocess.run(["tar", "czf", str(lease / "stage" / "caches.tgz.aa"), "-C", str(earlier / "bjcache"), ".",
-                    "-C", str(earlier / ".cache"), "warp"], check=True)
+    # this machine's caches, as its compiles and Warp's builds leave them
+    (lease / "bjcache" / "jax").mkdir(parents=True)
+    (lease / "bjcache" / "jax" / "entry").write_text("program")
+    (home / ".cache" / "warp").mkdir(parents=True)
+    (home / ".cache" / "warp" / "kernel").write_text("kernel")
     said = _sh("launch.sh", "--jobs fig2-ant/seed1 --learners-apart --dry-run --device-kind 'NVIDIA H200' "
                "--gpus 2", env=env)
-    assert "install: no parts" in said and "caches unpacked" in said and "launched" in said
-    assert (lease / "bjcache" / "jax" / "entry").read_text() == "program"
-    assert (tmp_path / ".cache" / "warp" / "kernel").read_text() == "kernel"
+    assert "install: no parts" in said and "launched" in said
     assert not os.path.exists(lease / "bj" / ".venv") and os.path.exists(lease / "bj" / "pyproject.toml")
     said = _sh("poll.sh", "240", env=env)
     assert "rc: 0" in said, said
@@ -58,4 +59,15 @@ def test_the_kit_runs_a_stretch_and_brings_it_back(tmp_path) -> None:
         names = t.getnames()
     assert "paper/plan.json" in names and "reproduce.log" in names and "rc" in names
     assert not any("checkpoints" in n for n in names)
-    assert os.listdir(out / "caches")
+
+    # a later machine: the caches collect.sh brought back, carried beside the scripts
+    later, home2 = tmp_path / "later", tmp_path / "home2"
+    _stage(later)
+    for piece in os.listdir(out / "caches"):
+        shutil.copy(out / "caches" / piece, later / "stage" / piece)
+    env2 = {**env, "LEASE_ROOT": str(later), "HOME": str(home2)}
+    said = _sh("launch.sh", "--jobs fig2-ant/seed1 --dry-run --device-kind 'NVIDIA H200'", env=env2)
+    assert "caches unpacked" in said
+    assert (later / "bjcache" / "jax" / "entry").read_text() == "program"
+    assert (home2 / ".cache" / "warp" / "kernel").read_text() == "kernel"
+    assert "rc: 0" in _sh("poll.sh", "240", env=env2)
