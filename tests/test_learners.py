@@ -319,11 +319,18 @@ def test_conv_forms_do_not_change_the_learner(name: str, grad: str) -> None:
         np.testing.assert_allclose(np.asarray(q), np.asarray(p), rtol=1e-4, atol=1e-6)
 
 
-def test_conv_forms_are_checked() -> None:
-    # 0 picks the padding by compute dtype: 8 channels for bf16's tensor-core kernels, none in float32
+def test_conv_forms_are_checked(monkeypatch: pytest.MonkeyPatch) -> None:
+    # 0 picks the padding by compute dtype: 8 channels for bf16's tensor-core kernels, none in float32;
+    # bias_grad "auto" the Pallas kernel in bf16 on a GPU only (interpreted on a CPU)
+    assert jax.default_backend() == "cpu"
     assert LearnerConfig().conv_forms == {"channel_pad": 1, "bias_grad": "split", "edge_layers": "strided"}
     assert LearnerConfig(compute_dtype="bfloat16").conv_forms == {"channel_pad": 8, "bias_grad": "split",
                                                                   "edge_layers": "blocked"}
+    monkeypatch.setattr(jax, "default_backend", lambda: "gpu")
+    assert LearnerConfig(compute_dtype="bfloat16").conv_forms["bias_grad"] == "pallas_relu"
+    assert LearnerConfig().conv_forms["bias_grad"] == "split"
+    assert LearnerConfig(compute_dtype="bfloat16", bias_grad="split").conv_forms["bias_grad"] == "split"
+    monkeypatch.undo()
     assert LearnerConfig(compute_dtype="bfloat16", edge_layers="strided").conv_forms["edge_layers"] == "strided"
     assert LearnerConfig(compute_dtype="bfloat16", channel_pad=1).conv_forms["channel_pad"] == 1
     with pytest.raises(ValueError, match="channel_pad"):

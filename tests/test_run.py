@@ -298,7 +298,7 @@ def test_config_json_round_trip():
     got = config_from_dict(json.loads(json.dumps(old))).learner
     assert (got.channel_pad, got.bias_grad, got.edge_layers, got.lstm_grad) == (1, "reduce", "strided", "autodiff")
     new = PRESETS["fig2-invpend"].learner
-    assert (new.channel_pad, new.bias_grad, new.edge_layers, new.lstm_grad) == (0, "split", "auto", "written")
+    assert (new.channel_pad, new.bias_grad, new.edge_layers, new.lstm_grad) == (0, "auto", "auto", "written")
 
 
 def test_source_hash_names_the_code(tmp_path):

@@ -69,19 +69,19 @@ class LearnerConfig:
     # networks.add_bias): the frames' 3 colour channels padded with zero channels to a multiple of
     # `channel_pad` in the first conv and the decoder's last (1: none; 0: 8 in bf16, where cuDNN's
     # tensor-core kernels want multiples of 8, else 1), and the convs' bias gradients summed in one
-    # reduction ("reduce") or in two passes ("split": faster on the H100 and on the CPU; also
-    # "split_apart", "pallas" and "pallas_relu", networks.add_bias / bias_relu: on an H200 the VAE
-    # update ~3%, ~3% and 6.4% faster than "split", as XLA's own masked reductions are slower
-    # inside the update than alone; not the default until a same-seeds run on a GPU gives the
-    # default's numbers: docs/performance.md, "Learner updates").
-    # benchmarks/README.md, "Padded channels, two-pass bias gradients", has the figures.
+    # reduction ("reduce"), in two passes ("split": faster on the H100 and on the CPU), or with
+    # each layer's ReLU mask in one Pallas kernel ("pallas_relu": on an H200 the learners of the
+    # locomotion epoch 4-8% faster, as XLA's own masked reductions are slower inside the update
+    # than alone; also "split_apart" and "pallas"; networks.add_bias / bias_relu). "auto":
+    # pallas_relu in bf16 on a GPU, split otherwise (on a CPU the Pallas kernel runs interpreted;
+    # in float32 it is not measured). docs/performance.md, "Learner updates", has the figures.
     channel_pad: int = 0
-    bias_grad: str = "split"
+    bias_grad: str = "auto"
     # The first conv and the decoder's last layer (full resolution, 3 colour channels) computed
     # over 2x2 pixel blocks as 3x3 stride-1 convolutions ("blocked") or as 4x4 stride-2 ones
     # ("strided"); same parameters, same function (networks.blocked_conv_down). "auto": blocked
     # in bf16 (10% faster VAE updates on the H100), strided in float32 (equal on the H100,
-    # slower on the CPU); benchmarks/README.md, "Edge layers over pixel blocks".
+    # slower on the CPU); docs/performance.md, "Learner updates".
     edge_layers: str = "auto"
     # Sequential learners only (svae, pred, dsa); the frame learners ignore these.
     sequence_length: int = 24  # steps per window (paper: 24 pendulums, 16 locomotion)
@@ -133,8 +133,8 @@ class LearnerConfig:
             raise ValueError(f"deconv_impl must be one of {DECONV_IMPLS}, got {self.deconv_impl!r}")
         if self.channel_pad < 0:
             raise ValueError(f"channel_pad must be >= 0 (1: no padding, 0: 8 in bf16 else 1), got {self.channel_pad!r}")
-        if self.bias_grad not in BIAS_GRADS:
-            raise ValueError(f"bias_grad must be one of {BIAS_GRADS}, got {self.bias_grad!r}")
+        if self.bias_grad not in ("auto", *BIAS_GRADS):
+            raise ValueError(f"bias_grad must be one of {('auto', *BIAS_GRADS)}, got {self.bias_grad!r}")
         if self.edge_layers not in ("auto", *EDGE_LAYERS):
             raise ValueError(f"edge_layers must be one of {('auto', *EDGE_LAYERS)}, got {self.edge_layers!r}")
         if self.sequence_length < 2:
@@ -173,12 +173,17 @@ class LearnerConfig:
     @property
     def conv_forms(self) -> dict[str, Any]:
         """Keyword arguments of the conv modules that pick their forms (`channel_pad` with its
-        0 resolved: 8 in bf16, 1 in float32; `bias_grad`; `edge_layers` with "auto" resolved:
-        blocked in bf16, strided in float32)."""
+        0 resolved: 8 in bf16, 1 in float32; `bias_grad` with "auto" resolved: pallas_relu in
+        bf16 on a GPU, split otherwise; `edge_layers` with "auto" resolved: blocked in bf16,
+        strided in float32). Read where the learner's modules are built, so "auto" follows the
+        backend the program is traced for (`jax.default_backend()`)."""
         bf16 = self.compute_dtype == "bfloat16"
         pad = self.channel_pad or (8 if bf16 else 1)
+        grad = self.bias_grad
+        if grad == "auto":
+            grad = "pallas_relu" if bf16 and jax.default_backend() == "gpu" else "split"
         edge = self.edge_layers if self.edge_layers != "auto" else ("blocked" if bf16 else "strided")
-        return {"channel_pad": pad, "bias_grad": self.bias_grad, "edge_layers": edge}
+        return {"channel_pad": pad, "bias_grad": grad, "edge_layers": edge}
 
 
 def parse_learner_options(items: Sequence[str]) -> dict[str, Any]:
