@@ -1,7 +1,8 @@
-"""The configuration layer (`bulbjax.run.settings`): presets resolve with their domain's
-PPO settings, overrides and learner options apply in the documented order (the flags given win
-over `--small`), `fit` and `--resume` resolve through the same steps, and bad values are errors
-that name what was wrong and what is accepted. No environment is built here."""
+"""The configuration layer (`bulbjax.run.settings`, `config_from_dict`): presets resolve with
+their domain's PPO settings, overrides and learner options apply in the documented order (the
+flags given win over `--small`), `fit` and `--resume` resolve through the same steps, config.json
+reads back as written, and bad values are errors that name what was wrong and what is accepted.
+No environment is built here."""
 
 from __future__ import annotations
 
@@ -10,9 +11,11 @@ import json
 
 import pytest
 
-from bulbjax.config import PRESETS, ExperimentConfig, preset, small_config
+from bulbjax.config import PRESETS, ExperimentConfig, config_from_dict, preset, small_config
 from bulbjax.envs.registry import ppo_config_for
 from bulbjax.run.settings import SMALL_DATASET, parse_learners, parse_version, resolve, resolve_offline, resolve_resume
+
+from tiny_experiment import tiny_config
 
 
 def test_presets_resolve_with_their_domain_ppo():
@@ -212,3 +215,20 @@ def test_ppo_from_pixels_gets_the_pixel_learning_rate_unless_set():
     assert lr("pixels", options=["lr=1e-4"]) == 1e-4
     saved = resolve("fig2-invpend", overrides={"learners": "vae_rpl", "rl_input": "pixels"}, ppo_options=["lr=1e-3"])
     assert resolve(base=saved, domain_ppo=False).ppo.lr == 1e-3
+
+
+def test_config_json_round_trip():
+    """A config written as config.json reads back equal; one from before a field existed reads
+    back with what it ran with."""
+    for c in [*PRESETS.values(), small_config(PRESETS["fig2-cartpole"]), tiny_config()]:
+        assert config_from_dict(json.loads(json.dumps(dataclasses.asdict(c)))) == c
+    with pytest.raises(ValueError, match="another version"):
+        config_from_dict({"envv": "CartPole"})
+    # a config.json from before the conv forms existed reads back with the forms it ran with
+    old = dataclasses.asdict(PRESETS["fig2-invpend"])
+    for k in ("channel_pad", "bias_grad", "edge_layers", "lstm_grad"):
+        del old["learner"][k]
+    got = config_from_dict(json.loads(json.dumps(old))).learner
+    assert (got.channel_pad, got.bias_grad, got.edge_layers, got.lstm_grad) == (1, "reduce", "strided", "autodiff")
+    new = PRESETS["fig2-invpend"].learner
+    assert (new.channel_pad, new.bias_grad, new.edge_layers, new.lstm_grad) == (0, "auto", "auto", "written")

@@ -1,9 +1,10 @@
 """Environments: CartPole, CartPoleContinuous, InvertedPendulum (and the multicolour variant).
 
-Shapes/dtypes, determinism, reset distributions, state specs, physics against MuJoCo C and the
-analytic one-step value, termination / truncation / auto-reset bookkeeping, frames (camera, known
-pixel colours, multicolour schemes) and argument errors. Every env is built and jit-compiled once
-per module (small batches) so the file stays fast on a 2-core CPU.
+Shapes/dtypes, determinism, reset distributions, physics against MuJoCo C and the analytic
+one-step value, termination / truncation / auto-reset bookkeeping, frames (camera, known pixel
+colours, multicolour schemes) and bad actions. Every env is built and jit-compiled once per
+module (small batches, `env_bundles.py`) so the file stays fast on a 2-core CPU; the state specs
+and the registry's errors, which build no model, are in test_env_registry.py.
 
 Note: results of a jitted reset/step/render are dispatched asynchronously; if the env (and so its
 Warp render context) is dropped while one is still in flight, that computation fails with
@@ -13,42 +14,22 @@ Warp render context) is dropped while one is still in flight, that computation f
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
-from typing import Any, Callable
 
 import jax
 import jax.numpy as jnp
 import mujoco
 import numpy as np
 import pytest
-import warp  # annotations of the Warp callables in test_warp_graph_cache_holds_an_epoch
 
-import bulbjax
-from bulbjax.envs import EnvState, MjxPixelEnv, RenderInput
+from bulbjax.envs import EnvState, RenderInput
 from bulbjax.envs.colours import SCHEMES
-from bulbjax.envs.registry import _REGISTRY
 
-N = 4  # worlds per env
+from env_bundles import (RES, Bundle, N, _action, _bundle, _check_fields, _is_blue, _matches_colour,
+                         _mujoco_reference, _push_right, _rgb, _rollout, _set_state)
+
 N_MC = 8  # worlds of the multicolour env (several schemes drawn)
-RES = 64
 CP_THETA_MAX = 12 * 2 * math.pi / 360
 WHITE = np.array([255, 255, 255], np.uint8)
-
-
-@dataclass
-class Bundle:
-    """An env with its jitted entry points (compiled once per module)."""
-
-    env: MjxPixelEnv
-    reset: Callable[[jax.Array], EnvState]
-    step: Callable[[EnvState, jax.Array], EnvState]
-    render: Callable[[RenderInput], jax.Array] | None
-
-
-def _bundle(name: str, num_envs: int = N, render: bool = True) -> Bundle:
-    env = bulbjax.make(name, num_envs=num_envs, resolution=RES, render=render)
-    return Bundle(env, jax.jit(env.reset), jax.jit(env.step),
-                  jax.jit(env.render_frames) if render else None)
 
 
 @pytest.fixture(scope="module")
@@ -79,62 +60,6 @@ def multicolour() -> Bundle:
 ENV_FIXTURES = ["cartpole", "cartpole_cont", "inv_pend"]
 
 
-def _action(env: MjxPixelEnv, value: float | int) -> jax.Array:
-    """A constant action for every world: discrete index or continuous value."""
-    if env.discrete:
-        return jnp.full((env.num_envs,), int(value), jnp.int32)
-    return jnp.full((env.num_envs, env.action_size), float(value), jnp.float32)
-
-
-def _push_right(env: MjxPixelEnv) -> jax.Array:
-    return _action(env, 1)
-
-
-def _rollout(b: Bundle, key: jax.Array, actions: list[jax.Array]) -> list[EnvState]:
-    s = b.reset(key)
-    states = [s]
-    for a in actions:
-        s = b.step(s, a)
-        states.append(s)
-    return jax.device_get(states)
-
-
-def _set_state(s: EnvState, qpos: np.ndarray, qvel: np.ndarray) -> EnvState:
-    """Place every world at the given joint positions/velocities (fresh episode)."""
-    data = s.data.replace(qpos=jnp.asarray(qpos, s.data.qpos.dtype), qvel=jnp.asarray(qvel, s.data.qvel.dtype))
-    return s.replace(data=data, step_count=jnp.zeros_like(s.step_count),
-                     episode_return=jnp.zeros_like(s.episode_return))
-
-
-def _mujoco_reference(model: mujoco.MjModel, qpos0: np.ndarray, qvel0: np.ndarray, ctrl: np.ndarray,
-                      steps: int) -> tuple[np.ndarray, np.ndarray]:
-    """MuJoCo C (CPU, float64) trajectory of one world under a constant control: qpos/qvel [steps, nq]."""
-    d = mujoco.MjData(model)
-    d.qpos[:], d.qvel[:], d.ctrl[:] = qpos0, qvel0, ctrl
-    qs, vs = [], []
-    for _ in range(steps):
-        mujoco.mj_step(model, d)
-        qs.append(d.qpos.copy())
-        vs.append(d.qvel.copy())
-    return np.array(qs), np.array(vs)
-
-
-def _rgb(px: np.ndarray) -> np.ndarray:
-    return np.asarray(px).astype(np.int32)
-
-
-def _is_blue(px: np.ndarray) -> bool:
-    r, g, b = _rgb(px)
-    return b > 150 and b > r + 100 and b > g + 100
-
-
-def _matches_colour(px: np.ndarray, colour: np.ndarray) -> bool:
-    """Shaded pixel has the colour's dominant channels: high (>150) where the colour is 1,
-    low (<110) where it is 0."""
-    px = _rgb(px)
-    return all((p > 150) if c > 0.5 else (p < 110) for p, c in zip(px, colour))
-
-
 # --------------------------------------------------------------------------------------------
 # shapes, dtypes, attributes
 # --------------------------------------------------------------------------------------------
@@ -144,26 +69,6 @@ EXPECTED_ATTRS = {
     "CartPoleContinuous": dict(state_dim=4, discrete=False, num_actions=None, episode_length=200, timestep=0.02),
     "InvertedPendulum": dict(state_dim=5, discrete=False, num_actions=None, episode_length=1000, timestep=0.0165),
 }
-
-
-def _check_fields(env: MjxPixelEnv, s: EnvState, res: int) -> None:
-    n, d = env.num_envs, env.state_dim
-    assert s.obs.shape == (n, env.obs_size) and s.obs.dtype == jnp.float32
-    assert s.lowdim.shape == (n, d) and s.lowdim.dtype == jnp.float32
-    assert s.pixels.shape == (n, res, res, 3) and s.pixels.dtype == jnp.uint8
-    for f in ("reward", "done", "truncated", "episode_return"):
-        arr = getattr(s, f)
-        assert arr.shape == (n,) and arr.dtype == jnp.float32, (f, arr.shape, arr.dtype)
-    assert s.step_count.shape == (n,) and s.step_count.dtype == jnp.int32
-    assert s.scheme.shape == (n,) and s.scheme.dtype == jnp.int32
-    assert s.key.shape[0] == n
-    assert set(s.info) >= {"episode_return", "episode_length"}
-    assert s.info["episode_return"].shape == (n,) and s.info["episode_return"].dtype == jnp.float32
-    assert s.info["episode_length"].shape == (n,) and jnp.issubdtype(s.info["episode_length"].dtype, jnp.integer)
-    assert s.data.qpos.shape == (n, env.mj_model.nq) and s.data.qvel.shape == (n, env.mj_model.nv)
-    assert s.render_input.qpos.shape == (n, env.mj_model.nq)
-    np.testing.assert_array_equal(s.obs, s.lowdim)  # policy input is the true state by default
-    assert np.all(np.isfinite(np.asarray(s.lowdim)))
 
 
 @pytest.mark.parametrize("fixture", ENV_FIXTURES)
@@ -247,25 +152,6 @@ def test_inverted_pendulum_reset_noise_within_pybullet_bounds(inv_pend: Bundle) 
     theta = np.arctan2(s, c)
     assert np.all(np.abs(theta) <= 0.1 + 1e-6), theta
     assert theta.std() > 0.02 and np.any(theta > 0) and np.any(theta < 0)
-
-
-# --------------------------------------------------------------------------------------------
-# state spec
-# --------------------------------------------------------------------------------------------
-
-@pytest.mark.parametrize("name, spec", [
-    ("CartPole", [("theta", "rad", "position"), ("theta_vel", "rad/s", "velocity"),
-                  ("x", "m", "position"), ("x_vel", "m/s", "velocity")]),
-    ("CartPoleContinuous", [("theta", "rad", "position"), ("theta_vel", "rad/s", "velocity"),
-                            ("x", "m", "position"), ("x_vel", "m/s", "velocity")]),
-    ("InvertedPendulum", [("x", "m", "position"), ("x_vel", "m/s", "velocity"),
-                          ("theta_cos", "1", "position"), ("theta_sin", "1", "position"),
-                          ("theta_vel", "rad/s", "velocity")]),
-])
-def test_state_spec_matches_bulb(name: str, spec: list[tuple[str, str, str]]) -> None:
-    got = _REGISTRY[name].state_spec  # class attribute: no model build needed
-    assert [tuple(e) for e in got] == spec
-    assert [(e.name, e.unit, e.group) for e in got] == spec
 
 
 # --------------------------------------------------------------------------------------------
@@ -566,29 +452,6 @@ def test_multicolour_scheme_fixed_within_episode(multicolour: Bundle) -> None:
 # errors
 # --------------------------------------------------------------------------------------------
 
-def test_unknown_env_name_lists_available() -> None:
-    with pytest.raises(ValueError) as e:
-        bulbjax.make("CartPol", num_envs=2)
-    msg = str(e.value)
-    assert "CartPol" in msg
-    for name in ("CartPole", "CartPoleContinuous", "InvertedPendulum", "CartPoleMulticolour"):
-        assert name in msg
-    assert set(bulbjax.env_names()) >= {"CartPole", "CartPoleContinuous", "InvertedPendulum",
-                                        "CartPoleMulticolour", "InvertedPendulumMulticolour"}
-
-
-@pytest.mark.parametrize("resolution", [0, 3000, 64.5, 7, "64"])
-def test_bad_resolution_raises(resolution: Any) -> None:
-    with pytest.raises(ValueError, match=r"resolution must be an integer .*\[8, 1024\]"):
-        bulbjax.make("CartPole", num_envs=2, resolution=resolution)
-
-
-@pytest.mark.parametrize("num_envs", [0, -1, 2.0])
-def test_bad_num_envs_raises(num_envs: Any) -> None:
-    with pytest.raises(ValueError, match="num_envs must be a positive integer"):
-        bulbjax.make("CartPole", num_envs=num_envs)
-
-
 @pytest.mark.parametrize("action, pattern", [
     (jnp.ones(N, jnp.float32), r"integer actions of shape \(4,\)"),  # float for a discrete env
     (jnp.ones((N, 1), jnp.int32), r"integer actions of shape \(4,\)"),  # [N, 1] instead of [N]
@@ -628,59 +491,3 @@ def test_render_sequence_keeps_each_step_with_its_frames(cartpole: Bundle) -> No
     for k, ri in enumerate(ris):
         np.testing.assert_array_equal(seq[k], np.asarray(cartpole.render(ri)), err_msg=f"step {k}")
     assert not np.array_equal(seq[0], seq[1]) and not np.array_equal(seq[1], seq[2])
-
-
-def test_cli_envs_lists_versions_and_summarises_long_specs(capsys) -> None:
-    """`bulbjax envs`: every registered env once; the Rearrange families say versions 0-11
-    (6-11: black background), Incline 0-5; short specs in full, the multi-object ones as counts
-    per group that add up to the spec's length."""
-    import re
-
-    from bulbjax.cli import main
-    from bulbjax.envs.registry import _REGISTRY
-
-    assert main(["envs"]) == 0
-    lines = {l.split()[0]: l for l in capsys.readouterr().out.splitlines() if l.strip()}
-    assert set(lines) == set(_REGISTRY)
-    assert "versions 0-11" in lines["FrankaRearrangeYcb"] and "versions 0-11" in lines["ReacherRearrangeGeom"]
-    assert "versions 0-5" in lines["YcbOnIncline"]
-    assert "theta_vel[rad/s]/velocity" in lines["CartPole"]
-    spec = _REGISTRY["ReacherRearrangeGeom"].state_spec
-    m = re.search(r"state: (\d+) entries: (.*)$", lines["ReacherRearrangeGeom"])
-    assert m and int(m.group(1)) == len(spec)
-    counts = [int(x) for x in re.findall(r"(?:^|; )\w+ (\d+) \(", m.group(2))]
-    assert sum(counts) == len(spec) and len(counts) == len({e.group for e in spec})
-
-
-def test_version_is_refused_by_single_scene_domains():
-    """`version` selects objects in the multi-object domains; a single-scene domain refuses any
-    other value than 0 instead of ignoring it (e.g. `bulbjax run --env CartPole --version 3`)."""
-    import bulbjax
-
-    with pytest.raises(ValueError, match="no object versions"):
-        bulbjax.make("CartPole", num_envs=2, version=3, render=False)
-    with pytest.raises(ValueError, match="no object versions"):
-        bulbjax.make("InvertedPendulum", num_envs=2, version="random", render=False)
-
-
-def test_warp_graph_cache_holds_an_epoch(inv_pend: Bundle) -> None:
-    """Every MuJoCo Warp callable that stepping and rendering made keeps `GRAPH_CACHE_MAX`
-    captured CUDA graphs (Warp's own default, 32, made GPU epochs re-capture graphs every
-    epoch); a limit passed to `warp.jax_callable` explicitly is kept."""
-    from bulbjax.envs import warp_graphs
-
-    s = jax.eval_shape(inv_pend.env.reset, jax.random.PRNGKey(0))  # traces: makes the callables
-    jax.eval_shape(inv_pend.env.step, s, jnp.zeros((N, inv_pend.env.action_size)))
-    limits = warp_graphs.limits()
-    assert len(limits) >= 2 and set(limits.values()) == {warp_graphs.GRAPH_CACHE_MAX}, limits
-
-    def double(x: warp.array(dtype=float), y: warp.array(dtype=float)) -> None:
-        pass
-
-    def triple(x: warp.array(dtype=float), y: warp.array(dtype=float)) -> None:
-        pass
-
-    assert warp.jax_callable(double, num_outputs=1, graph_cache_max=7).graph_cache_max == 7
-    assert warp.jax_callable(triple, num_outputs=1).graph_cache_max == warp_graphs.GRAPH_CACHE_MAX
-    with pytest.raises(ValueError, match="at least 1"):
-        warp_graphs.install(0)

@@ -62,3 +62,35 @@ def test_folders_stay_small() -> None:
     assert "bulbjax/epoch/rollouts" in sizes and "bulbjax" in sizes  # it looked
     big = {d: s for d, s in sizes.items() if s[0] > MAX_FILES or s[1] > MAX_LINES}
     assert not big, f"folders over {MAX_FILES} files or {MAX_LINES} lines (files, lines): {big}"
+
+
+# a Python file a reader takes in whole (the brief: "no tracked Python file over ~500 lines");
+# a test file that grows past it moves its helpers to a module of their own (tests/doc_checks.py,
+# env_bundles.py, tiny_experiment.py) or a topic to a file of its own (test_env_registry.py)
+MAX_FILE_LINES = 500
+SOURCE_FOLDERS = ("bulbjax", "tests", "benchmarks", "pybullet_compat", "examples")
+
+
+def long_files(root: str, folders: tuple[str, ...] = SOURCE_FOLDERS,
+               limit: int = MAX_FILE_LINES) -> dict[str, int]:
+    """{path: lines} of every .py file under `root`'s `folders` longer than `limit` lines."""
+    out = {}
+    for folder in folders:
+        for here, dirs, names in os.walk(os.path.join(root, folder)):
+            dirs[:] = [d for d in dirs if d != "__pycache__" and not d.startswith(".")]
+            for n in names:
+                if n.endswith(".py"):
+                    path = os.path.join(here, n)
+                    with open(path, encoding="utf-8") as f:
+                        lines = sum(1 for _ in f)
+                    if lines > limit:
+                        out[os.path.relpath(path, root)] = lines
+    return out
+
+
+def test_files_stay_short(tmp_path) -> None:
+    assert not long_files(ROOT), f"Python files over {MAX_FILE_LINES} lines: {long_files(ROOT)}"
+    (tmp_path / "tests").mkdir()
+    (tmp_path / "tests" / "long.py").write_text("x = 1\n" * (MAX_FILE_LINES + 1))
+    (tmp_path / "tests" / "short.py").write_text("x = 1\n" * MAX_FILE_LINES)
+    assert long_files(str(tmp_path)) == {os.path.join("tests", "long.py"): MAX_FILE_LINES + 1}

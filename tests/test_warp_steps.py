@@ -2,13 +2,16 @@
 `EnvConfig.fuse_substeps`): the locomotion domains step in one call per env step, and their
 episodes are those of MJX's separate calls bit for bit (every leaf of the state: Data,
 observations, rewards, ends); the domains whose action is more than the controls, or that step
-once without a kinematics pass, keep the separate calls; bad values are one line."""
+once without a kinematics pass, keep the separate calls; bad values are one line. And every
+MuJoCo Warp callable keeps enough captured CUDA graphs for an epoch (`envs.warp_graphs`)."""
 
 from __future__ import annotations
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 import pytest
+import warp  # annotations of the Warp callables in test_warp_graph_cache_holds_an_epoch
 
 import bulbjax
 from bulbjax.envs import warp_steps
@@ -52,3 +55,27 @@ def test_bad_values_are_one_line():
         warp_steps.multi_step(0, True)
     with pytest.raises(ValueError, match="fuse_substeps must be True or False"):
         bulbjax.make("HalfCheetah", num_envs=2, render=False, fuse_substeps="yes")
+
+
+def test_warp_graph_cache_holds_an_epoch() -> None:
+    """Every MuJoCo Warp callable that stepping and rendering made keeps `GRAPH_CACHE_MAX`
+    captured CUDA graphs (Warp's own default, 32, made GPU epochs re-capture graphs every
+    epoch); a limit passed to `warp.jax_callable` explicitly is kept."""
+    from bulbjax.envs import warp_graphs
+
+    env = bulbjax.make("InvertedPendulum", num_envs=N, resolution=64)
+    s = jax.eval_shape(env.reset, jax.random.PRNGKey(0))  # traces: makes the callables
+    jax.eval_shape(env.step, s, jnp.zeros((N, env.action_size)))
+    limits = warp_graphs.limits()
+    assert len(limits) >= 2 and set(limits.values()) == {warp_graphs.GRAPH_CACHE_MAX}, limits
+
+    def double(x: warp.array(dtype=float), y: warp.array(dtype=float)) -> None:
+        pass
+
+    def triple(x: warp.array(dtype=float), y: warp.array(dtype=float)) -> None:
+        pass
+
+    assert warp.jax_callable(double, num_outputs=1, graph_cache_max=7).graph_cache_max == 7
+    assert warp.jax_callable(triple, num_outputs=1).graph_cache_max == warp_graphs.GRAPH_CACHE_MAX
+    with pytest.raises(ValueError, match="at least 1"):
+        warp_graphs.install(0)
