@@ -71,8 +71,7 @@ def cmd_report(args: argparse.Namespace) -> int:
         if not args.out:
             raise ValueError("--merge-seeds writes a new run folder: give it with --out DIR")
         tab = report.merge_seeds(args.run_dirs, args.out)
-        print(f"{tab}\nplot: {os.path.join(args.out, 'fig2.png')}\n"
-              f"table: {os.path.join(args.out, 'table.md')}")
+        print(f"{tab}\n{report.files_written(args.out)}")
         return 0
     if len(args.run_dirs) != 1:
         raise ValueError("`bulbjax report` redraws one run; to compare PPO returns of several runs "
@@ -92,8 +91,7 @@ def cmd_report(args: argparse.Namespace) -> int:
         return 0
     out = args.out or run_dir
     tab = report.redraw(run_dir, out)
-    plot = "curves.png" if report.is_offline(run_dir) else "fig2.png"  # `bulbjax fit` folders
-    print(f"{tab}\nplot: {os.path.join(out, plot)}\ntable: {os.path.join(out, 'table.md')}")
+    print(f"{tab}\n{report.files_written(out)}")
     return 0
 
 
@@ -331,7 +329,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     rc.add_argument("--out", default=None, help="folder of the PNGs (default RUN_DIR)")
     rc.set_defaults(fn=cmd_recon)
     rp = sub.add_parser("report", formatter_class=HelpFormatter,
-                        help="redraw fig2.png and table.md of a run folder from its metrics.jsonl")
+                        help="redraw fig2.png, table.md and findings.md of a run folder from its "
+                             "metrics.jsonl")
     rp.add_argument("run_dirs", metavar="RUN_DIR", nargs="+")
     rp.add_argument("--compare-rl", action="store_true",
                     help="PPO return of several runs (state / pixels / latent:<learner>) in one "

@@ -145,7 +145,10 @@ def test_report_out_writes_elsewhere_and_leaves_the_run_alone(tmp_path, capsys):
     assert sorted(os.listdir(run)) == before  # nothing written into the run folder
     for name in ("fig2.png", "table.md", "findings.md"):
         assert os.path.getsize(os.path.join(out, name)) > 0
-    assert f"table: {os.path.join(out, 'table.md')}" in capsys.readouterr().out
+    said = capsys.readouterr().out  # where each file went, one line each
+    for what, name in (("plot", "fig2.png"), ("table", "table.md"), ("findings", "findings.md")):
+        assert f"{what}: {os.path.join(out, name)}" in said
+    assert "objects:" not in said  # no objects in InvertedPendulum: no line for a file not there
     assert cli.main(["report", run]) == 0  # without --out: into the run folder, as before
     assert {"fig2.png", "table.md", "findings.md"} <= set(os.listdir(run))
 

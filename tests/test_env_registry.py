@@ -31,11 +31,14 @@ def test_unknown_env_name_lists_available() -> None:
     with pytest.raises(ValueError) as e:
         bulbjax.make("CartPol", num_envs=2)
     msg = str(e.value)
-    assert "CartPol" in msg
+    assert "CartPol" in msg and "did you mean 'CartPole'?" in msg  # the closest name first
     for name in ("CartPole", "CartPoleContinuous", "InvertedPendulum", "CartPoleMulticolour"):
         assert name in msg
     assert set(bulbjax.env_names()) >= {"CartPole", "CartPoleContinuous", "InvertedPendulum",
                                         "CartPoleMulticolour", "InvertedPendulumMulticolour"}
+    with pytest.raises(ValueError, match="unknown environment 'Pendulum3D'; available") as e:
+        bulbjax.make("Pendulum3D", num_envs=2)  # nothing close: no guess
+    assert "did you mean" not in str(e.value)
 
 
 @pytest.mark.parametrize("resolution", [0, 3000, 64.5, 7, "64"])

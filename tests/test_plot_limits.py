@@ -2,7 +2,8 @@
 seed-epoch of one learner reached ~150x the reference spread, and the axis scaled to it left every
 curve flat at the bottom). Synthetic records through the real `probe.summarise`: one seed at one
 epoch spikes; the axis of that panel ends near the other curves and the spike is marked at the
-top edge with its value; the other panels keep matplotlib's own limits. CPU only."""
+top edge with its value; the other panels keep matplotlib's own limits. And the PPO return is
+one panel across the bottom row, each seed's curve beside the band. CPU only."""
 
 from __future__ import annotations
 
@@ -111,3 +112,22 @@ def test_without_a_spike_nothing_changes(figures, tmp_path):
     (fig,) = figures
     assert all(not _marks(ax) for ax in fig.axes)
     assert "above the axis" not in fig._suptitle.get_text()
+
+
+def test_the_return_is_one_panel_with_each_seed(figures, tmp_path):
+    """The PPO return is drawn once, in one panel across the bottom row (it was the same panel
+    under every column), with each seed's own curve beside the mean and its band."""
+    recs = [{**r, "rl_return": 10.0 * r["seed"] + r["epoch"]} for r in _records(spike=1.0)]
+    report.plot(recs, SPEC, str(tmp_path / "fig2.png"), "t", solved_return=150.0)
+    (fig,) = figures
+    returns = [ax for ax in fig.axes if ax.get_ylabel() == "episode return"]
+    assert len(returns) == 1
+    (ax,) = returns
+    errors = [a for a in fig.axes if a is not ax]
+    assert len(errors) == 2 * 2  # π_curr, π_rand x robot, object_position
+    width = max(a.get_position().x1 for a in errors) - min(a.get_position().x0 for a in errors)
+    assert ax.get_position().width == pytest.approx(width, rel=0.05)
+    seeds = [line for line in ax.lines if line.get_linewidth() == 0.6]
+    assert len(seeds) == SEEDS
+    assert [list(line.get_ydata()) for line in seeds] == [[10.0 * s + e for e in EPOCHS] for s in range(SEEDS)]
+    assert "90% band over 3 seeds" in ax.get_legend_handles_labels()[1][0]

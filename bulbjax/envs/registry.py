@@ -57,7 +57,7 @@ def make(name: str, num_envs: int = 64, resolution: int = 64, render: bool | str
     if name.endswith(MULTICOLOUR_SUFFIX):
         base, multicolour = name[: -len(MULTICOLOUR_SUFFIX)], True
     if base not in _REGISTRY or (multicolour and not _REGISTRY[base].supports_multicolour):
-        raise ValueError(f"unknown environment {name!r}; available: {', '.join(env_names())}")
+        raise ValueError(unknown_env(name))
     if isinstance(render, str):
         if render not in OBSERVATIONS:
             raise ValueError("render must be True, False or an observation "
@@ -77,8 +77,18 @@ def env_class(name: str) -> type[MjxPixelEnv]:
     """The domain class of a registered name (a `Multicolour` suffix is accepted)."""
     base = name[: -len(MULTICOLOUR_SUFFIX)] if name.endswith(MULTICOLOUR_SUFFIX) else name
     if base not in _REGISTRY:
-        raise ValueError(f"unknown environment {name!r}; available: {', '.join(env_names())}")
+        raise ValueError(unknown_env(name))
     return _REGISTRY[base]
+
+
+def unknown_env(name: str) -> str:
+    """The one-line error of an unknown environment name: the closest names first (a typo's
+    fix), then every registered one."""
+    import difflib
+
+    close = difflib.get_close_matches(name, env_names(), n=2, cutoff=0.75)
+    hint = f" (did you mean {' or '.join(map(repr, close))}?)" if close else ""
+    return f"unknown environment {name!r}{hint}; available: {', '.join(env_names())}"
 
 
 def ppo_config_for(name: str, base: Any = None) -> Any:

@@ -14,10 +14,10 @@ from bulbjax.report.offline import records_of, summary_line, write_outputs
 from bulbjax.report.protocol import probe_protocol_table
 from bulbjax.report.records import (append_whole, band, ci90, ends_mid_line, epoch_records, last_returns, metrics_path,
                                     nanmean, probed, read_jsonl, scalars, write_jsonl, write_jsonl_atomic)
-from bulbjax.report.report import is_offline, redraw, rl_compare, write_reports
+from bulbjax.report.report import files_written, is_offline, redraw, rl_compare, write_reports
 
 __all__ = ["FigureConfig", "boxes_figure", "recon_figure", "reconstructions", "seed_params", "spair_names",
            "records_of", "summary_line", "write_outputs", "probe_protocol_table", "append_whole", "band", "ci90",
            "ends_mid_line", "epoch_records", "last_returns", "metrics_path", "nanmean", "probed", "read_jsonl",
-           "scalars", "write_jsonl", "write_jsonl_atomic", "is_offline", "merge_seeds", "run_records", "redraw",
+           "scalars", "write_jsonl", "write_jsonl_atomic", "files_written", "is_offline", "merge_seeds", "run_records", "redraw",
            "rl_compare", "write_reports"]

@@ -198,6 +198,18 @@ def write_reports(run_dir: str, records: Sequence[dict[str, Any]], cfg: Any,
     return tab
 
 
+REPORT_FILES = (("plot", "fig2.png"), ("plot", "curves.png"), ("objects", "objects.png"), ("table", "table.md"),
+                ("findings", "findings.md"))
+
+
+def files_written(folder: str) -> str:
+    """'plot: PATH' lines, one per report file `folder` holds (`REPORT_FILES`: a run's fig2.png,
+    an offline fit's curves.png, objects.png, table.md, findings.md), for the commands to say
+    where they wrote."""
+    return "\n".join(f"{what}: {os.path.join(folder, name)}" for what, name in REPORT_FILES
+                     if os.path.exists(os.path.join(folder, name)))
+
+
 def drop_partial_probes(records: Sequence[dict[str, Any]], seeds: int
                         ) -> tuple[list[dict[str, Any]], list[int]]:
     """`records` with the probe results of epochs probed at fewer than `seeds` seeds removed (the

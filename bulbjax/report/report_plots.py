@@ -85,8 +85,11 @@ def plot(records: Sequence[dict[str, Any]], spec: Sequence[StateEntry], path: st
             marked += limit_axis(ax, drawn)  # one spiking seed-epoch does not flatten the rest
             if not has_rl and row == rows - 1:
                 ax.set_xlabel(x_key)
-    if has_rl:
-        _plot_rl(axes[-1], records, solved_return)
+    if has_rl:  # one panel across the bottom row
+        for ax in axes[-1]:
+            ax.remove()
+        _plot_rl(fig.add_subplot(axes[0, 0].get_gridspec()[-1, :], sharex=axes[0, 0]), records,
+                 solved_return)
     axes[0, 0].legend(fontsize=8)
     import textwrap
     probes_note = "solid: MLP probe (90% band); dashed: linear (ridge) probe. " if linear else ""
@@ -167,14 +170,23 @@ def rl_band(ep: np.ndarray, r: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.n
     return np.asarray(ep)[ok], mean[ok], np.nan_to_num(half[ok])
 
 
-def _plot_rl(axes: Any, records: Sequence[dict[str, Any]], solved_return: float | None) -> None:
-    """The PPO return row of the Fig. 2 plot."""
-    ep, mean, half = rl_band(*rl_curve(records))
-    for ax in axes:
-        ax.plot(ep, mean, color="tab:green", marker=".", label="PPO return")
-        ax.fill_between(ep, mean - half, mean + half, color="tab:green", alpha=0.2)
-        if solved_return is not None:
-            ax.axhline(solved_return, color="k", ls="--", lw=0.8, label="solved")
-        ax.set_xlabel("epoch")
-        ax.set_ylabel("episode return")
-    axes[0].legend(fontsize=8)
+def _plot_rl(ax: Any, records: Sequence[dict[str, Any]], solved_return: float | None) -> None:
+    """The PPO return panel of the Fig. 2 plot: the mean and its 90% band over seeds, and each
+    seed's own curve (thin), which with few seeds says more than the band (over two seeds the
+    t-band is the mean ± 6.3 standard errors: CartPole's reaches below 0 and above 200)."""
+    epochs, r = rl_curve(records)
+    ep, mean, half = rl_band(epochs, r)
+    seeds = len(r)
+    ax.plot(ep, mean, color="tab:green", marker=".",
+            label="PPO return" + (f" (mean, 90% band over {seeds} seeds)" if seeds > 1 else ""))
+    ax.fill_between(ep, mean - half, mean + half, color="tab:green", alpha=0.2)
+    if seeds > 1:
+        for i, row in enumerate(np.asarray(r, float)):
+            ok = np.isfinite(row)
+            ax.plot(np.asarray(epochs)[ok], row[ok], color="tab:green", lw=0.6, alpha=0.5,
+                    label="each seed" if i == 0 else None)
+    if solved_return is not None:
+        ax.axhline(solved_return, color="k", ls="--", lw=0.8, label="solved")
+    ax.set_xlabel("epoch")
+    ax.set_ylabel("episode return")
+    ax.legend(fontsize=8)

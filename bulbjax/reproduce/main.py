@@ -333,6 +333,10 @@ def _announce(out: str, mine: list[Job], host: Host, what: str, log: Callable[[s
     if host.learners_apart:
         lines += [f"{p}: estimated, {t.derived}" for p, t in host.times.items()
                   if "no apart row" in t.derived and any(j.preset == p and j.kind == "run" for j in mine)]
+    if host.times_kind == "cpu" and any(j.kind == "run" and "--small" not in j.flags for j in mine):
+        lines.append("cpu rows: measured on the tiny scale's --small runs, and this plan's jobs run at full "
+                     "size, far slower on a CPU: the estimate is a lower bound (a GPU's: --device-kind "
+                     "'NVIDIA H200')")
     note = "" if host.times_kind == host.kind else f" (estimates of an {host.times_kind}: none measured on this kind yet)"
     n = len(host.slots)
     log(f"{what}, on {n} {host.kind} slot(s)" + (" of two GPUs each (the learners apart)" if host.per_job == 2 else "")

@@ -119,11 +119,48 @@ class _Tee:
     def isatty(self) -> bool:
         return self._console.isatty()
 
+    @property
+    def console(self) -> TextIO:
+        """The console alone (not the log file): where a redirected progress bar's lines go."""
+        return self._console
+
     def fileno(self) -> int:
         return self._console.fileno()
 
     def __getattr__(self, name: str) -> Any:
         return getattr(self._console, name)
+
+
+class BarLines:
+    """Where a progress bar draws on a console that is not a terminal (a file, a pipe, a job's
+    log): each redraw becomes one whole line (its carriage returns dropped), so a redirected
+    console reads as lines, not a bar's fragments between the stage lines. Pair it with a long
+    `mininterval` (`bar_options`)."""
+
+    def __init__(self, stream: TextIO):
+        self._stream = stream
+
+    def write(self, s: str) -> int:
+        line = s.replace("\r", "").strip()
+        if line:
+            self._stream.write(line + "\n")
+        return len(s)
+
+    def flush(self) -> None:
+        self._stream.flush()
+
+
+BAR_LINE_SECONDS = 30.0  # a redirected console's progress line at most this often
+
+
+def bar_options(stream: TextIO) -> dict[str, Any]:
+    """tqdm's `file` and `mininterval` for `stream`: itself on a terminal; on anything else
+    `BarLines` over the console alone (a `_Tee`'s log file keeps the stage lines, not the bar's),
+    a line every `BAR_LINE_SECONDS` at most."""
+    isatty = getattr(stream, "isatty", None)
+    if isatty is not None and isatty():
+        return {"file": stream}
+    return {"file": BarLines(getattr(stream, "console", stream)), "mininterval": BAR_LINE_SECONDS}
 
 
 @contextlib.contextmanager

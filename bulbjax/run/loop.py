@@ -22,6 +22,7 @@ import dataclasses
 import json
 import os
 import signal
+import sys
 import time
 from concurrent.futures import Future
 from dataclasses import dataclass
@@ -32,11 +33,11 @@ import jax
 from bulbjax import distributed
 from bulbjax.config import IDENTITY, ExperimentConfig, RunOptions
 from bulbjax.epoch import Experiment, SeedGroups
-from bulbjax.report import (ends_mid_line, epoch_records, last_returns, nanmean, read_jsonl, scalars, write_jsonl,
-                            write_jsonl_atomic, write_reports)
+from bulbjax.report import (ends_mid_line, epoch_records, files_written, last_returns, nanmean, read_jsonl, scalars,
+                            write_jsonl, write_jsonl_atomic, write_reports)
 from bulbjax.run import rundir
 from bulbjax.run.checkpoint import CHECKPOINT_DIR, Checkpointer, CheckpointWriteError
-from bulbjax.run.console import StageLog
+from bulbjax.run.console import StageLog, bar_options
 from bulbjax.run.provenance import provenance
 from bulbjax.run.resume import Resume, SavedRun, check_processes, check_resume
 
@@ -278,7 +279,7 @@ def run(cfg: ExperimentConfig, opts: RunOptions, run_dir: str, *, resume: bool |
 
     epoch, stopped, t_first, saved = start, "done", None, ckpt.latest() if resume else None
     bar = tqdm(total=cfg.epochs, initial=start, desc=f"{cfg.env} x{cfg.seeds} seeds", unit="epoch",
-               disable=not progress)
+               disable=not progress, **bar_options(sys.stderr))
     if progress:
         stages.log = bar.write  # the first epoch's lines above the bar
 
@@ -319,7 +320,7 @@ def run(cfg: ExperimentConfig, opts: RunOptions, run_dir: str, *, resume: bool |
                 epoch += 1
                 bar.update(1)
                 if recs[0]["probes"]:
-                    bar.set_postfix(_postfix(recs, records))
+                    bar.set_postfix(_postfix(recs, records), refresh=False)  # drawn at the next redraw
                 if opts.checkpoint_every and epoch % opts.checkpoint_every == 0:
                     _save(ckpt, run_dir, epoch, rs, key)
                     saved = epoch
@@ -356,7 +357,7 @@ def run(cfg: ExperimentConfig, opts: RunOptions, run_dir: str, *, resume: bool |
               f"{t_init:.1f} s{first}) on {groups.describe()}")
     if records and writer:
         tab = write_reports(run_dir, records, cfg, exp.spec, exp.env.solved_return, footer=timing)
-        log(f"\n{tab}\n\n{timing}\nplot: {os.path.join(run_dir, 'fig2.png')}\nmetrics: {metrics_path}")
+        log(f"\n{tab}\n\n{timing}\n{files_written(run_dir)}\nmetrics: {metrics_path}")
     groups.settle()  # no compile may still run in a daemon thread when the process exits
     # the other processes wait while process 0 writes the reports (else they would reach JAX's
     # shutdown barrier first and time out there on a slow report)
