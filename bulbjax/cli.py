@@ -70,8 +70,9 @@ def cmd_report(args: argparse.Namespace) -> int:
     if args.merge_seeds:
         if not args.out:
             raise ValueError("--merge-seeds writes a new run folder: give it with --out DIR")
+        began = time.time()
         tab = report.merge_seeds(args.run_dirs, args.out)
-        print(f"{tab}\n{report.files_written(args.out)}")
+        print(f"{tab}\n{report.files_written(args.out, since=began)}")
         return 0
     if len(args.run_dirs) != 1:
         raise ValueError("`bulbjax report` redraws one run; to compare PPO returns of several runs "
@@ -90,8 +91,9 @@ def cmd_report(args: argparse.Namespace) -> int:
         print(f"results: {results.write(run_dir, results.read_summary(run_dir))}")
         return 0
     out = args.out or run_dir
+    began = time.time()
     tab = report.redraw(run_dir, out)
-    print(f"{tab}\n{report.files_written(out)}")
+    print(f"{tab}\n{report.files_written(out, since=began)}")
     return 0
 
 

@@ -149,6 +149,11 @@ def test_report_out_writes_elsewhere_and_leaves_the_run_alone(tmp_path, capsys):
     for what, name in (("plot", "fig2.png"), ("table", "table.md"), ("findings", "findings.md")):
         assert f"{what}: {os.path.join(out, name)}" in said
     assert "objects:" not in said  # no objects in InvertedPendulum: no line for a file not there
+    stale = os.path.join(out, "objects.png")  # another report's file, left in the folder long ago
+    open(stale, "wb").close()
+    os.utime(stale, (0, 0))
+    assert cli.main(["report", run, "--out", out]) == 0
+    assert "objects:" not in capsys.readouterr().out  # not said as written
     assert cli.main(["report", run]) == 0  # without --out: into the run folder, as before
     assert {"fig2.png", "table.md", "findings.md"} <= set(os.listdir(run))
 

@@ -13,8 +13,6 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from dataclasses import dataclass
-from typing import Callable
 
 import jax
 import jax.numpy as jnp
@@ -25,20 +23,14 @@ import pytest
 import bulbjax
 from bulbjax.envs import EnvState, MjxPixelEnv, RenderInput
 from bulbjax.envs.colours import SCHEMES
-from bulbjax.envs.locomotion import SCENE_DT, Walker, quat_to_rpy
+from bulbjax.envs.locomotion import SCENE_DT, quat_to_rpy
 from bulbjax.envs.registry import _REGISTRY, ppo_config_for
 from bulbjax.rl.ppo import PPO, PPOConfig, compute_gae, rollout
 
+from env_bundles import Bundle
+
 N = 2
 RES = 64
-
-
-@dataclass
-class Bundle:
-    env: Walker
-    reset: Callable[[jax.Array], EnvState]
-    step: Callable[[EnvState, jax.Array], EnvState]
-    render: Callable[[RenderInput], jax.Array]
 
 
 def _bundle(name: str, num_envs: int = N) -> Bundle:

@@ -19,5 +19,5 @@ from bulbjax.report.report import files_written, is_offline, redraw, rl_compare,
 __all__ = ["FigureConfig", "boxes_figure", "recon_figure", "reconstructions", "seed_params", "spair_names",
            "records_of", "summary_line", "write_outputs", "probe_protocol_table", "append_whole", "band", "ci90",
            "ends_mid_line", "epoch_records", "last_returns", "metrics_path", "nanmean", "probed", "read_jsonl",
-           "scalars", "write_jsonl", "write_jsonl_atomic", "files_written", "is_offline", "merge_seeds", "run_records", "redraw",
-           "rl_compare", "write_reports"]
+           "scalars", "write_jsonl", "write_jsonl_atomic", "files_written", "is_offline", "merge_seeds", "run_records",
+           "redraw", "rl_compare", "write_reports"]

@@ -198,16 +198,20 @@ def write_reports(run_dir: str, records: Sequence[dict[str, Any]], cfg: Any,
     return tab
 
 
+MTIME_SLACK_S = 1.0
 REPORT_FILES = (("plot", "fig2.png"), ("plot", "curves.png"), ("objects", "objects.png"), ("table", "table.md"),
                 ("findings", "findings.md"))
 
 
-def files_written(folder: str) -> str:
-    """'plot: PATH' lines, one per report file `folder` holds (`REPORT_FILES`: a run's fig2.png,
-    an offline fit's curves.png, objects.png, table.md, findings.md), for the commands to say
-    where they wrote."""
-    return "\n".join(f"{what}: {os.path.join(folder, name)}" for what, name in REPORT_FILES
-                     if os.path.exists(os.path.join(folder, name)))
+def files_written(folder: str, since: float = 0.0) -> str:
+    """'plot: PATH' lines, one per report file in `folder` written since `since` (a `time.time()`
+    taken before writing, less `MTIME_SLACK_S`: the kernel stamps files from a coarser clock;
+    `REPORT_FILES`: a run's fig2.png, an offline fit's curves.png, objects.png, table.md,
+    findings.md), for the commands to say where they wrote (and not a file an earlier report
+    left there)."""
+    paths = [(what, os.path.join(folder, name)) for what, name in REPORT_FILES]
+    return "\n".join(f"{what}: {path}" for what, path in paths
+                     if os.path.exists(path) and os.path.getmtime(path) >= since - MTIME_SLACK_S)
 
 
 def drop_partial_probes(records: Sequence[dict[str, Any]], seeds: int

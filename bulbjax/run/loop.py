@@ -356,8 +356,9 @@ def run(cfg: ExperimentConfig, opts: RunOptions, run_dir: str, *, resume: bool |
     timing = (f"wall time of the last stretch {wall:.1f} s (start-up: build, compile, init/restore "
               f"{t_init:.1f} s{first}) on {groups.describe()}")
     if records and writer:
+        began = time.time()
         tab = write_reports(run_dir, records, cfg, exp.spec, exp.env.solved_return, footer=timing)
-        log(f"\n{tab}\n\n{timing}\n{files_written(run_dir)}\nmetrics: {metrics_path}")
+        log(f"\n{tab}\n\n{timing}\n{files_written(run_dir, since=began)}\nmetrics: {metrics_path}")
     groups.settle()  # no compile may still run in a daemon thread when the process exits
     # the other processes wait while process 0 writes the reports (else they would reach JAX's
     # shutdown barrier first and time out there on a slow report)
