@@ -5,6 +5,7 @@ A tiny CPU config (CartPole 32x32, a VAE and a small SPAIR)."""
 
 from __future__ import annotations
 
+import dataclasses
 import os
 
 import matplotlib.image as mpimg
@@ -13,21 +14,16 @@ import pytest
 
 from bulbjax.config import RunOptions
 from bulbjax.epoch import Experiment, ExperimentConfig
-from bulbjax.eval.probe import ProbeConfig
-from bulbjax.learners import LearnerConfig
-from bulbjax.rl.ppo import PPOConfig
 from bulbjax.run import RunFigures, redraw_figures, run
+
+from tiny_experiment import tiny_config
 
 
 def tiny() -> ExperimentConfig:
-    return ExperimentConfig(
-        env="CartPole", learners=("vae_rpl", "spair"), seeds=2, epochs=2, num_envs=4, resolution=32,
-        ppo=PPOConfig(num_envs=4, num_steps=8, num_minibatches=2, update_epochs=1),
-        ppo_updates_per_epoch=1, frames_per_epoch=8, replay_capacity=32,
-        learner=LearnerConfig(batch_size=8, conv_features=(8, 8, 8, 8), hidden=16, lr=1e-3,
-                              spair_grid=4, spair_glimpse=8, spair_what_dim=4),
-        learner_batches=1, eval_frames=8, probe_train_frames=16,
-        probe=ProbeConfig(hidden=(16,), steps=20, batch_size=16), reference_steps=16)
+    """The shared tiny config with VAE_rpl and a small SPAIR."""
+    base = tiny_config()
+    return base.replace(learners=("vae_rpl", "spair"), learner_batches=1,
+                        learner=dataclasses.replace(base.learner, spair_grid=4, spair_glimpse=8, spair_what_dim=4))
 
 
 @pytest.fixture(scope="module")
@@ -111,7 +107,6 @@ def test_cli(tmp_path, monkeypatch) -> None:
     assert got["opts"].recon_every == 3
     assert cli.main(["recon", str(tmp_path / "nothing")]) == 2
     os.makedirs(tmp_path / "r")
-    import dataclasses
     import json
 
     # the config.json of a run that never checkpointed

@@ -17,24 +17,19 @@ import pytest
 from bulbjax.config import RunOptions, config_from_dict
 from bulbjax.epoch import Experiment, ExperimentConfig
 from bulbjax.epoch.programs import Programs
-from bulbjax.eval.probe import ProbeConfig
-from bulbjax.learners import LearnerConfig
 from bulbjax.report import records, report
-from bulbjax.rl.ppo import PPOConfig
 from bulbjax.run import check_resume, run
 from bulbjax.run.checkpoint import Checkpointer
 from bulbjax.run.provenance import source_hash
 
+from tiny_experiment import tiny_config
+
 
 def tiny() -> ExperimentConfig:
-    return ExperimentConfig(
-        env="CartPole", learners=("vae_rpl", "svae"), seeds=2, epochs=4, num_envs=4, resolution=32,
-        ppo=PPOConfig(num_envs=4, num_steps=8, num_minibatches=2, update_epochs=1),
-        ppo_updates_per_epoch=1, frames_per_epoch=8, replay_capacity=32, sequence_length=4,
-        learner=LearnerConfig(batch_size=8, conv_features=(8, 8, 8, 8), hidden=16, lr=1e-3),
-        learner_batches=1, eval_frames=8, probe_train_frames=16,
-        probe=ProbeConfig(hidden=(16,), steps=20, batch_size=16), reference_steps=16,
-        probe_variants=("common", "window", "raw"))  # the common set's init part is checkpointed
+    """The shared tiny config with a sequential learner and the probe variants (the common set's
+    init part is checkpointed)."""
+    return tiny_config().replace(learners=("vae_rpl", "svae"), epochs=4, sequence_length=4, learner_batches=1,
+                                 probe_variants=("common", "window", "raw"))
 
 
 @pytest.fixture(scope="module")
