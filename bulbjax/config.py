@@ -12,7 +12,7 @@ from typing import Any
 
 from bulbjax.envs.env_config import GRAPH_MODES
 from bulbjax.eval.probe import ProbeConfig
-from bulbjax.learners import LearnerConfig, has_frame_latent_name, is_sequential_name, learner_names
+from bulbjax.learners import LEARNER_FORM_FIELDS, LearnerConfig, has_frame_latent_name, is_sequential_name, learner_names
 from bulbjax.learners.plugins import LearnerLoadError, entry_point_spec, load_learner_spec, spec_of
 from bulbjax.rl.ppo_config import PPOConfig
 
@@ -307,6 +307,30 @@ class RunOptions:
 
 
 IDENTITY = ("seed", "probe_every")  # RunOptions fields a resume must keep
+
+# ExperimentConfig fields that say how a run computes, not what (each documents "the same numbers
+# either way, up to floating-point reassociation"); the learners' own are LEARNER_FORM_FIELDS.
+FORM_FIELDS = ("graph_mode", "learner_seed_loop", "shared_updates", "programs", "overlap")
+
+
+def computed_config(c: ExperimentConfig) -> dict[str, Any]:
+    """What a run computes: its config as a dict without the fields that say only how
+    (`FORM_FIELDS`, `learner.LEARNER_FORM_FIELDS`), nor `seeds` and `epochs`. Two runs whose
+    dicts are equal are seeds of one configuration: `report --merge-seeds` pools them, e.g. the
+    campaign's seeds of one preset made before and after `bias_grad`'s default changed."""
+    out = dataclasses.asdict(c)
+    for k in FORM_FIELDS + ("seeds", "epochs"):
+        out.pop(k)
+    for k in LEARNER_FORM_FIELDS:
+        out["learner"].pop(k)
+    return out
+
+
+def form_of(c: ExperimentConfig) -> dict[str, Any]:
+    """How a run computes: the `FORM_FIELDS` and the learner's (as `learner.<field>`) with their
+    values, the part of its config `computed_config` leaves out (seeds and epochs aside)."""
+    return {**{k: getattr(c, k) for k in FORM_FIELDS},
+            **{f"learner.{k}": getattr(c.learner, k) for k in LEARNER_FORM_FIELDS}}
 
 
 def run_options_of(raw: dict[str, Any]) -> dict[str, Any]:

@@ -67,6 +67,26 @@ def test_merge_refuses_mismatch(tmp_path) -> None:
         merge.merge_seeds([a, c], a)
 
 
+def test_runs_that_differ_only_in_how_they_compute_merge(tmp_path) -> None:
+    """Seeds of one preset made before and after a speed default changed (the campaign's CartPole
+    seed 5 ran with `bias_grad` "auto", seeds 0-4 with "split", and its merge was refused) pool;
+    each source keeps its form; a learner field that changes what is computed is still refused."""
+    base = preset("fig2-invpend").learner
+    a = _run_dir(str(tmp_path / "a"), 1, 0, 0.5, learner=dataclasses.replace(base, bias_grad="split"))
+    b = _run_dir(str(tmp_path / "b"), 1, 1, 0.6, overlap="pipeline",
+                 learner=dataclasses.replace(base, bias_grad="auto", rnn_unroll=4))
+    c = _run_dir(str(tmp_path / "c"), 1, 2, 0.6, learner=dataclasses.replace(base, beta=2.0))
+    out = str(tmp_path / "m")
+    merge.merge_seeds([a, b], out, figures=False)
+    cfg, raw = read_run_config(out)
+    assert cfg.seeds == 2 and cfg.learner.bias_grad == "split" and cfg.overlap == "none"
+    forms = [s["form"] for s in raw["merged_from"]]
+    assert [f["learner.bias_grad"] for f in forms] == ["split", "auto"]
+    assert [f["learner.rnn_unroll"] for f in forms] == [1, 4] and forms[1]["overlap"] == "pipeline"
+    with pytest.raises(ValueError, match="differs from .* in learner"):
+        merge.merge_seeds([a, c], str(tmp_path / "m2"), figures=False)
+
+
 def test_merging_again_replaces_the_merge(tmp_path) -> None:
     """`bulbjax reproduce` merges a preset's seeds again after every stretch into the same
     folder: the second merge's records are the first's, not twice them (the campaign's sixth

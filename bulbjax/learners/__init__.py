@@ -24,6 +24,7 @@ from typing import Any, Mapping
 
 from bulbjax.learners.base import (
     DSA_ENCODERS,
+    LEARNER_FORM_FIELDS,
     FrameLearner,
     LearnerConfig,
     LearnerState,
@@ -123,6 +124,7 @@ __all__ = [
     "DSA",
     "DSA_ENCODERS",
     "FRAME_LEARNER_NAMES",
+    "LEARNER_FORM_FIELDS",
     "LEARNER_NAMES",
     "PRED",
     "SEQUENCE_LEARNER_NAMES",

@@ -38,6 +38,11 @@ from bulbjax.learners.temporal import LSTM_GRADS
 COMPUTE_DTYPES: tuple[str, ...] = ("float32", "bfloat16")
 # DSA's encoder variants (the paper tried all of them); see temporal.SequenceModel.
 DSA_ENCODERS: tuple[str, ...] = ("lstm", "bilstm", "gru", "rnn", "conv", "fc")
+# LearnerConfig fields that say how the learners compute, not what (same parameters, same
+# function, up to floating-point rounding): runs that differ only in them are one configuration
+# (`config.computed_config`; e.g. seeds of one preset run before and after a default changed).
+LEARNER_FORM_FIELDS: tuple[str, ...] = ("deconv_impl", "channel_pad", "bias_grad", "edge_layers",
+                                        "rnn_unroll", "lstm_grad")
 
 
 @dataclasses.dataclass(frozen=True)

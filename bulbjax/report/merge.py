@@ -12,7 +12,7 @@ import json
 import os
 from typing import Any, Sequence
 
-from bulbjax.config import read_run_config, run_options_of
+from bulbjax.config import computed_config, form_of, read_run_config, run_options_of
 from bulbjax.report.records import metrics_path, read_jsonl, write_jsonl_atomic
 from bulbjax.report.report import report_spec, write_reports
 
@@ -22,25 +22,27 @@ Records = list[dict[str, Any]]
 
 def pool(run_dirs: Sequence[str]) -> tuple[Any, dict[str, Any], Records, Records]:
     """The runs' records as one run's: (merged config, its run options, the records with seeds
-    renumbered run after run, where each seed came from). Runs that differ in anything but
-    `seeds` and `epochs`, or share a base seed (their seeds would be the same draws), are an
-    error."""
+    renumbered run after run, where each seed came from, with how each computed). Runs that
+    differ in what they compute (`config.computed_config`: anything but `seeds`, `epochs` and the
+    fields that say only how), or share a base seed (their seeds would be the same draws), are an
+    error; the merged config takes the first run's form."""
     runs = [(d, *read_run_config(d)) for d in run_dirs]
     d0, c0, raw0 = runs[0]
     opts0 = run_options_of(raw0)
-    ref = dataclasses.asdict(c0.replace(seeds=1, epochs=1))
+    ref = computed_config(c0)
     base_seeds: dict[int, str] = {}
     merged: list[dict[str, Any]] = []
     sources: list[dict[str, Any]] = []
     for d, c, raw in runs:
-        mine = dataclasses.asdict(c.replace(seeds=1, epochs=1))
+        mine = computed_config(c)
         diff = sorted(k for k in ref if ref[k] != mine[k])
         opts = run_options_of(raw)
         if opts["probe_every"] != opts0["probe_every"]:
             diff.append("probe_every")
         if diff:
             raise ValueError(f"--merge-seeds: {d} differs from {d0} in {', '.join(diff)}; only "
-                             "runs of one configuration (seeds and epochs aside) can be merged")
+                             "runs of one configuration (seeds, epochs and how they compute aside) "
+                             "can be merged")
         seed = opts["seed"] if opts["seed"] is not None else 0
         if seed in base_seeds:
             raise ValueError(f"--merge-seeds: {d} and {base_seeds[seed]} share base seed {seed}: "
@@ -51,7 +53,7 @@ def pool(run_dirs: Sequence[str]) -> tuple[Any, dict[str, Any], Records, Records
         recs = read_jsonl(metrics_path(d), tolerate_partial=True)
         merged += [{**r, "seed": offset + r["seed"]} for r in recs]
         sources.append({"run_dir": d, "base_seed": seed, "seeds": c.seeds,
-                        "merged_seeds": [offset, offset + c.seeds - 1],
+                        "merged_seeds": [offset, offset + c.seeds - 1], "form": form_of(c),
                         "provenance": raw.get("provenance")})
     cfg = c0.replace(seeds=sum(c.seeds for _, c, _ in runs))
     return cfg, {**opts0, "seed": None}, merged, sources
