@@ -365,7 +365,8 @@ def parse_args(argv: list[str] | None = None) -> BenchSettings:
                         "LearnerConfig field, e.g. default,pad8=channel_pad:8,split=bias_grad:split")
     p.add_argument("--xla-variants", default=",".join(v for v, _ in d.xla_variants),
                    help="XLA compile-option sets timed side by side, comma-separated NAME[=KEY:VALUE;...], "
-                        "e.g. xla_default,cf=xla_gpu_experimental_enable_conv_fusion:true")
+                        "e.g. xla_default,cf=xla_gpu_experimental_enable_conv_fusion:true (a + in a VALUE is a comma: "
+                        "cb=xla_gpu_enable_command_buffer:FUSION+CUBLAS+WHILE)")
     p.add_argument("--precisions", default=",".join(d.precisions),
                    help="fp32 matmul/conv precisions: default, tensorfloat32, highest")
     p.add_argument("--parts", default=",".join(d.parts), help=f"subset of {','.join(PARTS)}")

@@ -34,6 +34,9 @@ def parse_compiler_options(items: Sequence[str]) -> dict[str, Any]:
 
 def parse_named_options(text: str) -> tuple[str, dict[str, Any]]:
     """`NAME=KEY:VALUE;KEY:VALUE` (or a bare `NAME`, no options) -> (NAME, compile options), the
-    form in which the benchmarks take sets of XLA options to time side by side."""
+    form in which the benchmarks take sets of XLA options to time side by side. The sets arrive
+    comma-separated, so a `+` in a VALUE stands for a comma in the option's list (e.g.
+    `cb=xla_gpu_enable_command_buffer:FUSION+CUBLAS+WHILE`)."""
     name, _, rest = text.partition("=")
-    return name, parse_compiler_options([kv.replace(":", "=", 1) for kv in rest.split(";") if kv])
+    return name, parse_compiler_options([kv.replace(":", "=", 1).replace("+", ",")
+                                         for kv in rest.split(";") if kv])

@@ -306,6 +306,9 @@ def test_compiler_options_parse_and_reach_the_jits():
                     "a": 0.5, "b": True}
     with pytest.raises(ValueError, match="KEY=VALUE"):
         parse_compiler_options(["xla_gpu_graph_min_graph_size"])
+    from bulbjax.xla_options import parse_named_options
+    assert parse_named_options("cb=xla_gpu_enable_command_buffer:FUSION+WHILE;b:true") == (
+        "cb", {"xla_gpu_enable_command_buffer": "FUSION,WHILE", "b": True})
     bad = Experiment(tiny(), compiler_options={"xla_no_such_option": 1})
     assert bad.compiler_options == {"xla_no_such_option": 1}
     with pytest.raises(Exception, match="xla_no_such_option"):
