@@ -1,5 +1,6 @@
-"""The tiny experiment configurations the epoch's tests share (tests/test_experiment.py and
-tests/test_experiment_config.py): CartPole at 32 px, 2 seeds, 8 frames an epoch."""
+"""The tiny experiment configurations the tests share (test_experiment, test_experiment_config,
+test_config, test_run and test_recon, the last two with their differences replaced): CartPole
+at 32 px, 2 seeds, 8 frames an epoch."""
 
 from __future__ import annotations
 
