@@ -66,8 +66,15 @@ def test_the_kit_runs_a_stretch_and_brings_it_back(tmp_path) -> None:
     for piece in os.listdir(out / "caches"):
         shutil.copy(out / "caches" / piece, later / "stage" / piece)
     env2 = {**env, "LEASE_ROOT": str(later), "HOME": str(home2)}
-    said = _sh("launch.sh", "--jobs fig2-ant/seed1 --dry-run --device-kind 'NVIDIA H200'", env=env2)
+    # ... and a finished run dropped to run again (CartPole's seed 0, for its Fig. 4)
+    env2["DROP"] = "runs/fig2-cartpole/seed0"
+    said = _sh("launch.sh", "--jobs fig2-cartpole/seed0 --dry-run --device-kind 'NVIDIA H200'", env=env2)
     assert "caches unpacked" in said
     assert (later / "bjcache" / "jax" / "entry").read_text() == "program"
     assert (home2 / ".cache" / "warp" / "kernel").read_text() == "kernel"
     assert "rc: 0" in _sh("poll.sh", "240", env=env2)
+    with open(later / "res" / "jobs.out") as f:
+        assert "dropped runs/fig2-cartpole/seed0: it runs again" in f.read()
+    with open(later / "res" / "reproduce.log") as f:
+        log = f.read()
+    assert "fig2-cartpole/seed0" in log and "fig4/fig2-cartpole" in log and "left out" not in log, log
