@@ -12,7 +12,8 @@ from typing import Any
 
 from bulbjax.envs.env_config import GRAPH_MODES
 from bulbjax.eval.probe import ProbeConfig
-from bulbjax.learners import LEARNER_FORM_FIELDS, LearnerConfig, has_frame_latent_name, is_sequential_name, learner_names
+from bulbjax.learners import (LEARNER_FORM_FIELDS, LearnerConfig, has_frame_latent_name, is_sequential_name,
+                              learner_names)
 from bulbjax.learners.plugins import LearnerLoadError, entry_point_spec, load_learner_spec, spec_of
 from bulbjax.rl.ppo_config import PPOConfig
 
