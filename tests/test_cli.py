@@ -233,3 +233,17 @@ def test_warp_line_is_dropped_and_everything_else_kept(capfd):
     assert without_stderr_line(native_init, NO_DRIVER_LINE) == 7
     err = capfd.readouterr().err
     assert "a real one" in err and NO_DRIVER_LINE not in err
+
+
+def test_report_over_plan_folders_points_to_gather(tmp_path, capsys):
+    """`bulbjax report` over two `bulbjax reproduce` folders (a plan's shards brought back from
+    their hosts) says to gather them, in one line (it said it redraws one run, and with
+    --merge-seeds that a run's config.json is missing)."""
+    hosts = [tmp_path / "h1", tmp_path / "h2"]
+    for h in hosts:
+        h.mkdir()
+        (h / "plan.json").write_text("{}")
+    for extra in ([], ["--merge-seeds", "--out", str(tmp_path / "m")]):
+        assert cli.main(["report", *map(str, hosts), *extra]) == 2
+        err = capsys.readouterr().err.strip()
+        assert err.count("\n") == 0 and f"bulbjax reproduce --out DIR --gather {hosts[0]},{hosts[1]}" in err, err

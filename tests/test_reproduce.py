@@ -90,6 +90,17 @@ def test_the_docs_table_is_the_times_file() -> None:
     assert table == estimate.times_markdown()
 
 
+def test_the_docs_paper_estimate_is_the_table_s() -> None:
+    """docs/reproduce.md's paper plan on four H200s (jobs, GPU-hours, wall) is what the estimate
+    makes of today's epoch_times.json (it said 11.24 GPU-hours after the table had moved on)."""
+    with open(os.path.join(ROOT, "docs", "reproduce.md"), encoding="utf-8") as f:
+        m = re.search(r"the paper's (\d+) jobs: ([\d.]+) GPU-hours, (\d+):(\d\d) on four H200s", f.read())
+    jobs = plan_jobs(["all"], "paper")
+    est = simulate(jobs, estimate.load_times("NVIDIA H200")[0], 4)
+    assert int(m.group(1)) == len(jobs) and m.group(2) == f"{est.gpu_s / 3600:.2f}"
+    assert int(m.group(3)) * 60 + int(m.group(4)) == round(est.wall_s / 60)
+
+
 @pytest.mark.parametrize("kw, says", [
     (dict(figures="fig9"), "unknown figure"),
     (dict(shard="3/2"), "--shard '3/2' must be K/N"),
@@ -129,7 +140,7 @@ def test_an_out_folder_of_another_plan_or_of_something_else_is_refused(tmp_path)
 def test_a_dry_run_checks_the_ycb_models_as_the_run_does(tmp_path, monkeypatch) -> None:
     """`--dry-run` of Fig. 5 without $BULBJAX_YCB_DIR is the real run's one-line error (it planned
     Fig. 5's hours with no models), before anything is written; with the folder it plans."""
-    from bulbjax.assets.ycb import YCB_DIR_ENV
+    from bulbjax.assets.ycb import YCB_DIR_ENV, YCB_INFO
 
     monkeypatch.delenv(YCB_DIR_ENV, raising=False)
     out = tmp_path / "plan"
@@ -137,9 +148,16 @@ def test_a_dry_run_checks_the_ycb_models_as_the_run_does(tmp_path, monkeypatch) 
         reproduce("fig5", "tiny", str(out), dry_run=True, log=lambda s: None)
     assert str(caught.value) == (f"Fig. 5 (fig5-rearrange-ycb) reads the YCB models from ${YCB_DIR_ENV}, "
                                  "which is not set: set it to the YCB google_16k folder, or leave Fig. 5 "
-                                 "out (--figures fig2,fig3,fig4)")
+                                 "out (--figures fig2,fig3,fig4,fp32)")
     assert not out.exists()
-    monkeypatch.setenv(YCB_DIR_ENV, str(tmp_path))
+    models = tmp_path / "ycb"
+    models.mkdir()
+    monkeypatch.setenv(YCB_DIR_ENV, str(models))  # a folder without the models: refused too
+    with pytest.raises(ValueError, match=r"lacks 13 of its 13 models \(first: 002_master_chef_can/google_16k"):
+        reproduce("fig5", "tiny", str(out), dry_run=True, log=lambda s: None)
+    for name in YCB_INFO:
+        (models / name / "google_16k").mkdir(parents=True)
+        (models / name / "google_16k" / "textured.obj").write_text("v 0 0 0\n")
     said: list[str] = []
     reproduce("fig5", "tiny", str(out), dry_run=True, log=said.append)
     assert "fig5-rearrange-ycb/seed0" in said[0] and not out.exists()
@@ -189,6 +207,22 @@ def test_a_failing_job_is_retried_once_and_holds_up_nothing(tmp_path) -> None:
         assert "unknown learners" in rec["errors"][0]
     text = "\n".join(said)
     assert "FAILED fig2-cartpole/seed0" in text and "trying it once more" in text and "giving up on it" in text
+
+
+def test_a_job_that_cannot_start_in_the_time_left_is_said_and_the_command_ends(tmp_path) -> None:
+    """--max-minutes shorter than a job's start-up and a minute: the job is not started, the log
+    says why, and the command ends at once (it sat idle to the deadline, saying nothing)."""
+    job = Job("fig2-cartpole/seed0", "fig2", "run", "fig2-cartpole", 0, 1, "runs/fig2-cartpole/seed0",
+              flags=("--small",))
+    said: list[str] = []
+    times, _ = estimate.load_times("cpu")
+    t0 = time.monotonic()
+    q = Queue(str(tmp_path), [job], [job], [Slot("cpu0", None)], times, deadline=t0 + 30, progress_every=1e9,
+              log=said.append, poll_s=0.2)
+    summary = q.run()
+    assert time.monotonic() - t0 < 10 and summary["unfinished"] == [job.id]
+    assert summary["jobs"][job.id]["attempts"] == 0
+    assert any(x.startswith("fig2-cartpole/seed0 not started: ") and "--max-minutes" in x for x in said), said
 
 
 def _kill_when(pattern: str, ready, timeout: float = 900.0) -> bool:

@@ -56,7 +56,7 @@ def test_the_campaigns_jobs_are_unchanged_and_its_folder_continues(tmp_path, mon
     "all", each the same, and a folder holding it continues as "all" with the 6 fp32 jobs added
     (new), each host's shard of its jobs unchanged; a saved plan of a former "all" whose jobs differ,
     or of other figures, is still refused."""
-    from bulbjax.assets.ycb import YCB_DIR_ENV
+    from bulbjax.assets.ycb import OBJ_FILE, YCB_DIR_ENV, YCB_INFO
 
     with open(CAMPAIGN) as f:
         committed = json.load(f)
@@ -78,7 +78,10 @@ def test_the_campaigns_jobs_are_unchanged_and_its_folder_continues(tmp_path, mon
     out = tmp_path / "campaign"
     out.mkdir()
     (out / plan.PLAN_FILE).write_text(json.dumps(saved))
-    monkeypatch.setenv(YCB_DIR_ENV, str(tmp_path))
+    for name in YCB_INFO:  # the models' files where the dry run looks for them
+        os.makedirs(os.path.dirname(os.path.join(tmp_path, "ycb", name, OBJ_FILE)))
+        open(os.path.join(tmp_path, "ycb", name, OBJ_FILE), "w").close()
+    monkeypatch.setenv(YCB_DIR_ENV, str(tmp_path / "ycb"))
     said: list[str] = []
     s = reproduce("all", "paper", str(out), dry_run=True, log=said.append)
     assert s["jobs_planned"] == len(old) + 6

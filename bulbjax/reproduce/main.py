@@ -102,14 +102,19 @@ def slots_of(gpus: int | None, per_slot: int = 1, jobs_per_gpu: int = 1,
 
 
 def _check_ycb(jobs: Sequence[Job]) -> None:
+    """Fig. 5's models where its runs will read them (`$BULBJAX_YCB_DIR/<name>/google_16k/
+    textured.obj` for every YCB object), or the one-line error those runs would end with."""
     if any("ycb" in j.preset for j in jobs):
-        from bulbjax.assets.ycb import YCB_DIR_ENV
+        from bulbjax.assets.ycb import OBJ_FILE, YCB_DIR_ENV, YCB_INFO
 
         d = os.environ.get(YCB_DIR_ENV)
-        if not d or not os.path.isdir(d):
+        missing = [n for n in YCB_INFO if not os.path.isfile(os.path.join(d, n, OBJ_FILE))] if d else []
+        if not d or not os.path.isdir(d) or missing:
+            why = ("is not set" if not d else f"names no folder ({d})" if not os.path.isdir(d) else
+                   f"({d}) lacks {len(missing)} of its {len(YCB_INFO)} models (first: {missing[0]}/{OBJ_FILE})")
             raise ValueError(f"Fig. 5 (fig5-rearrange-ycb) reads the YCB models from ${YCB_DIR_ENV}, which "
-                             f"{'is not set' if not d else f'names no folder ({d})'}: set it to the YCB "
-                             "google_16k folder, or leave Fig. 5 out (--figures fig2,fig3,fig4)")
+                             f"{why}: set it to the YCB google_16k folder, or leave Fig. 5 out "
+                             "(--figures fig2,fig3,fig4,fp32)")
 
 
 def _open_out(out: str, record: dict, overwrite: bool, dry_run: bool) -> list[str]:

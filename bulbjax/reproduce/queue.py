@@ -78,6 +78,7 @@ class Track:
     epoch_s: float | None = None  # measured seconds per epoch of its last attempt
     startup_s: float | None = None  # measured seconds from its start to its first epoch
     errors: list[str] = field(default_factory=list)
+    too_late: bool = False  # not started: the time left (--max-minutes) was below its start-up + 60 s
 
     def record(self) -> dict:
         out = {k: getattr(self, k) for k in ("status", "attempts", "busy_s", "epoch_s", "startup_s", "errors")}
@@ -150,7 +151,7 @@ class Queue:
         """Start nothing more; ask every running job to checkpoint and stop."""
         self.stopping = why
         self.log(f"{why}: stopping the running jobs at the end of their epoch (they checkpoint; "
-                 "the same command continues them)" + (" - SIGINT again to kill them now" if "SIG" in why else ""))
+                 "the same command continues them)" + (" - SIGINT again to kill them now" if why == "SIGINT" else ""))
         for t in self.tracks.values():
             if t.proc is not None and t.proc.poll() is None:
                 t.proc.send_signal(signal.SIGTERM)
@@ -164,25 +165,35 @@ class Queue:
     def _startable(self) -> list[Track]:
         if self.stopping:
             return []
-        return [t for t in self.tracks.values() if t.status == "queued" and self._ready(t)]
+        return [t for t in self.tracks.values() if t.status == "queued" and not t.too_late and self._ready(t)]
 
     def _start_ready(self) -> bool:
         busy = {t.slot.name for t in self.tracks.values() if t.status == "running" and t.slot}
         free = [s for s in self.slots if s.name not in busy]
         started = False
         for slot in free:
-            ready = self._startable()
-            if not ready:
+            t = self._next_in_time()
+            if t is None:
                 break
-            t = ready[0]
-            if self.deadline is not None:
-                left = self.deadline - time.monotonic()
-                # it would stop before its first epochs
-                if left < timing_of(t.job, self.times).startup_warm_s + 60:
-                    continue
             self._launch(t, slot)
             started = True
         return started
+
+    def _next_in_time(self) -> Track | None:
+        """The next job to start, passing over (and saying so, once) those that would stop before
+        their first epochs in the time --max-minutes leaves; the time left only shrinks, so they
+        stay unstarted and the command ends when nothing else runs."""
+        for t in self._startable():
+            if self.deadline is not None:
+                left = self.deadline - time.monotonic()
+                need = timing_of(t.job, self.times).startup_warm_s + 60
+                if left < need:
+                    t.too_late = True
+                    self.log(f"{t.job.id} not started: {left:.0f} s left of --max-minutes, less than its "
+                             f"start-up (~{need - 60:.0f} s) and a minute of epochs")
+                    continue
+            return t
+        return None
 
     def _launch(self, t: Track, slot: Slot) -> None:
         job = t.job
