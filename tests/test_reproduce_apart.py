@@ -83,7 +83,7 @@ def test_learners_apart_are_timed_by_their_rows_and_count_two_gpus(tmp_path, mon
     assert results.job_times(str(out))["j"]["busy_s"] == pytest.approx(600.0)
     # the page's stretch line counts the GPUs and the slots they make
     line = results._summary_line({**rec, "gpus": 2, "measured_wall_s": 600.0})
-    assert line.startswith("This stretch: 2 NVIDIA H200 GPUs, 1 slot(s) of two")
+    assert line.startswith("The last stretch (ended x UTC): 2 NVIDIA H200 GPUs, 1 slot(s) of two"), line
 
 
 def test_epoch_times_reads_an_apart_stretch_into_its_apart_row(tmp_path) -> None:

@@ -222,3 +222,22 @@ def test_campaign_gather_commits_an_allocation_as_the_readme_says(tmp_path) -> N
     assert cg.campaign_gather(out, [host], log=said.append) == []
     assert {n: os.path.getsize(os.path.join(d, n)) for d, _, ns in os.walk(out) for n in ns} == before
     assert "job(s) taken" in said[-1] and "MB as committed" in said[-1]
+
+
+def test_the_page_says_where_each_job_ran(tmp_path) -> None:
+    """A gathered page's job table says, per job, the day, slot and shard of the stretch that ran
+    it last, and its stretch line names the last stretch's shard and end (a newcomer's gathered
+    page said "This stretch" of one host's run, and no host or shard per job)."""
+    from bulbjax.reproduce import results
+
+    out = str(tmp_path / "out")
+    os.makedirs(out)
+    for k, (job, slot) in enumerate([("a", "cpu0"), ("b", "cpu0")], start=1):
+        rec = {"device_kind": "cpu", "shard": [k, 2], "finished_utc": f"2026-11-3{k - 1}T0{k}:05:00+00:00",
+               "busy_s": 60.0, "jobs": {job: {"attempts": 1, "busy_s": 60.0, "slot": slot}}}
+        with open(os.path.join(out, f"summary_{k}.json"), "w") as f:
+            json.dump(rec, f)
+    ran = results.job_times(out)
+    assert ran["a"]["ran"] == "2026-11-30, cpu0, shard 1/2" and ran["b"]["ran"] == "2026-11-31, cpu0, shard 2/2"
+    line = results._summary_line({**rec, "gpus": 1, "measured_wall_s": 60.0})
+    assert line.startswith("The last stretch (shard 2/2, ended 2026-11-31 02:05 UTC): 1 cpu slot(s)"), line

@@ -96,21 +96,23 @@ def write(out: str, summary: dict[str, Any] | None = None, out_name: str | None 
     plan, jobs = plan_of(out)
     name = out_name or out
     lines = [f"# The paper's figures, reproduced ({plan['scale']} scale)", "",
-             f"Made by `bulbjax reproduce --figures {','.join(plan['figures'])} --scale {plan['scale']}"
-             + "".join(f" --add-learner {a}" for a in plan.get("add_learners", [])) + f" --out {name}`; "
-             f"redrawn by `bulbjax report {name}`. Errors are "
+             f"The plan of `bulbjax reproduce --figures {','.join(plan['figures'])} --scale {plan['scale']}"
+             + "".join(f" --add-learner {a}" for a in plan.get("add_learners", [])) + f" --out {name}` "
+             "(its jobs run on one host, or a share at a time with `--shard` or `--jobs` and brought "
+             f"together with `--gather`: the column ran); redrawn by `bulbjax report {name}`. Errors are "
              "normalised MAEs (1 = the constant predictor's level on π_rand); verdicts use paired 90% "
              "bands over seeds (docs/probes.md).", ""]
     if summary:
         lines += [_summary_line(summary), ""]
     ran = job_times(out)
-    lines += ["| job | figure | epochs done | state | GPU time | start-up | s / epoch | wall: estimated / measured |",
-              "|---|---|---|---|---|---|---|---|"]
+    lines += ["| job | figure | epochs done | state | ran | GPU time | start-up | s / epoch | "
+              "wall: estimated / measured (+: estimate over) |", "|---|---|---|---|---|---|---|---|---|"]
     for j in jobs:
         done, r = J.epochs_done(out, j), ran.get(j.id, {})
         per = f"{r['epoch_s']:.3f}" if r.get("epoch_s") else "-"
         lines.append(f"| {j.id} | {j.figure} | {done} / {j.epochs} | "
-                     f"{'done' if J.is_done(out, j) else 'unfinished'} | "
+                     f"{'done' if J.is_done(out, j) else 'unfinished' if done else 'not started'} | "
+                     f"{r.get('ran', '-')} | "
                      f"{hms(r['busy_s']) if r.get('busy_s') else '-'} | "
                      f"{hms(r['startup_s']) if r.get('startup_s') else '-'} | {per} | {_against(r)} |")
     stretches = summaries(out)
@@ -253,12 +255,21 @@ def _summary_line(s: dict[str, Any]) -> str:
     where = (f"{gpus} {s.get('device_kind')} GPUs, {gpus // 2} slot(s) of two (each job's learners on "
              "the second)" if s.get("learners_apart") and isinstance(gpus, int)
              else f"{gpus} {s.get('device_kind')} slot(s)")
-    return (f"This stretch: {where}"
+    return (f"The last stretch{_stretch_name(s)}: {where}"
             + (f" ({shared} jobs side by side on each)" if shared > 1 else "")
             + (" under an MPS daemon" if s.get("mps") else "") + ", "
             f"{hms(s.get('measured_wall_s', 0))} "
             f"wall (estimated {hms(est) if est is not None else '-'}), utilisation "
             f"{(s.get('utilisation') or 0):.0%}, {s.get('gpu_hours', 0):.2f} {hours_unit(s.get('device_kind', ''))}.")
+
+
+def _stretch_name(s: dict[str, Any]) -> str:
+    """" (shard K/N, ended 2026-11-30 04:52 UTC)" of a stretch's summary, what it has of these."""
+    shard = s.get("shard")
+    said = [f"shard {shard[0]}/{shard[1]}"] if shard else []
+    if s.get("finished_utc"):
+        said.append(f"ended {s['finished_utc'][:16].replace('T', ' ')} UTC")
+    return f" ({', '.join(said)})" if said else ""
 
 
 def gpus_held(learners_apart: bool, device_kind: str, jobs_per_gpu: int = 1) -> float:
@@ -294,7 +305,8 @@ def _against(r: dict[str, Any]) -> str:
 
 def job_times(out: str) -> dict[str, dict[str, Any]]:
     """Each job's measured GPU time (`busy_s`, summed over the stretches that ran it, times the
-    GPUs it held: `gpu_share`), its wall time on its slot
+    GPUs it held: `gpu_share`), where its last stretch ran it (`ran`: the day, the slot, the
+    shard), its wall time on its slot
     (`wall_s`) and what the plans estimated for it (`estimated_s`, None unless every stretch that
     ran it kept one), its last start-up (`startup_s`) and seconds per epoch (`epoch_s`), from
     every stretch's summary."""
@@ -311,6 +323,9 @@ def job_times(out: str) -> dict[str, dict[str, Any]]:
             for k in ("startup_s", "epoch_s"):
                 if r.get(k):
                     t[k] = r[k]
+            when = s.get("finished_utc", "")[:10] or "?"
+            t["ran"] = f"{when}, {r.get('slot') or '?'}" + (f", shard {s['shard'][0]}/{s['shard'][1]}"
+                                                             if s.get("shard") else "")
     return times
 
 
