@@ -241,3 +241,18 @@ def test_the_page_says_where_each_job_ran(tmp_path) -> None:
     assert ran["a"]["ran"] == "2026-11-30, cpu0, shard 1/2" and ran["b"]["ran"] == "2026-11-31, cpu0, shard 2/2"
     line = results._summary_line({**rec, "gpus": 1, "measured_wall_s": 60.0})
     assert line.startswith("The last stretch (shard 2/2, ended 2026-11-31 02:05 UTC): 1 cpu slot(s)"), line
+
+
+def test_a_folder_started_from_a_host_s_copy_takes_its_summaries_once(tmp_path) -> None:
+    """The first round of docs/reproduce.md's SLURM rounds: OUT starts as a copy of host 0's folder
+    and then gathers host 0 and host 1; host 0's stretch summary, which OUT holds under its own
+    name, is not copied again (it was, and the page counted its GPU time twice)."""
+    out = _before_second(str(tmp_path / "out"))
+    host = tmp_path / "host"
+    shutil.copytree(out, host)
+    rec = {"finished_utc": "2026-12-01T05:06:07+00:00", "jobs": {}, "busy_s": 1.0}
+    (host / "summary_shard1of2.json").write_text(json.dumps(rec))
+    shutil.copy(host / "summary_shard1of2.json", os.path.join(out, "summary_shard1of2.json"))
+    before = sorted(os.listdir(out))
+    gather(out, [str(host)], log=lambda _: None)
+    assert sorted(os.listdir(out)) == before

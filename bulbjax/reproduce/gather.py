@@ -140,25 +140,31 @@ def _copy_job(src: str, out: str, job: Any) -> None:
 def _copy_summaries(src: str, out: str) -> list[str]:
     """Each stretch summary of `src` not already in `out`, as `summary_<finished UTC>.json` (the
     name a stretch that selected its jobs writes, from its end rather than its start, so the
-    summaries of hosts that started at once do not collide); the names written."""
+    summaries of hosts that started at once do not collide); the names written. A summary that
+    `out` holds under any name (a folder started from a copy of `src`, then gathered from it) is
+    not written twice: the page sums the GPU time of every summary."""
+    def summaries_in(folder: str) -> list[str]:
+        return sorted(n for n in os.listdir(folder) if n.startswith("summary") and n.endswith(".json"))
+
+    held = set()
+    for name in summaries_in(out):
+        with open(os.path.join(out, name)) as f:
+            held.add(f.read())
     written = []
-    for name in sorted(os.listdir(src)):
-        if not (name.startswith("summary") and name.endswith(".json")):
-            continue
+    for name in summaries_in(src):
         with open(os.path.join(src, name)) as f:
             text = f.read()
+        if text in held:
+            continue
         finished = json.loads(text).get("finished_utc", "")
         stamp = finished[:19].replace("-", "").replace(":", "")
         base = f"summary_{stamp}Z" if stamp else name[:-len(".json")]
         dest, k = f"{base}.json", 1
         while os.path.exists(os.path.join(out, dest)):
-            with open(os.path.join(out, dest)) as f:
-                if f.read() == text:
-                    break
             k += 1
             dest = f"{base}_{k}.json"
-        else:
-            with open(os.path.join(out, dest), "w") as f:
-                f.write(text)
-            written.append(dest)
+        with open(os.path.join(out, dest), "w") as f:
+            f.write(text)
+        held.add(text)
+        written.append(dest)
     return written
