@@ -54,10 +54,10 @@ def cmd_report(args: argparse.Namespace) -> int:
     from bulbjax import report
 
     plans = [d for d in args.run_dirs if os.path.exists(os.path.join(d, "plan.json"))]
-    if len(args.run_dirs) > 1 and plans:  # e.g. the folders of a plan's shards, brought back from their hosts
-        raise ValueError(f"{plans[0]} is the folder of a `bulbjax reproduce` plan: bring plan folders "
-                         f"together with `bulbjax reproduce --out DIR --gather {','.join(args.run_dirs)}`, "
-                         "which writes DIR/results.md")
+    if len(args.run_dirs) > 1 and plans:  # e.g. the folders of a plan's shards, brought back
+        raise ValueError(f"{plans[0]} is the folder of a `bulbjax reproduce` plan: bring plan "
+                         "folders together with `bulbjax reproduce --out DIR --gather "
+                         f"{','.join(args.run_dirs)}`, which writes DIR/results.md")
     if args.compare_rl:
         out = args.out or os.path.dirname(os.path.normpath(args.run_dirs[0])) or "."
         tab = report.rl_compare(args.run_dirs, out)

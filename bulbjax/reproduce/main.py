@@ -297,6 +297,9 @@ def _select(out: str, all_jobs: list[Job], host: Host, share: tuple[int, int] | 
         k, n = share
         where = shard_of(all_jobs, {j.id: job_cost(j, host.times) for j in all_jobs}, n)
         mine = [j for j in all_jobs if where[j.id] == k - 1]
+        if not mine:
+            log(f"shard {k}/{n} has no jobs: the plan's {len(all_jobs)} job(s) make fewer than {n} shares "
+                "(an array of fewer tasks covers it)")
     if named is not None:
         mine = [j for j in mine if j in named]
     lost = [] if overwrite else [j for j in mine if not J.is_done(out, j) and j.after

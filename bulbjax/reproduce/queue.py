@@ -116,8 +116,10 @@ class Queue:
         """Run until nothing is left to start or run; returns the summary (`summary`)."""
         old = {s: signal.signal(s, self._signal) for s in (signal.SIGINT, signal.SIGTERM)}
         last_progress = -1e9
+        said_last = False  # the loop's last pass printed the progress: the end does not print it again
         try:
             while True:
+                said_last = False
                 changed = self._reap()
                 if self.deadline is not None and time.monotonic() > self.deadline and not self.stopping:
                     self._stop("the time given (--max-minutes) is up")
@@ -128,14 +130,15 @@ class Queue:
                 if changed or now - last_progress >= self.progress_every:
                     self.progress()
                     self._write_status()
-                    last_progress = now
+                    last_progress, said_last = now, True
                 if not running and not self._startable():
                     break
                 time.sleep(self.poll_s)
         finally:
             for s, h in old.items():
                 signal.signal(s, h)
-        self.progress()
+        if not said_last:
+            self.progress()
         self._write_status()
         return self.summary()
 
