@@ -78,6 +78,23 @@ def test_the_queue_notes_a_job_at_its_first_epoch_once(tmp_path, cache) -> None:
     assert seen == [job.id] and t.startup_s is not None
 
 
+def test_the_queue_s_time_left_is_the_plan_s_with_the_programs_cached(tmp_path, cache) -> None:
+    """The progress line's time left takes the warm start-ups the plan took (a newcomer's plan
+    said 0:01:16 warm and its progress line 0:02:16 just after, the cold start-up)."""
+    job = Job("fig2-cartpole/seed0", "fig2", "run", "fig2-cartpole", 0, 3, "runs/fig2-cartpole/seed0")
+    times = estimate.load_times("cpu")[0]
+    lines: dict[bool, str] = {}
+    for warm in (False, True):
+        said: list[str] = []
+        q = Queue(str(tmp_path), [job], [job], [Slot("cpu0", None)], times, log=said.append,
+                  warm=frozenset({"fig2-cartpole"} if warm else ()))
+        q.progress()
+        lines[warm] = said[-1]
+    t = times["fig2-cartpole"]
+    assert f"about {estimate.hms(t.startup_cold_s + 3 * t.epoch_s)} left" in lines[False]
+    assert f"about {estimate.hms(t.startup_warm_s + 3 * t.epoch_s)} left" in lines[True], lines
+
+
 def test_a_cache_that_cannot_be_written_warns_and_stops_nothing(tmp_path, monkeypatch) -> None:
     blocked = tmp_path / "file"
     blocked.write_text("not a folder")

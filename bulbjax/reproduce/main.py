@@ -211,7 +211,7 @@ def reproduce(figures: str | Sequence[str] = "all", scale: str = "paper", out: s
     q = Queue(out, mine, all_jobs, host.slots, host.times,
               time.monotonic() + 60 * max_minutes if max_minutes else None, progress_every, _learners_of(names),
               log, status, run_flags=("--overlap", "apart") if learners_apart else (),
-              on_first_epoch=lambda j: compile_cache.mark_warm(host.cache_kind, timing_key(j)))
+              on_first_epoch=lambda j: compile_cache.mark_warm(host.cache_kind, timing_key(j)), warm=host.warm)
     with daemon or contextlib.nullcontext():
         ran = q.run()
     return _finish(out, ran, est, host, summary, summary_name, log)

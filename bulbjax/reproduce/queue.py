@@ -23,7 +23,7 @@ from dataclasses import dataclass, field
 from typing import Callable, Sequence
 
 from bulbjax.reproduce import jobs as J
-from bulbjax.reproduce.estimate import Timing, hms, queue_order, simulate, timing_of
+from bulbjax.reproduce.estimate import Timing, hms, queue_order, simulate, timing_key, timing_of
 from bulbjax.reproduce.plan import Job
 
 ATTEMPTS = 2  # a failed job is retried once
@@ -90,13 +90,14 @@ class Queue:
     """Runs `jobs` (in `queue_order`) on `slots`. `out`: the plan's folder. `times`: the epoch and
     start-up estimates. `deadline`: a `time.monotonic()` after which no job starts and running
     ones are asked to stop (None: none). `learners_of`: each job's learners (Fig. 4's columns).
-    `on_first_epoch`: called with a run job once its first epoch is written (its programs compiled)."""
+    `on_first_epoch`: called with a run job once its first epoch is written (its programs compiled).
+    `warm`: the timing keys whose programs the compile cache held at the start (the estimate's)."""
 
     def __init__(self, out: str, jobs: Sequence[Job], all_jobs: Sequence[Job], slots: Sequence[Slot],
                  times: dict[str, Timing], deadline: float | None = None, progress_every: float = 30.0,
                  learners_of: Callable[[Job], Sequence[str]] = lambda j: (), log: Callable[[str], None] = print,
                  status_file: str = "status.json", poll_s: float = 1.0, run_flags: Sequence[str] = (),
-                 on_first_epoch: Callable[[Job], None] = lambda j: None):
+                 on_first_epoch: Callable[[Job], None] = lambda j: None, warm: frozenset[str] = frozenset()):
         self.out, self.slots, self.times, self.deadline = out, list(slots), times, deadline
         self.by_id = {j.id: j for j in all_jobs}
         self.tracks = {j.id: Track(j) for j in queue_order(jobs, times)}
@@ -105,6 +106,7 @@ class Queue:
         self.poll_s = poll_s
         self.run_flags = tuple(run_flags)  # `J.command`'s: how a fresh run job runs on its slot
         self.on_first_epoch = on_first_epoch  # a run job's first epoch written (its programs compiled)
+        self.warm = set(warm)  # and the keys of the jobs that compiled here since: the time left says so
         self.stopping: str | None = None
         self.t0 = time.monotonic()
         for t in self.tracks.values():
@@ -261,6 +263,7 @@ class Queue:
                 if n > t.epochs_at_start:
                     t.first_epoch_at, t.epochs_at_first = now, n
                     t.startup_s = now - t.started
+                    self.warm.add(timing_key(t.job))
                     self.on_first_epoch(t.job)
 
     # ------------------------------------------------------------------ what it says
@@ -277,7 +280,7 @@ class Queue:
         left = [t.job for t in self.tracks.values() if t.status in ("running", "queued")]
         done_ep = {t.job.id: J.epochs_written(self.out, t.job) if t.status == "running" else J.epochs_done(self.out, t.job)
                    for t in self.tracks.values() if t.status in ("running", "queued")}
-        eta = simulate(left, self.times, len(self.slots), done_ep).wall_s if left else 0.0
+        eta = simulate(left, self.times, len(self.slots), done_ep, warm=self.warm).wall_s if left else 0.0
         busy = counts["running"]
         head = (f"[{hms(time.monotonic() - self.t0)}] {counts['done']} done, {counts['running']} running, "
                 f"{counts['queued']} queued" + (f", {counts['stopped']} stopped" if counts["stopped"] else "")
