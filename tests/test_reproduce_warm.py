@@ -81,7 +81,8 @@ def test_the_queue_notes_a_job_at_its_first_epoch_once(tmp_path, cache) -> None:
 def test_the_queue_s_time_left_is_the_plan_s_with_the_programs_cached(tmp_path, cache) -> None:
     """The progress line's time left takes the warm start-ups the plan took (a newcomer's plan
     said 0:01:16 warm and its progress line 0:02:16 just after, the cold start-up)."""
-    job = Job("fig2-cartpole/seed0", "fig2", "run", "fig2-cartpole", 0, 3, "runs/fig2-cartpole/seed0")
+    job = Job("fig2-cartpole/seed0", "fig2", "run", "fig2-cartpole", 0, 3,
+              "runs/fig2-cartpole/seed0")
     times = estimate.load_times("cpu")[0]
     lines: dict[bool, str] = {}
     for warm in (False, True):
