@@ -43,7 +43,6 @@ def test_a_host_held_for_minutes_picks_what_it_can_finish() -> None:
         plan.parse_jobs("a/seed7", jobs)
 
 
-
 def test_a_job_that_cannot_start_in_the_time_left_is_said_and_the_command_ends(tmp_path) -> None:
     """--max-minutes shorter than a job's start-up and a minute: the job is not started, the log
     says why, and the command ends at once (it sat idle to the deadline, saying nothing)."""
@@ -59,7 +58,6 @@ def test_a_job_that_cannot_start_in_the_time_left_is_said_and_the_command_ends(t
     assert summary["jobs"][job.id]["attempts"] == 0
     assert any(x.startswith("fig2-cartpole/seed0 not started: ") and "--max-minutes" in x for x in said), said
     assert len([x for x in said if x.startswith("[0:")]) == 1, said  # the last progress line once, not twice
-
 
 
 def test_a_shard_with_no_jobs_says_so(tmp_path) -> None:

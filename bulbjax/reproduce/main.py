@@ -105,10 +105,17 @@ def _check_ycb(jobs: Sequence[Job]) -> None:
     """Fig. 5's models where its runs will read them (`$BULBJAX_YCB_DIR/<name>/google_16k/
     textured.obj` for every YCB object), or the one-line error those runs would end with."""
     if any("ycb" in j.preset for j in jobs):
-        from bulbjax.assets.ycb import OBJ_FILE, YCB_DIR_ENV, YCB_INFO
+        from bulbjax.assets.ycb import OBJ_FILE, YCB_DIR_ENV, YCB_INFO, ycb_object_files
+
+        def lacks(name: str) -> bool:
+            try:
+                ycb_object_files(name, d)  # where the runs look, as they look
+                return False
+            except FileNotFoundError:
+                return True
 
         d = os.environ.get(YCB_DIR_ENV)
-        missing = [n for n in YCB_INFO if not os.path.isfile(os.path.join(d, n, OBJ_FILE))] if d else []
+        missing = [n for n in YCB_INFO if lacks(n)] if d and os.path.isdir(d) else []
         if not d or not os.path.isdir(d) or missing:
             why = ("is not set" if not d else f"names no folder ({d})" if not os.path.isdir(d) else
                    f"({d}) lacks {len(missing)} of its {len(YCB_INFO)} models (first: {missing[0]}/{OBJ_FILE})")
