@@ -224,6 +224,10 @@ def main(argv: Sequence[str] | None = None) -> int:
                         "learners on a GPU of their own beside them (two GPUs a process). The "
                         "same numbers; a checkpoint resumes in its own mode; not with PPO on a "
                         "latent (default: none)")
+    r.add_argument("--apart-env-learners", default=None, metavar="NAMES",
+                   help="with --overlap apart, the learners updated on the environment's GPU "
+                        "beside PPO, on copies of their buffers there: auto (pred, evening the "
+                        "two GPUs' shares; default), none, or names joined by commas")
     r.add_argument("--small", action="store_true", help="CPU-sized settings (not the paper's)")
     r.add_argument("--bf16", action="store_true", help="bf16 compute in the learners (GPU)")
     r.add_argument("--rnn-unroll", type=int, default=None, metavar="N",

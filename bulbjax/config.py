@@ -135,6 +135,13 @@ class ExperimentConfig:
     # (`RunState.pending`), so a checkpoint resumes only in the mode that wrote it. Fused
     # programs only; not with PPO on a learner's latent.
     overlap: str = "none"
+    # With overlap "apart": the learners whose updates run on the environment's device, beside its
+    # PPO work, on copies of their buffers kept there (`apart.Apart`), so that the two devices'
+    # shares of an epoch are even: "auto" (pred where the run has it and three units besides:
+    # PPO's ~0.7 s and pred's ~0.17 s against the other learners' ~0.85 s of a locomotion epoch on
+    # an H200), "none", or learner names joined by commas (a VAE group, `update_groups`, whole).
+    # The same numbers either way.
+    apart_env_learners: str = "auto"
     # Probe-protocol variants (`PROBE_VARIANTS`) computed in the same run beside the present
     # probe, which they leave unchanged (docs/probes.md, "Variants of the protocol"): "common"
     # (every learner's probe fit on the same pairs: a fixed draw of random-policy steps kept from
@@ -206,6 +213,10 @@ class ExperimentConfig:
                              "read the learners' updates and cannot run beside them: use --overlap none")
         if self.overlap != "none" and self.programs != "fused":
             raise ValueError(f"--overlap {self.overlap} lays out the fused epoch program: use --programs fused")
+        env_side = self.apart_env_learners.split(",")
+        if env_side not in (["auto"], ["none"]) and not set(env_side) <= set(self.learners):
+            raise ValueError(f"--apart-env-learners {self.apart_env_learners!r}: give auto, none or "
+                             f"learners of this run joined by commas ({', '.join(self.learners)})")
         bad = [v for v in self.probe_variants if v not in PROBE_VARIANTS]
         if bad or len(set(self.probe_variants)) != len(self.probe_variants):
             raise ValueError(f"probe_variants must be distinct names of {', '.join(PROBE_VARIANTS)} "
@@ -311,7 +322,7 @@ IDENTITY = ("seed", "probe_every")  # RunOptions fields a resume must keep
 
 # ExperimentConfig fields that say how a run computes, not what (each documents "the same numbers
 # either way, up to floating-point reassociation"); the learners' own are LEARNER_FORM_FIELDS.
-FORM_FIELDS = ("graph_mode", "learner_seed_loop", "shared_updates", "programs", "overlap")
+FORM_FIELDS = ("graph_mode", "learner_seed_loop", "shared_updates", "programs", "overlap", "apart_env_learners")
 
 
 def computed_config(c: ExperimentConfig) -> dict[str, Any]:

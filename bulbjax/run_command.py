@@ -23,6 +23,7 @@ def _settings(args: argparse.Namespace) -> dict:
              ("sequence_length", "sequence_length"), ("learners", "learners"),
              ("version", "version"), ("rl_input", "rl_input"), ("rl_frames", "rl_frames"),
              ("seed_loop", "learner_seed_loop"), ("programs", "programs"), ("overlap", "overlap"),
+             ("apart_env_learners", "apart_env_learners"),
              ("ppo_updates", "ppo_updates_per_epoch"), ("resolution", "resolution"),
              ("graph_mode", "graph_mode"), ("probe_variants", "probe_variants"))
     overrides = {field: getattr(args, flag) for flag, field in flags

@@ -48,10 +48,14 @@ SCRIPT = textwrap.dedent("""
             out.append(jax.device_get(m))
         where = {f: sorted({d.id for leaf in jax.tree.leaves(getattr(rs, f)) for d in leaf.devices()})
                  for f in ("ppo", "train_env", "learners", "buffers", "windows", "pending")}
+        where.update({f"learners.{n}": sorted({d.id for leaf in jax.tree.leaves(s) for d in leaf.devices()})
+                      for n, s in rs.learners.items()})
         return exp, out, jax.device_get(rs.learners), where
 
     _, plain, plain_learners, plain_where = run(cfg, devs[:1])
     exp, apart, apart_learners, where = run(dataclasses.replace(cfg, overlap="apart"), devs)
+    # pred updated on the environment's device, on copies of its window buffer kept there
+    _, near, near_learners, near_where = run(dataclasses.replace(cfg, overlap="apart", apart_env_learners="pred"), devs)
 
     def diff(a, b):
         return max((float(np.max(np.abs(np.asarray(x, np.float64) - np.asarray(y, np.float64)))) if np.size(x) else 0.0)
@@ -60,6 +64,9 @@ SCRIPT = textwrap.dedent("""
     res = {"structure": [jax.tree.structure(a) == jax.tree.structure(p) for a, p in zip(apart, plain)],
            "metrics": [diff(a, p) for a, p in zip(apart, plain)],
            "learners": diff(apart_learners, plain_learners), "where": where, "plain_where": plain_where,
+           "near_structure": [jax.tree.structure(a) == jax.tree.structure(p) for a, p in zip(near, plain)],
+           "near_metrics": [diff(a, p) for a, p in zip(near, plain)],
+           "near_learners": diff(near_learners, plain_learners), "near_where": near_where,
            "nan_probes": [bool(np.all(np.isnan(m["probes"]["vae"]["curr"]["mae"]))) if "probes" in m else None
                           for m in apart]}
     print("RESULT " + json.dumps(res))
@@ -83,19 +90,27 @@ def test_the_learners_apart_give_the_plain_epochs(tmp_path):
     assert res["where"]["learners"] == res["where"]["buffers"] == res["where"]["windows"] == [learner_dev], res["where"]
     assert res["where"]["pending"] == [learner_dev]
     assert res["plain_where"]["learners"] == [env_dev]  # the plain run: one device for all
+    # pred on the environment's side (--apart-env-learners pred): the same numbers, pred's state there
+    assert all(res["near_structure"]), res
+    assert max(res["near_metrics"]) <= 1e-4 and res["near_learners"] <= 1e-5, res
+    near = res["near_where"]
+    assert near["learners.pred"] == [env_dev] and near["learners.vae"] == [learner_dev], near
+    assert near["windows"] == near["buffers"] == [learner_dev], near  # the copies are not in the state
 
 
 @pytest.mark.slow
 def test_a_run_with_the_learners_apart_resumes(tmp_path):
-    """`bulbjax run --overlap apart` as a user runs it (two devices shown to JAX on the CPU): it
-    says where the learners are, checkpoints the state of both devices, resumes from it and
-    writes every epoch's records once; with one device it is one line that says what to do."""
+    """`bulbjax run --overlap apart` as a user runs it (two devices shown to JAX on the CPU; pred
+    on the environment's device): it says where the learners are, checkpoints the state of both
+    devices, resumes from it (pred's buffer copied there again) and writes every epoch's records
+    once; with one device it is one line that says what to do."""
     env = dict(os.environ, XLA_FLAGS="--xla_force_host_platform_device_count=2", JAX_PLATFORMS="cpu",
                BULBJAX_COMPILE_CACHE="off")
     out = str(tmp_path / "run")
     base = [sys.executable, "-m", "bulbjax", "run"]
     first = subprocess.run([*base, "--env", "CartPole", "--learners", "vae,pred", "--seeds", "1", "--epochs", "2",
-                            "--small", "--overlap", "apart", "--probe-every", "1", "--out", out],
+                            "--small", "--overlap", "apart", "--apart-env-learners", "pred", "--probe-every", "1",
+                            "--out", out],
                            cwd=ROOT, env=env, capture_output=True, text=True, timeout=1200)
     assert first.returncode == 0, first.stderr[-3000:]
     assert "1 for the learners (--overlap apart)" in first.stdout
@@ -111,3 +126,21 @@ def test_a_run_with_the_learners_apart_resumes(tmp_path):
                              capture_output=True, text=True, timeout=600)
     assert refused.returncode == 2
     assert refused.stderr.strip().splitlines()[-1].startswith("bulbjax: error: --overlap apart puts the learners")
+
+
+def test_which_learners_run_on_the_environments_device():
+    """`apart_env_learners`: auto takes pred where it is a unit of its own beside three others
+    (a locomotion preset's), a VAE group moves whole or not at all, and a name the run does not
+    have is one line that says what to give."""
+    from bulbjax.config import ExperimentConfig
+    from bulbjax.epoch.apart import near_units
+
+    fig2 = [("vae", "vae_rpl", "beta_vae"), ("svae",), ("pred",), ("dsa",)]
+    assert near_units(fig2, "auto") == [("pred",)]
+    assert near_units([("vae",), ("pred",)], "auto") == [] and near_units(fig2, "none") == []
+    assert near_units(fig2, "svae,pred") == [("svae",), ("pred",)]
+    assert near_units(fig2, "vae,vae_rpl,beta_vae") == [fig2[0]]
+    with pytest.raises(ValueError, match="vae, vae_rpl, beta_vae share one update program"):
+        near_units(fig2, "vae")
+    with pytest.raises(ValueError, match="give auto, none or learners of this run"):
+        ExperimentConfig(env="CartPole", learners=("vae", "pred"), apart_env_learners="dsa")

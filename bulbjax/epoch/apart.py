@@ -22,6 +22,13 @@ phase of a locomotion epoch (0.66 s of 1.8 s on an H200) keeps the GPU busy only
 devices an epoch should take about the longer side (docs/performance.md, "The locomotion epoch").
 "env" and "learn" are dispatched from two threads: a program with MJX-Warp holds the thread that
 runs it until its last kernel is launched (`groups._side_by_side`).
+
+The learners of `ExperimentConfig.apart_env_learners` ("near": pred by default) are updated in
+"env", before its environment work, on copies of their buffers kept on the environment's device
+(inserted there from the same batch and keys as in "finish": the same contents), so that the two
+devices' shares even out (an H200: PPO ~0.7 s, the learners ~1.0 s of a locomotion epoch). Their
+states lie on the environment's device; "finish" probes them from a copy moved over. The copies
+are not in the run state: they are made again from the buffers after a resume.
 """
 
 from __future__ import annotations
@@ -34,6 +41,7 @@ import jax.numpy as jnp
 from jax.sharding import SingleDeviceSharding
 
 from bulbjax.epoch import probe_variants as pv
+from bulbjax.epoch.seeds import buffer_key
 from bulbjax.epoch.state import EnvBatch, RunState
 
 # the parts of the run state on the learners' device; the rest lie on the environment's
@@ -52,8 +60,18 @@ class Apart:
         self.learner_device = learner_device
         self.on_env = SingleDeviceSharding(self.env_device)
         self.on_learners = SingleDeviceSharding(learner_device)
+        units = exp.team.units()
+        self.near = near_units(units, exp.config.apart_env_learners)
+        self.far = [u for u in units if u not in self.near]
+        self.near_names = [n for u in self.near for n in u]
+        team = exp.team
+        # the buffers the near learners read, copied on the environment's device (frames, windows)
+        self.mirror_keys = tuple(sorted({buffer_key(team.retention[n]) for n in self.near_names
+                                         if team.sequential[n] == seq}) for seq in (False, True))
+        self._mirror: tuple[dict, dict] | None = None
+        self._mirror_of: Any = None  # the learners' buffer leaf the copies equal
         # donated: what a program replaces (the environment's state; the buffers inserted into)
-        self.jits = {"env": jit(self._env_side, donate_argnums=(0, 1, 2, 3, 4, 5), out_shardings=self.on_env),
+        self.jits = {"env": jit(self._env_side, donate_argnums=(0, 1, 2, 3, 4, 5, 10), out_shardings=self.on_env),
                      "learn": jit(self._learn_side, out_shardings=self.on_learners),
                      "finish": jit(self._finish, donate_argnums=(1, 2), out_shardings=self.on_learners)}
 
@@ -61,8 +79,14 @@ class Apart:
     def state_shardings(self, rs: RunState) -> RunState:
         """The shardings of `rs` (a state or its shapes): `LEARNER_SIDE` on the learners' device,
         the rest on the environment's."""
-        return RunState(**{f: jax.tree.map(lambda _, s=(self.on_learners if f in LEARNER_SIDE else self.on_env): s,
-                                           getattr(rs, f)) for f in RunState.__dataclass_fields__})
+        def side(f: str, tree: Any) -> Any:
+            if f == "learners":
+                return {n: jax.tree.map(lambda _, s=self._learner_side(n): s, t) for n, t in tree.items()}
+            return jax.tree.map(lambda _, s=(self.on_learners if f in LEARNER_SIDE else self.on_env): s, tree)
+        return RunState(**{f: side(f, getattr(rs, f)) for f in RunState.__dataclass_fields__})
+
+    def _learner_side(self, name: str) -> SingleDeviceSharding:
+        return self.on_env if name in self.near_names else self.on_learners
 
     def trace(self) -> dict[str, Any]:
         """The three programs traced on the abstract state, in `PROGRAMS` order."""
@@ -70,21 +94,44 @@ class Apart:
         rs, hist = exp.abstract_state(), exp.abstract_state().policy_history
         k_env, k_learn = (jax.ShapeDtypeStruct((2,), jnp.uint32, sharding=s) for s in (self.on_env, self.on_learners))
         f_env, f_learn = (jax.ShapeDtypeStruct((), jnp.bool_, sharding=s) for s in (self.on_env, self.on_learners))
+        near, far = self._parts(rs.learners)
+        mirror = _on(self._mirror_part(rs.buffers, rs.windows), self.on_env)
         env = self.jits["env"].trace(rs.ppo, rs.train_env, rs.curr_env, rs.rand_env, hist.get("train"),
-                                     hist.get("curr"), k_env, k_env, f_env)
-        learn = self.jits["learn"].trace(rs.learners, rs.buffers, rs.windows, k_learn)
+                                     hist.get("curr"), k_env, k_env, f_env, near, mirror, k_env)
+        learn = self.jits["learn"].trace(far, rs.buffers, rs.windows, k_learn)
         held, batch = (_on(x, self.on_learners) for x in (env.out_info[4], env.out_info[6]))
-        finish = self.jits["finish"].trace(rs.learners, rs.buffers, rs.windows, held, rs.pending, rs.probe_set,
+        finish = self.jits["finish"].trace(_on(rs.learners, self.on_learners), rs.buffers, rs.windows, held, rs.pending, rs.probe_set,
                                            batch, rs.ref_spread, f_learn)
         return {"env": env, "learn": learn, "finish": finish}
 
     # ------------------------------------------------------------------ the programs
+    def _parts(self, learners: dict) -> tuple[dict, dict]:
+        """The near learners' states and the others'."""
+        return ({n: learners[n] for n in self.near_names},
+                {n: s for n, s in learners.items() if n not in self.near_names})
+
+    def _mirror_part(self, buffers: dict, windows: dict) -> tuple[dict, dict]:
+        """The buffers the near learners read (frames, windows)."""
+        return ({k: buffers[k] for k in self.mirror_keys[0]}, {k: windows[k] for k in self.mirror_keys[1]})
+
+    def _units(self, units: list, learners: dict, buffers: dict, windows: dict, key: jax.Array) -> tuple[dict, dict]:
+        """`Learning.learn_unit` of each unit of `units`: their new states and metrics."""
+        out: tuple[dict, dict] = ({}, {})
+        for unit in units:
+            for d, part in zip(out, self.exp.learning.learn_unit(unit, learners, buffers, key, windows)):
+                d.update(part)
+        return out
+
     def _env_side(self, ppo: Any, train_env: Any, curr_env: Any, rand_env: Any, train_hist: Any, curr_hist: Any,
-                  key: jax.Array, k_eval: jax.Array, flag: jax.Array) -> tuple:
-        """Epoch t's held-out rollouts where `flag` (`lax.cond`; blanks and the worlds unmoved
-        else), with PPO's state of epoch t; then epoch t+1's environment work (`key`: its key)
-        up to its frames: (ppo, train_env, curr_env, rand_env, held_out, histories, batch)."""
+                  key: jax.Array, k_eval: jax.Array, flag: jax.Array, near: dict, mirror: tuple[dict, dict],
+                  k_learn: jax.Array) -> tuple:
+        """Epoch t's updates of the near learners on the copies of their buffers (`k_learn`:
+        epoch t's learning key), epoch t's held-out rollouts where `flag` (`lax.cond`; blanks and
+        the worlds unmoved else), with PPO's state of epoch t; then epoch t+1's environment work
+        (`key`: its key) up to its frames, inserted into the copies: (ppo, train_env, curr_env,
+        rand_env, held_out, histories, batch, near, near's metrics, mirror)."""
         exp = self.exp
+        near, near_m = self._units(self.near, near, *mirror, k_learn)
 
         def evaluate(ops: tuple) -> tuple:
             return exp.eval_stage(ppo, ops[0], ops[1], None, ops[2], k_eval)
@@ -94,10 +141,13 @@ class Apart:
         curr_env, rand_env, held_out, curr_hist = jax.lax.cond(
             flag, evaluate, lambda ops: (ops[0], ops[1], jax.tree.map(_blank, shapes[2]), ops[2]), ops)
         ppo, train_env, train_hist, batch = exp.env_data(ppo, train_env, train_hist, None, key)
-        return ppo, train_env, curr_env, rand_env, held_out, {"train": train_hist, "curr": curr_hist}, batch
+        mirror = exp.insert_buffers(*mirror, batch) if self.near else mirror
+        return (ppo, train_env, curr_env, rand_env, held_out, {"train": train_hist, "curr": curr_hist}, batch,
+                near, near_m, mirror)
 
     def _learn_side(self, learners: dict, buffers: dict, windows: dict, k_learn: jax.Array) -> tuple:
-        return self.exp.learning.learn_phase(learners, buffers, k_learn, windows)
+        """Epoch t's updates of the learners other than the near ones."""
+        return self._units(self.far, learners, buffers, windows, k_learn)
 
     def _finish(self, learners: dict, buffers: dict, windows: dict, held_out: Any, pending: dict, probe_set: Any,
                 batch: EnvBatch, ref_spread: jax.Array, flag: jax.Array) -> tuple:
@@ -119,7 +169,9 @@ class Apart:
         """Init's state (all on the environment's device) over both devices, with the first
         epoch's environment work done and inserted (`key`: that epoch's key). `run(name)`: the
         named executable (`PROGRAMS`)."""
-        rs = rs.replace(**{f: jax.device_put(getattr(rs, f), self.on_learners) for f in LEARNER_SIDE if f != "pending"})
+        rs = rs.replace(**{f: jax.device_put(getattr(rs, f), self.on_learners) for f in LEARNER_SIDE
+                           if f not in ("pending", "learners")})
+        rs = rs.replace(learners={n: jax.device_put(s, self._learner_side(n)) for n, s in rs.learners.items()})
         blank = jax.device_put(jax.tree.map(_blank, self.exp.abstract_state().pending), self.on_learners)
         return self._step(rs.replace(pending=blank), key, False, run, learn=False)[0]
 
@@ -133,20 +185,26 @@ class Apart:
               ) -> tuple[RunState, dict[str, Any]]:
         p, hist = rs.pending, dict(rs.policy_history)
         flag_env, flag_learn = (jax.device_put(jnp.asarray(bool(probe)), s) for s in (self.on_env, self.on_learners))
+        near, far = self._parts(rs.learners)
         env_args = (rs.ppo, rs.train_env, rs.curr_env, rs.rand_env, hist.get("train"), hist.get("curr"),
-                    jax.device_put(key, self.on_env), jax.device_put(p["k_eval"], self.on_env), flag_env)
+                    jax.device_put(key, self.on_env), jax.device_put(p["k_eval"], self.on_env), flag_env,
+                    near, self._mirror_for(rs), jax.device_put(p["k_learn"], self.on_env))
         if learn:
             with ThreadPoolExecutor(2, thread_name_prefix="bulbjax-apart") as pool:
-                learned = pool.submit(run("learn"), rs.learners, rs.buffers, rs.windows, p["k_learn"])
+                learned = pool.submit(run("learn"), far, rs.buffers, rs.windows, p["k_learn"])
                 env = pool.submit(run("env"), *env_args)
-                learners, learn_m = learned.result()
-                ppo, train_env, curr_env, rand_env, held, hists, batch = env.result()
-        else:  # prime: the first epoch's environment work alone
-            learners, learn_m = rs.learners, {}
-            ppo, train_env, curr_env, rand_env, held, hists, batch = run("env")(*env_args)
+                far, far_m = learned.result()
+                ppo, train_env, curr_env, rand_env, held, hists, batch, near, near_m, mirror = env.result()
+            learn_m = {n: {**far_m, **near_m}[n] for n in rs.learners}
+        else:  # prime: the first epoch's environment work alone (the near learners' updates dropped)
+            learn_m = {}
+            ppo, train_env, curr_env, rand_env, held, hists, batch, _, _, mirror = run("env")(*env_args)
+        learners = {n: near[n] if n in near else far[n] for n in rs.learners}
         probes, buffers, windows, pending = run("finish")(
-            learners, rs.buffers, rs.windows, jax.device_put(held, self.on_learners), p, rs.probe_set,
-            jax.device_put(batch, self.on_learners), rs.ref_spread, flag_learn)
+            {**learners, **jax.device_put(near, self.on_learners)}, rs.buffers, rs.windows,
+            jax.device_put(held, self.on_learners), p, rs.probe_set, jax.device_put(batch, self.on_learners),
+            rs.ref_spread, flag_learn)
+        self._keep_mirror(mirror, buffers, windows)
         metrics = {**p["metrics"], "learners": learn_m}
         if probe:
             metrics["probes"] = probes
@@ -155,6 +213,37 @@ class Apart:
                        curr_env=curr_env, rand_env=rand_env, policy_history=hist, ref_spread=rs.ref_spread,
                        epoch=rs.epoch + 1 if learn else rs.epoch, probe_set=rs.probe_set, pending=pending)
         return new, metrics
+
+
+    def _mirror_for(self, rs: RunState) -> tuple[dict, dict]:
+        """The copies of the near learners' buffers on the environment's device, equal to
+        `rs`'s: those the last epoch left where they were made beside `rs`'s buffers, else
+        new copies (the first epoch, a resume)."""
+        part = self._mirror_part(rs.buffers, rs.windows)
+        leaves = jax.tree.leaves(part)
+        if self._mirror is None or not leaves or self._mirror_of is not leaves[0]:
+            self._mirror = jax.device_put(part, self.on_env)
+        mirror, self._mirror = self._mirror, None  # donated to "env"
+        return mirror
+
+    def _keep_mirror(self, mirror: tuple[dict, dict], buffers: dict, windows: dict) -> None:
+        leaves = jax.tree.leaves(self._mirror_part(buffers, windows))
+        self._mirror, self._mirror_of = mirror, (leaves[0] if leaves else None)
+
+
+def near_units(units: list[tuple[str, ...]], setting: str) -> list[tuple[str, ...]]:
+    """The units (`Team.units`) of `ExperimentConfig.apart_env_learners` ("auto": pred's where
+    it is alone and three units besides; "none"; names joined by commas, a unit's all or none)."""
+    if setting == "none":
+        return []
+    if setting == "auto":
+        return [("pred",)] if ("pred",) in units and len(units) >= 4 else []
+    names = set(setting.split(","))
+    partial = [u for u in units if names & set(u) and not set(u) <= names]
+    if partial:
+        raise ValueError(f"--apart-env-learners {setting}: {', '.join(partial[0])} share one update program "
+                         "(update_groups): name all of them or none")
+    return [u for u in units if set(u) <= names]
 
 
 def _on(tree: Any, sharding: SingleDeviceSharding) -> Any:

@@ -245,19 +245,16 @@ class Experiment:
         Returns the buffers, the window buffers and what the epoch's learning and probing read
         of it (`RunState.pending`'s form: the epoch's metrics, its keys, the common probe set's
         new part)."""
-        with jax.named_scope("bj.replay"):
-            buffers = self.streams.insert_frames(buffers, batch.frames, batch.states, batch.k_rep)
+        buffers, windows = self.insert_buffers(buffers, windows, batch)
         fresh = None  # the epoch's new steps: the common probe set's current-policy part
         if self.common_probes and not windows:  # frames (as windows of one step)
             frames = batch.frames
             index = jnp.broadcast_to(jnp.arange(frames.shape[1]), frames.shape[:2])
             new = pv.frames_as_windows(frames, batch.states, self.action_dim)
             fresh = pv.fresh_part(new, index, self.N, 1)
-        if windows:
+        if windows and self.common_probes:
             with jax.named_scope("bj.windows"):
-                windows = self.streams.insert_windows(windows, batch.windows, jax.random.fold_in(batch.k_rep, 1))
-                if self.common_probes:
-                    fresh = pv.fresh_part(batch.windows, batch.index, self.N, self.eval_length)
+                fresh = pv.fresh_part(batch.windows, batch.index, self.N, self.eval_length)
         metrics = {
             **batch.rl,
             "ref_spread": jnp.broadcast_to(ref_spread, (self.S,) + ref_spread.shape),
@@ -268,6 +265,17 @@ class Experiment:
         if fresh is not None:
             out["fresh"] = fresh
         return buffers, windows, out
+
+    def insert_buffers(self, buffers: dict, windows: dict, batch: EnvBatch) -> tuple[dict, dict]:
+        """The epoch's frames into `buffers` and its windows into `windows`, any subset of the run's
+        (each buffer's insert reads only the batch and its keys): `insert_data`'s, and that of the
+        copies kept on the environment's device with the learners apart (`apart.Apart`)."""
+        with jax.named_scope("bj.replay"):
+            buffers = self.streams.insert_frames(buffers, batch.frames, batch.states, batch.k_rep)
+        if windows:
+            with jax.named_scope("bj.windows"):
+                windows = self.streams.insert_windows(windows, batch.windows, jax.random.fold_in(batch.k_rep, 1))
+        return buffers, windows
 
     def eval_stage(self, ppo_state: PPOState, curr_env: EnvState, rand_env: EnvState,
                    rl_learners: dict | None, curr_hist: PolicyHistory | None, key: jax.Array) -> tuple:
