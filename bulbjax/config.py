@@ -136,12 +136,13 @@ class ExperimentConfig:
     # programs only; not with PPO on a learner's latent.
     overlap: str = "none"
     # With overlap "apart": the learners whose updates run on the environment's device, beside its
-    # PPO work, on copies of their buffers kept there (`apart.Apart`), so that the two devices'
-    # shares of an epoch are even: "auto" (pred where the run has it and three units besides:
-    # PPO's ~0.7 s and pred's ~0.17 s against the other learners' ~0.85 s of a locomotion epoch on
-    # an H200), "none", or learner names joined by commas (a VAE group, `update_groups`, whole).
-    # The same numbers either way.
-    apart_env_learners: str = "auto"
+    # PPO work, on copies of their buffers kept there (`apart.Apart`), to even the two devices'
+    # shares of an epoch: "none" (the default), "auto" (pred where the run has it and three units
+    # besides: PPO's ~0.7 s and pred's ~0.17 s against the other learners' ~0.85 s of a locomotion
+    # epoch on an H200), or learner names joined by commas (a VAE group, `update_groups`, whole).
+    # The same numbers either way. Not the default: fig2-ant with pred there ran at 1.40 s an
+    # epoch against 1.08 s (two H200s, 2026-11-30; benchmarks/diagnostics/apart_sides.py asks why).
+    apart_env_learners: str = "none"
     # Probe-protocol variants (`PROBE_VARIANTS`) computed in the same run beside the present
     # probe, which they leave unchanged (docs/probes.md, "Variants of the protocol"): "common"
     # (every learner's probe fit on the same pairs: a fixed draw of random-policy steps kept from

@@ -129,12 +129,13 @@ def test_a_run_with_the_learners_apart_resumes(tmp_path):
 
 
 def test_which_learners_run_on_the_environments_device():
-    """`apart_env_learners`: auto takes pred where it is a unit of its own beside three others
-    (a locomotion preset's), a VAE group moves whole or not at all, and a name the run does not
-    have is one line that says what to give."""
+    """`apart_env_learners`: none by default, auto takes pred where it is a unit of its own beside
+    three others (a locomotion preset's), a VAE group moves whole or not at all, and a name the
+    run does not have is one line that says what to give."""
     from bulbjax.config import ExperimentConfig
     from bulbjax.epoch.apart import near_units
 
+    assert ExperimentConfig(env="CartPole").apart_env_learners == "none"
     fig2 = [("vae", "vae_rpl", "beta_vae"), ("svae",), ("pred",), ("dsa",)]
     assert near_units(fig2, "auto") == [("pred",)]
     assert near_units([("vae",), ("pred",)], "auto") == [] and near_units(fig2, "none") == []

@@ -33,6 +33,7 @@ are not in the run state: they are made again from the buffers after a resume.
 
 from __future__ import annotations
 
+import time
 from concurrent.futures import ThreadPoolExecutor
 from typing import Any, Callable
 
@@ -71,6 +72,9 @@ class Apart:
         self._mirror: tuple[dict, dict] | None = None
         self._mirror_of: Any = None  # the learners' buffer leaf the copies equal
         # donated: what a program replaces (the environment's state; the buffers inserted into)
+        # a diagnosis (benchmarks/diagnostics/apart_sides.py): where a dict, each epoch runs its
+        # programs one after another and appends each one's seconds under its name
+        self.timings: dict[str, list[float]] | None = None
         self.jits = {"env": jit(self._env_side, donate_argnums=(0, 1, 2, 3, 4, 5, 10), out_shardings=self.on_env),
                      "learn": jit(self._learn_side, out_shardings=self.on_learners),
                      "finish": jit(self._finish, donate_argnums=(1, 2), out_shardings=self.on_learners)}
@@ -189,7 +193,13 @@ class Apart:
         env_args = (rs.ppo, rs.train_env, rs.curr_env, rs.rand_env, hist.get("train"), hist.get("curr"),
                     jax.device_put(key, self.on_env), jax.device_put(p["k_eval"], self.on_env), flag_env,
                     near, self._mirror_for(rs), jax.device_put(p["k_learn"], self.on_env))
-        if learn:
+        clock = _Clock(self.timings if learn else None)
+        if learn and self.timings is not None:  # a diagnosis: each program alone, timed
+            far, far_m = clock("learn", run("learn"), far, rs.buffers, rs.windows, p["k_learn"])
+            ppo, train_env, curr_env, rand_env, held, hists, batch, near, near_m, mirror = clock("env", run("env"),
+                                                                                               *env_args)
+            learn_m = {n: {**far_m, **near_m}[n] for n in rs.learners}
+        elif learn:
             with ThreadPoolExecutor(2, thread_name_prefix="bulbjax-apart") as pool:
                 learned = pool.submit(run("learn"), far, rs.buffers, rs.windows, p["k_learn"])
                 env = pool.submit(run("env"), *env_args)
@@ -200,7 +210,7 @@ class Apart:
             learn_m = {}
             ppo, train_env, curr_env, rand_env, held, hists, batch, _, _, mirror = run("env")(*env_args)
         learners = {n: near[n] if n in near else far[n] for n in rs.learners}
-        probes, buffers, windows, pending = run("finish")(
+        probes, buffers, windows, pending = clock("finish", run("finish"),
             {**learners, **jax.device_put(near, self.on_learners)}, rs.buffers, rs.windows,
             jax.device_put(held, self.on_learners), p, rs.probe_set, jax.device_put(batch, self.on_learners),
             rs.ref_spread, flag_learn)
@@ -229,6 +239,21 @@ class Apart:
     def _keep_mirror(self, mirror: tuple[dict, dict], buffers: dict, windows: dict) -> None:
         leaves = jax.tree.leaves(self._mirror_part(buffers, windows))
         self._mirror, self._mirror_of = mirror, (leaves[0] if leaves else None)
+
+
+class _Clock:
+    """Calls a program; with `timings` (a dict) waits for it and appends its seconds there."""
+
+    def __init__(self, timings: dict[str, list[float]] | None):
+        self.timings = timings
+
+    def __call__(self, name: str, fn: Callable, *args: Any) -> Any:
+        if self.timings is None:
+            return fn(*args)
+        t0 = time.perf_counter()
+        out = jax.block_until_ready(fn(*args))
+        self.timings.setdefault(name, []).append(time.perf_counter() - t0)
+        return out
 
 
 def near_units(units: list[tuple[str, ...]], setting: str) -> list[tuple[str, ...]]:
