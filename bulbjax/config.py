@@ -140,8 +140,9 @@ class ExperimentConfig:
     # shares of an epoch: "none" (the default), "auto" (pred where the run has it and three units
     # besides: PPO's ~0.7 s and pred's ~0.17 s against the other learners' ~0.85 s of a locomotion
     # epoch on an H200), or learner names joined by commas (a VAE group, `update_groups`, whole).
-    # The same numbers either way. Not the default: fig2-ant with pred there ran at 1.40 s an
-    # epoch against 1.08 s (two H200s, 2026-11-30; benchmarks/diagnostics/apart_sides.py asks why).
+    # The same numbers either way. Not the default until measured: with pred inside the
+    # environment's program fig2-ant ran at 1.40 s an epoch against 1.08 s (two H200s, 2026-11-30);
+    # pred now has a program of its own there (benchmarks/diagnostics/apart_sides.py).
     apart_env_learners: str = "none"
     # Probe-protocol variants (`PROBE_VARIANTS`) computed in the same run beside the present
     # probe, which they leave unchanged (docs/probes.md, "Variants of the protocol"): "common"

@@ -1,9 +1,11 @@
 """Where an epoch with the learners apart (`--overlap apart`) spends its time, per setting of
 `--apart-env-learners`: the epoch as a run calls it (the environment's and the learners' programs
-at once), then each of its three programs alone, one after another (`Apart.timings`). The open
-question: with pred on the environment's device (`auto`), fig2-ant ran at 1.40 s an epoch against
-1.08 s with every learner on the second GPU (two H200s, 2026-11-30), where the sides' sums say
-~0.9 s. Writes `results/apart_sides_<preset>_<device>_<stamp>.json`.
+at once), then each of its programs alone, one after another (`Apart.timings`). The open
+question: with pred updated on the environment's device the sides' sums say ~0.9 s a fig2-ant
+epoch, where every learner on the second GPU takes 1.08 s (two H200s). Updated inside the "env"
+program, pred took 0.48 s there against ~0.22 s among the learners (one seed, 2026-11-30: the
+epoch 1.24 s, `results/apart_sides_fig2-ant_nvidia_h200_20261130_080320.json`); it is now a
+program of its own ("near"). Writes `results/apart_sides_<preset>_<device>_<stamp>.json`.
 
     python benchmarks/diagnostics/apart_sides.py --preset fig2-ant --settings "none;pred" --bf16
 """
@@ -30,11 +32,11 @@ from bulbjax.epoch.programs import Programs  # noqa: E402
 from bulbjax.run.settings import resolve  # noqa: E402
 
 
-def measure(preset: str, setting: str, bf16: bool, small: bool, warm: int, epochs: int) -> dict:
+def measure(preset: str, setting: str, seeds: int, bf16: bool, small: bool, warm: int, epochs: int) -> dict:
     """One setting: start-up, `epochs` epochs at once (not probing) after `warm`, then `epochs`
     with each program alone; medians in seconds."""
     t0 = time.perf_counter()
-    cfg = resolve(preset, overrides={"overlap": "apart", "apart_env_learners": setting},
+    cfg = resolve(preset, overrides={"seeds": seeds, "overlap": "apart", "apart_env_learners": setting},
                   learner={"compute_dtype": "bfloat16"} if bf16 else {}, small=small)
     exp = Experiment(cfg)
     progs = Programs.of(exp, (True, False))
@@ -65,19 +67,20 @@ def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--preset", default="fig2-ant")
     p.add_argument("--settings", default="none;pred", help="--apart-env-learners values, ';' between")
+    p.add_argument("--seeds", type=int, default=1, help="seeds in the process (a reproduce job's: 1)")
     p.add_argument("--bf16", action="store_true")
     p.add_argument("--small", action="store_true", help="CPU sizes")
     p.add_argument("--warm", type=int, default=3)
     p.add_argument("--epochs", type=int, default=10)
     p.add_argument("--out-dir", default=os.path.join(os.path.dirname(HERE), "results"))
     a = p.parse_args()
-    res = {"preset": a.preset, "bf16": a.bf16, "device": jax.devices()[0].device_kind, "runs": []}
+    res = {"seeds": a.seeds, "preset": a.preset, "bf16": a.bf16, "device": jax.devices()[0].device_kind, "runs": []}
     stamp = dt.datetime.now(dt.timezone.utc).strftime("%Y%m%d_%H%M%S")
     kind = res["device"].lower().replace(" ", "_")
     path = os.path.join(a.out_dir, f"apart_sides_{a.preset}_{kind}_{stamp}.json")
     os.makedirs(a.out_dir, exist_ok=True)
     for setting in a.settings.split(";"):
-        res["runs"].append(measure(a.preset, setting, a.bf16, a.small, a.warm, a.epochs))
+        res["runs"].append(measure(a.preset, setting, a.seeds, a.bf16, a.small, a.warm, a.epochs))
         with open(path, "w") as f:
             json.dump(res, f, indent=1)
         gc.collect()

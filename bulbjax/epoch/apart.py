@@ -23,12 +23,14 @@ devices an epoch should take about the longer side (docs/performance.md, "The lo
 "env" and "learn" are dispatched from two threads: a program with MJX-Warp holds the thread that
 runs it until its last kernel is launched (`groups._side_by_side`).
 
-The learners of `ExperimentConfig.apart_env_learners` ("near": pred by default) are updated in
-"env", before its environment work, on copies of their buffers kept on the environment's device
-(inserted there from the same batch and keys as in "finish": the same contents), so that the two
-devices' shares even out (an H200: PPO ~0.7 s, the learners ~1.0 s of a locomotion epoch). Their
-states lie on the environment's device; "finish" probes them from a copy moved over. The copies
-are not in the run state: they are made again from the buffers after a resume.
+The learners of `ExperimentConfig.apart_env_learners` ("near"; none by default) are updated by a
+fourth program, "near", on the environment's device after "env": epoch t's updates on copies of
+their buffers kept there, then epoch t+1's frames into the copies (the batch and keys "finish"
+inserts: the same contents), so that the two devices' shares even out (an H200: PPO ~0.7 s, the
+learners ~1.0 s of a locomotion epoch). Their states lie on the environment's device; "finish"
+probes them from a copy moved over. The copies are not in the run state: they are made again from
+the buffers at the first epoch and after a resume. (Updated inside "env" instead, pred took 0.48 s
+there against 0.22 s among the learners: `results/apart_sides_fig2-ant_*_20261130_080320.json`.)
 """
 
 from __future__ import annotations
@@ -47,11 +49,11 @@ from bulbjax.epoch.state import EnvBatch, RunState
 
 # the parts of the run state on the learners' device; the rest lie on the environment's
 LEARNER_SIDE = ("learners", "buffers", "windows", "ref_spread", "probe_set", "pending")
-PROGRAMS = ("env", "learn", "finish")  # in trace order (`programs.Programs`)
+PROGRAMS = ("env", "learn", "near", "finish")  # in trace order (`programs.Programs`); "near" where some
 
 
 class Apart:
-    """The three programs of an apart epoch of `exp` (an `Experiment` with overlap "apart", whose
+    """The programs of an apart epoch of `exp` (an `Experiment` with overlap "apart", whose
     mesh is its environment's device) and how the run state lies over the two devices. `jit`:
     how each program is jitted (the experiment's compiler options)."""
 
@@ -71,12 +73,13 @@ class Apart:
                                          if team.sequential[n] == seq}) for seq in (False, True))
         self._mirror: tuple[dict, dict] | None = None
         self._mirror_of: Any = None  # the learners' buffer leaf the copies equal
-        # donated: what a program replaces (the environment's state; the buffers inserted into)
         # a diagnosis (benchmarks/diagnostics/apart_sides.py): where a dict, each epoch runs its
         # programs one after another and appends each one's seconds under its name
         self.timings: dict[str, list[float]] | None = None
-        self.jits = {"env": jit(self._env_side, donate_argnums=(0, 1, 2, 3, 4, 5, 10), out_shardings=self.on_env),
+        # donated: what a program replaces (the environment's state; the buffers inserted into)
+        self.jits = {"env": jit(self._env_side, donate_argnums=(0, 1, 2, 3, 4, 5), out_shardings=self.on_env),
                      "learn": jit(self._learn_side, out_shardings=self.on_learners),
+                     "near": jit(self._near_side, donate_argnums=(1,), out_shardings=self.on_env),
                      "finish": jit(self._finish, donate_argnums=(1, 2), out_shardings=self.on_learners)}
 
     # ------------------------------------------------------------------ the state's layout
@@ -93,7 +96,8 @@ class Apart:
         return self.on_env if name in self.near_names else self.on_learners
 
     def trace(self) -> dict[str, Any]:
-        """The three programs traced on the abstract state, in `PROGRAMS` order."""
+        """The programs traced on the abstract state, in `PROGRAMS` order ("near" where the run
+        has near learners)."""
         exp = self.exp
         rs, hist = exp.abstract_state(), exp.abstract_state().policy_history
         k_env, k_learn = (jax.ShapeDtypeStruct((2,), jnp.uint32, sharding=s) for s in (self.on_env, self.on_learners))
@@ -101,12 +105,14 @@ class Apart:
         near, far = self._parts(rs.learners)
         mirror = _on(self._mirror_part(rs.buffers, rs.windows), self.on_env)
         env = self.jits["env"].trace(rs.ppo, rs.train_env, rs.curr_env, rs.rand_env, hist.get("train"),
-                                     hist.get("curr"), k_env, k_env, f_env, near, mirror, k_env)
-        learn = self.jits["learn"].trace(far, rs.buffers, rs.windows, k_learn)
+                                     hist.get("curr"), k_env, k_env, f_env)
+        out = {"env": env, "learn": self.jits["learn"].trace(far, rs.buffers, rs.windows, k_learn)}
+        if self.near:
+            out["near"] = self.jits["near"].trace(near, mirror, k_env, env.out_info[6])
         held, batch = (_on(x, self.on_learners) for x in (env.out_info[4], env.out_info[6]))
-        finish = self.jits["finish"].trace(_on(rs.learners, self.on_learners), rs.buffers, rs.windows, held, rs.pending, rs.probe_set,
-                                           batch, rs.ref_spread, f_learn)
-        return {"env": env, "learn": learn, "finish": finish}
+        out["finish"] = self.jits["finish"].trace(_on(rs.learners, self.on_learners), rs.buffers, rs.windows, held,
+                                                  rs.pending, rs.probe_set, batch, rs.ref_spread, f_learn)
+        return out
 
     # ------------------------------------------------------------------ the programs
     def _parts(self, learners: dict) -> tuple[dict, dict]:
@@ -127,15 +133,11 @@ class Apart:
         return out
 
     def _env_side(self, ppo: Any, train_env: Any, curr_env: Any, rand_env: Any, train_hist: Any, curr_hist: Any,
-                  key: jax.Array, k_eval: jax.Array, flag: jax.Array, near: dict, mirror: tuple[dict, dict],
-                  k_learn: jax.Array) -> tuple:
-        """Epoch t's updates of the near learners on the copies of their buffers (`k_learn`:
-        epoch t's learning key), epoch t's held-out rollouts where `flag` (`lax.cond`; blanks and
-        the worlds unmoved else), with PPO's state of epoch t; then epoch t+1's environment work
-        (`key`: its key) up to its frames, inserted into the copies: (ppo, train_env, curr_env,
-        rand_env, held_out, histories, batch, near, near's metrics, mirror)."""
+                  key: jax.Array, k_eval: jax.Array, flag: jax.Array) -> tuple:
+        """Epoch t's held-out rollouts where `flag` (`lax.cond`; blanks and the worlds unmoved
+        else), with PPO's state of epoch t; then epoch t+1's environment work (`key`: its key)
+        up to its frames: (ppo, train_env, curr_env, rand_env, held_out, histories, batch)."""
         exp = self.exp
-        near, near_m = self._units(self.near, near, *mirror, k_learn)
 
         def evaluate(ops: tuple) -> tuple:
             return exp.eval_stage(ppo, ops[0], ops[1], None, ops[2], k_eval)
@@ -145,9 +147,14 @@ class Apart:
         curr_env, rand_env, held_out, curr_hist = jax.lax.cond(
             flag, evaluate, lambda ops: (ops[0], ops[1], jax.tree.map(_blank, shapes[2]), ops[2]), ops)
         ppo, train_env, train_hist, batch = exp.env_data(ppo, train_env, train_hist, None, key)
-        mirror = exp.insert_buffers(*mirror, batch) if self.near else mirror
-        return (ppo, train_env, curr_env, rand_env, held_out, {"train": train_hist, "curr": curr_hist}, batch,
-                near, near_m, mirror)
+        return ppo, train_env, curr_env, rand_env, held_out, {"train": train_hist, "curr": curr_hist}, batch
+
+    def _near_side(self, near: dict, mirror: tuple[dict, dict], k_learn: jax.Array, batch: EnvBatch) -> tuple:
+        """Epoch t's updates of the near learners on the copies of their buffers (`k_learn`:
+        epoch t's learning key), then epoch t+1's `batch` into the copies: (near, its metrics,
+        the copies)."""
+        near, near_m = self._units(self.near, near, *mirror, k_learn)
+        return near, near_m, self.exp.insert_buffers(*mirror, batch)
 
     def _learn_side(self, learners: dict, buffers: dict, windows: dict, k_learn: jax.Array) -> tuple:
         """Epoch t's updates of the learners other than the near ones."""
@@ -191,29 +198,37 @@ class Apart:
         flag_env, flag_learn = (jax.device_put(jnp.asarray(bool(probe)), s) for s in (self.on_env, self.on_learners))
         near, far = self._parts(rs.learners)
         env_args = (rs.ppo, rs.train_env, rs.curr_env, rs.rand_env, hist.get("train"), hist.get("curr"),
-                    jax.device_put(key, self.on_env), jax.device_put(p["k_eval"], self.on_env), flag_env,
-                    near, self._mirror_for(rs), jax.device_put(p["k_learn"], self.on_env))
+                    jax.device_put(key, self.on_env), jax.device_put(p["k_eval"], self.on_env), flag_env)
         clock = _Clock(self.timings if learn else None)
-        if learn and self.timings is not None:  # a diagnosis: each program alone, timed
-            far, far_m = clock("learn", run("learn"), far, rs.buffers, rs.windows, p["k_learn"])
-            ppo, train_env, curr_env, rand_env, held, hists, batch, near, near_m, mirror = clock("env", run("env"),
-                                                                                               *env_args)
-            learn_m = {n: {**far_m, **near_m}[n] for n in rs.learners}
-        elif learn:
+
+        def env_side() -> tuple:
+            """"env", then "near" on its batch (an epoch, near learners): the environment's device's
+            work, dispatched from one thread: (env's outputs, near's states, their metrics, copies)."""
+            outs = clock("env", run("env"), *env_args)
+            if not (learn and self.near):
+                return outs, near, {}, None
+            k = jax.device_put(p["k_learn"], self.on_env)
+            return outs, *clock("near", run("near"), near, self._mirror_for(rs), k, outs[6])
+
+        if learn and self.timings is None:
             with ThreadPoolExecutor(2, thread_name_prefix="bulbjax-apart") as pool:
                 learned = pool.submit(run("learn"), far, rs.buffers, rs.windows, p["k_learn"])
-                env = pool.submit(run("env"), *env_args)
+                env = pool.submit(env_side)
                 far, far_m = learned.result()
-                ppo, train_env, curr_env, rand_env, held, hists, batch, near, near_m, mirror = env.result()
-            learn_m = {n: {**far_m, **near_m}[n] for n in rs.learners}
-        else:  # prime: the first epoch's environment work alone (the near learners' updates dropped)
-            learn_m = {}
-            ppo, train_env, curr_env, rand_env, held, hists, batch, _, _, mirror = run("env")(*env_args)
+                outs, near, near_m, mirror = env.result()
+        elif learn:  # a diagnosis: each program alone, timed
+            far, far_m = clock("learn", run("learn"), far, rs.buffers, rs.windows, p["k_learn"])
+            outs, near, near_m, mirror = env_side()
+        else:  # prime: the first epoch's environment work alone
+            outs, near, near_m, mirror = env_side()
+            far_m = {}
+        learn_m = {n: {**far_m, **near_m}[n] for n in rs.learners} if learn else {}
+        ppo, train_env, curr_env, rand_env, held, hists, batch = outs
         learners = {n: near[n] if n in near else far[n] for n in rs.learners}
-        probes, buffers, windows, pending = clock("finish", run("finish"),
-            {**learners, **jax.device_put(near, self.on_learners)}, rs.buffers, rs.windows,
-            jax.device_put(held, self.on_learners), p, rs.probe_set, jax.device_put(batch, self.on_learners),
-            rs.ref_spread, flag_learn)
+        probes, buffers, windows, pending = clock(
+            "finish", run("finish"), {**learners, **jax.device_put(near, self.on_learners)}, rs.buffers,
+            rs.windows, jax.device_put(held, self.on_learners), p, rs.probe_set,
+            jax.device_put(batch, self.on_learners), rs.ref_spread, flag_learn)
         self._keep_mirror(mirror, buffers, windows)
         metrics = {**p["metrics"], "learners": learn_m}
         if probe:
@@ -224,7 +239,6 @@ class Apart:
                        epoch=rs.epoch + 1 if learn else rs.epoch, probe_set=rs.probe_set, pending=pending)
         return new, metrics
 
-
     def _mirror_for(self, rs: RunState) -> tuple[dict, dict]:
         """The copies of the near learners' buffers on the environment's device, equal to
         `rs`'s: those the last epoch left where they were made beside `rs`'s buffers, else
@@ -233,12 +247,14 @@ class Apart:
         leaves = jax.tree.leaves(part)
         if self._mirror is None or not leaves or self._mirror_of is not leaves[0]:
             self._mirror = jax.device_put(part, self.on_env)
-        mirror, self._mirror = self._mirror, None  # donated to "env"
+        mirror, self._mirror = self._mirror, None  # donated to "near"
         return mirror
 
-    def _keep_mirror(self, mirror: tuple[dict, dict], buffers: dict, windows: dict) -> None:
+    def _keep_mirror(self, mirror: tuple[dict, dict] | None, buffers: dict, windows: dict) -> None:
+        """Keep "near"'s copies as equal to `buffers` and `windows` (None: no copies; the next
+        epoch makes them)."""
         leaves = jax.tree.leaves(self._mirror_part(buffers, windows))
-        self._mirror, self._mirror_of = mirror, (leaves[0] if leaves else None)
+        self._mirror, self._mirror_of = mirror, (leaves[0] if leaves and mirror is not None else None)
 
 
 class _Clock:
