@@ -54,6 +54,7 @@ def measure(preset: str, setting: str, seeds: int, bf16: bool, small: bool, warm
             times.append(time.perf_counter() - t)
     out["epoch_s"] = statistics.median(times)
     out["epoch_times_s"] = times
+    print(f"{setting}: start-up {out['startup_s']:.1f} s, epoch {out['epoch_s']:.3f} s", flush=True)
     exp.apart.timings = {}
     for i in range(epochs):
         rs, _ = progs.epoch(rs, jax.random.fold_in(key, 100 + i), probe=False)
