@@ -256,6 +256,8 @@ def test_a_tiny_plan_on_two_slots(tmp_path) -> None:
     # each job's estimate kept beside what it took, and the page shows both with the error
     assert all(r["estimated_s"] > 0 for r in summary["jobs"].values()), summary["jobs"]
     assert re.search(r"\| fig2-cartpole/seed1 \|.* \| \d:\d\d:\d\d / \d:\d\d:\d\d \([+-]\d+%\) \|", page), page
+    # CPU worker processes: the page's time is CPU time, not GPU time
+    assert "| CPU time |" in page and "\nCPU time of the stretches" in page and "GPU time" not in page, page
     again = subprocess.run(cmd, capture_output=True, text=True, timeout=300, env=dict(os.environ, JAX_PLATFORMS="cpu"))
     assert again.returncode == 0 and "start " not in again.stdout and "2 done, 0 running" in again.stdout
 

@@ -163,6 +163,11 @@ def test_a_plan_of_fewer_figures_gathers_into_the_whole_and_the_whole_into_it(tm
     said: list[str] = []
     found = gather(out, [str(host)], log=said.append)
     assert found["taken"] == ["fig2-cartpole/seed4"] and "grows" not in "\n".join(said)
+    # the plan's jobs that no folder began are named (a shard never run shows)
+    ids = [j["id"] for j in json.loads((tmp_path / "out" / "plan.json").read_text())["jobs"]]
+    never = [i for i in ids if not os.path.isdir(os.path.join(out, "runs", i))]
+    assert never and found["not_begun"] == never
+    assert f"{len(never)} job(s) of the plan begun nowhere: {never[0]}, " in said[-1]
     assert json.loads((tmp_path / "out" / "plan.json").read_text()) == whole
 
     small = tmp_path / "small"

@@ -27,7 +27,9 @@ def gather(out: str, sources: Sequence[str], log: Callable[[str], None] = print,
            dry_run: bool = False) -> dict[str, list[str]]:
     """Copy into `out` the jobs each of `sources` finished that `out` has not, with their logs and
     the sources' stretch summaries; returns the job ids `taken`, `kept` (finished in `out` and in
-    a source: `out`'s kept) and `unfinished` (begun in a source, not finished there: not taken).
+    a source: `out`'s kept), `unfinished` (begun in a source, not finished there: not taken) and
+    `not_begun` (the plan's jobs with no folder in `out` or any source: named, so that a shard
+    never run is seen).
     `dry_run`: say what would be taken, copy nothing. Raises ValueError, naming the folder, for a
     missing folder, a source without a plan or with another plan, and an `out` that holds
     something other than a plan."""
@@ -63,12 +65,22 @@ def gather(out: str, sources: Sequence[str], log: Callable[[str], None] = print,
     done_here = {j.id for j in jobs if J.is_done(out, j)}
     found["unfinished"] = [i for i in dict.fromkeys(found["unfinished"])
                            if i not in done_here and i not in found["taken"]]
+    begun = done_here | set(found["taken"]) | set(found["unfinished"]) | {
+        j.id for j in jobs if os.path.isdir(J.job_dir(out, j)) and os.listdir(J.job_dir(out, j))}
+    found["not_begun"] = [j.id for j in jobs if j.id not in begun]
     log(f"{'would gather' if dry_run else 'gathered'} into {out}: {len(found['taken'])} job(s) taken"
         + (f" ({', '.join(found['taken'])})" if found["taken"] else "")
         + (f"; {len(found['kept'])} finished here already, kept as they are" if found["kept"] else "")
         + (f"; unfinished in their folders, not taken (they run again): {', '.join(found['unfinished'])}"
-           if found["unfinished"] else ""))
+           if found["unfinished"] else "")
+        + (f"; {len(found['not_begun'])} job(s) of the plan begun nowhere: {_some(found['not_begun'])}"
+           if found["not_begun"] else "; every job of the plan begun"))
     return found
+
+
+def _some(ids: Sequence[str], k: int = 6) -> str:
+    """The first `k` of `ids`, and how many more."""
+    return ", ".join(ids[:k]) + (f" and {len(ids) - k} more" if len(ids) > k else "")
 
 
 def gather_and_report(out: str, sources: Sequence[str], log: Callable[[str], None] = print,

@@ -104,8 +104,10 @@ def write(out: str, summary: dict[str, Any] | None = None, out_name: str | None 
              "bands over seeds (docs/probes.md).", ""]
     if summary:
         lines += [_summary_line(summary), ""]
-    ran = job_times(out)
-    lines += ["| job | figure | epochs done | state | ran | GPU time | start-up | s / epoch | "
+    ran, stretches = job_times(out), summaries(out)
+    # "CPU" where every stretch ran on CPU worker processes (`hours_unit`)
+    unit = "CPU" if stretches and all(hours_unit(s.get("device_kind", "")) == "CPU-hours" for s in stretches) else "GPU"
+    lines += [f"| job | figure | epochs done | state | ran | {unit} time | start-up | s / epoch | "
               "wall: estimated / measured (+: estimate over) |", "|---|---|---|---|---|---|---|---|---|"]
     for j in jobs:
         done, r = J.epochs_done(out, j), ran.get(j.id, {})
@@ -115,10 +117,9 @@ def write(out: str, summary: dict[str, Any] | None = None, out_name: str | None 
                      f"{r.get('ran', '-')} | "
                      f"{hms(r['busy_s']) if r.get('busy_s') else '-'} | "
                      f"{hms(r['startup_s']) if r.get('startup_s') else '-'} | {per} | {_against(r)} |")
-    stretches = summaries(out)
     if stretches:
         busy = sum(s.get("busy_s", 0.0) * gpu_share(s) for s in stretches)
-        lines.append(f"\nGPU time of the stretches that ran jobs ({len(stretches)}, `summary*.json`): "
+        lines.append(f"\n{unit} time of the stretches that ran jobs ({len(stretches)}, `summary*.json`): "
                      f"{busy / 3600:.2f} {hours_unit(stretches[-1].get('device_kind', ''))}.")
     lines.append("")
     by_preset = runs_by_preset(jobs)
