@@ -41,6 +41,13 @@ def test_learners_apart_gives_each_job_a_pair_of_devices(tmp_path, monkeypatch) 
     apart = J.command(str(tmp_path / "o"), job, 1.0, run_flags=("--overlap", "apart"))
     assert " ".join(apart[apart.index("--overlap"):][:2]) == "--overlap apart"
     assert "--overlap" not in J.command(str(tmp_path / "o"), job, 1.0)
+    # the flags a stretch gives its jobs: --apart-env-learners only beside --learners-apart
+    from bulbjax.reproduce.main import apart_flags
+
+    assert apart_flags(True, None) == ("--overlap", "apart") and apart_flags(False, None) == ()
+    assert apart_flags(True, "auto") == ("--overlap", "apart", "--apart-env-learners", "auto")
+    with pytest.raises(ValueError, match="give --learners-apart too"):
+        apart_flags(False, "pred")
 
 
 def test_learners_apart_are_timed_by_their_rows_and_count_two_gpus(tmp_path, monkeypatch) -> None:

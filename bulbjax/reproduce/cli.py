@@ -11,7 +11,8 @@ from bulbjax.reproduce.plan import ENTRIES, SCALES
 # plan the folders hold and runs nothing)
 _RUN_ONLY = (("--figures", "all"), ("--scale", "paper"), ("--gpus", None), ("--shard", None), ("--jobs", None),
              ("--fit-minutes", 0.0), ("--learners-apart", False), ("--jobs-per-gpu", 1), ("--add-learner", None),
-             ("--overwrite", False), ("--max-minutes", 0.0), ("--device-kind", None), ("--mps", False))
+             ("--overwrite", False), ("--max-minutes", 0.0), ("--device-kind", None), ("--mps", False),
+             ("--apart-env-learners", None))
 
 
 def cmd_reproduce(args: argparse.Namespace) -> int:
@@ -30,7 +31,8 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
                         add_learners=args.add_learner or (), dry_run=args.dry_run, overwrite=args.overwrite,
                         max_minutes=args.max_minutes, progress_every=args.progress_every, jobs=args.jobs,
                         fit_minutes=args.fit_minutes, learners_apart=args.learners_apart,
-                        jobs_per_gpu=args.jobs_per_gpu, device_kind=args.device_kind, mps=args.mps)
+                        jobs_per_gpu=args.jobs_per_gpu, device_kind=args.device_kind, mps=args.mps,
+                        apart_env_learners=args.apart_env_learners)
     return 1 if summary.get("failed") else 0
 
 
@@ -70,6 +72,9 @@ def add_parser(sub: argparse._SubParsersAction,
     rp.add_argument("--learners-apart", action="store_true",
                     help="each job on two GPUs, its learners on the second beside its PPO work on the first "
                          "(bulbjax run --overlap apart: the same numbers)")
+    rp.add_argument("--apart-env-learners", default=None, metavar="NAMES",
+                    help="with --learners-apart: the learners updated on each job's first GPU beside its PPO "
+                         "work (bulbjax run --apart-env-learners: auto, none, or names; default: run's, none)")
     rp.add_argument("--jobs-per-gpu", type=int, default=1, metavar="N",
                     help="N jobs side by side on each GPU, each its own process with 0.75/N of its memory: one "
                          "job's launch-bound rollouts beside another's learners (3 on one H200: 1.14x the "

@@ -167,7 +167,7 @@ def reproduce(figures: str | Sequence[str] = "all", scale: str = "paper", out: s
               progress_every: float = 30.0, log: Callable[[str], None] = print,
               jobs: str | Sequence[str] | None = None, fit_minutes: float = 0.0,
               learners_apart: bool = False, jobs_per_gpu: int = 1, device_kind: str | None = None,
-              mps: bool = False) -> dict[str, Any]:
+              mps: bool = False, apart_env_learners: str | None = None) -> dict[str, Any]:
     """Run (or with `dry_run`, only plan) the paper's `figures` at `scale` into `out`; returns the
     summary (also `out/summary.json`). Rerunning with the same arguments continues unfinished
     jobs and skips finished ones. `shard` "K/N": this host's share of a plan split over N hosts.
@@ -182,8 +182,11 @@ def reproduce(figures: str | Sequence[str] = "all", scale: str = "paper", out: s
     once (its slots' busy time / `jobs_per_gpu`). `device_kind` (with `dry_run` only): estimate the
     plan on `gpus` (default 1) GPUs of that kind, not this host's. `mps`: the jobs' processes under
     an MPS control daemon started for the stretch (`mps.MpsDaemon`), so that jobs side by side on
-    a GPU run their kernels at once instead of taking turns."""
+    a GPU run their kernels at once instead of taking turns. `apart_env_learners` (with
+    `learners_apart`): the learners updated on each job's first GPU (`bulbjax run
+    --apart-env-learners`)."""
     figs, share = parse_figures(figures), parse_shard(shard)
+    run_flags = apart_flags(learners_apart, apart_env_learners)
     _check_options(share, overwrite, max_minutes, device_kind, dry_run, fit_minutes)
     names = learner_names(add_learners)
     all_jobs = plan_jobs(figs, scale, list(add_learners))
@@ -206,6 +209,7 @@ def reproduce(figures: str | Sequence[str] = "all", scale: str = "paper", out: s
                                "times_of": host.times_kind, "estimated_wall_s": est.wall_s,
                                "estimated_gpu_s": est.gpu_s * host.gpu_share, "shard": list(share) if share else None,
                                "jobs_planned": len(mine), "learners_apart": learners_apart,
+                               "apart_env_learners": apart_env_learners,
                                "jobs_per_gpu": jobs_per_gpu, "mps": mps}
     if dry_run:
         return summary
@@ -217,7 +221,7 @@ def reproduce(figures: str | Sequence[str] = "all", scale: str = "paper", out: s
     status, summary_name = (_stretch_file(k, share, selected, stamp) for k in ("status", "summary"))
     q = Queue(out, mine, all_jobs, host.slots, host.times,
               time.monotonic() + 60 * max_minutes if max_minutes else None, progress_every, _learners_of(names),
-              log, status, run_flags=("--overlap", "apart") if learners_apart else (),
+              log, status, run_flags=run_flags,
               on_first_epoch=lambda j: compile_cache.mark_warm(host.cache_kind, timing_key(j)), warm=host.warm)
     with daemon or contextlib.nullcontext():
         ran = q.run()
@@ -276,6 +280,17 @@ def _stretch_file(what: str, share: tuple[int, int] | None, selected: bool, stam
     if share and not selected:
         return f"{what}_shard{share[0]}of{share[1]}.json"
     return f"{what}_{stamp}.json" if selected else f"{what}.json"
+
+
+def apart_flags(learners_apart: bool, env_learners: str | None) -> tuple[str, ...]:
+    """The flags every job's `bulbjax run` gets for how its learners lie: `--overlap apart` with
+    `learners_apart`, and `--apart-env-learners` where given (refused without it)."""
+    if env_learners is not None and not learners_apart:
+        raise ValueError("--apart-env-learners names learners for the first GPU of a job's two: give "
+                         "--learners-apart too")
+    if not learners_apart:
+        return ()
+    return ("--overlap", "apart", *(("--apart-env-learners", env_learners) if env_learners else ()))
 
 
 def _check_options(share: tuple[int, int] | None, overwrite: bool, max_minutes: float,
