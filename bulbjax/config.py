@@ -219,6 +219,9 @@ class ExperimentConfig:
         if env_side not in (["auto"], ["none"]) and not set(env_side) <= set(self.learners):
             raise ValueError(f"--apart-env-learners {self.apart_env_learners!r}: give auto, none or "
                              f"learners of this run joined by commas ({', '.join(self.learners)})")
+        if env_side != ["none"] and self.overlap != "apart":
+            raise ValueError(f"--apart-env-learners {self.apart_env_learners} places learners on the environment's "
+                             "device of --overlap apart: give --overlap apart too, or leave it out")
         bad = [v for v in self.probe_variants if v not in PROBE_VARIANTS]
         if bad or len(set(self.probe_variants)) != len(self.probe_variants):
             raise ValueError(f"probe_variants must be distinct names of {', '.join(PROBE_VARIANTS)} "

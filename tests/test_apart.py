@@ -144,4 +144,6 @@ def test_which_learners_run_on_the_environments_device():
     with pytest.raises(ValueError, match="vae, vae_rpl, beta_vae share one update program"):
         near_units(fig2, "vae")
     with pytest.raises(ValueError, match="give auto, none or learners of this run"):
-        ExperimentConfig(env="CartPole", learners=("vae", "pred"), apart_env_learners="dsa")
+        ExperimentConfig(env="CartPole", learners=("vae", "pred"), apart_env_learners="dsa", overlap="apart")
+    with pytest.raises(ValueError, match="give --overlap apart too"):
+        ExperimentConfig(env="CartPole", learners=("vae", "pred"), apart_env_learners="pred")

@@ -49,7 +49,7 @@ from bulbjax.epoch.state import EnvBatch, RunState
 
 # the parts of the run state on the learners' device; the rest lie on the environment's
 LEARNER_SIDE = ("learners", "buffers", "windows", "ref_spread", "probe_set", "pending")
-PROGRAMS = ("env", "learn", "near", "finish")  # in trace order (`programs.Programs`); "near" where some
+PROGRAMS = ("env", "learn", "near", "finish")  # in trace order (`programs.Programs`); "near": with near learners
 
 
 class Apart:
