@@ -135,14 +135,12 @@ class ExperimentConfig:
     # (`RunState.pending`), so a checkpoint resumes only in the mode that wrote it. Fused
     # programs only; not with PPO on a learner's latent.
     overlap: str = "none"
-    # With overlap "apart": the learners whose updates run on the environment's device, beside its
-    # PPO work, on copies of their buffers kept there (`apart.Apart`), to even the two devices'
-    # shares of an epoch: "none" (the default), "auto" (pred where the run has it and three units
-    # besides: PPO's ~0.7 s and pred's ~0.17 s against the other learners' ~0.85 s of a locomotion
-    # epoch on an H200), or learner names joined by commas (a VAE group, `update_groups`, whole).
-    # The same numbers either way. Not the default until measured: with pred inside the
-    # environment's program fig2-ant ran at 1.40 s an epoch against 1.08 s (two H200s, 2026-11-30);
-    # pred now has a program of its own there (benchmarks/diagnostics/apart_sides.py).
+    # With overlap "apart": the learners updated on the environment's device after its PPO work,
+    # on copies of their buffers kept there (`apart.Apart`), to even the devices' shares of an
+    # epoch: "none" (default), "auto" (pred where the run has it beside three units: PPO ~0.7 s +
+    # pred ~0.2 s against the other learners' ~0.85 s, a locomotion epoch on an H200), or names
+    # joined by commas (a VAE group whole). The same numbers either way. Not the default until
+    # measured (inside the environment's program fig2-ant took 1.40 s an epoch against 1.08 s).
     apart_env_learners: str = "none"
     # Probe-protocol variants (`PROBE_VARIANTS`) computed in the same run beside the present
     # probe, which they leave unchanged (docs/probes.md, "Variants of the protocol"): "common"
