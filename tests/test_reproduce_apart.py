@@ -48,6 +48,8 @@ def test_learners_apart_gives_each_job_a_pair_of_devices(tmp_path, monkeypatch) 
     assert apart_flags(True, "auto") == ("--overlap", "apart", "--apart-env-learners", "auto")
     with pytest.raises(ValueError, match="give --learners-apart too"):
         apart_flags(False, "pred")
+    with pytest.raises(ValueError, match="no learner prd; give auto, none"):
+        apart_flags(True, "prd")
 
 
 def test_learners_apart_are_timed_by_their_rows_and_count_two_gpus(tmp_path, monkeypatch) -> None:

@@ -186,9 +186,9 @@ def reproduce(figures: str | Sequence[str] = "all", scale: str = "paper", out: s
     `learners_apart`): the learners updated on each job's first GPU (`bulbjax run
     --apart-env-learners`)."""
     figs, share = parse_figures(figures), parse_shard(shard)
-    run_flags = apart_flags(learners_apart, apart_env_learners)
     _check_options(share, overwrite, max_minutes, device_kind, dry_run, fit_minutes)
     names = learner_names(add_learners)
+    run_flags = apart_flags(learners_apart, apart_env_learners)
     all_jobs = plan_jobs(figs, scale, list(add_learners))
     host = host_of(gpus, learners_apart, jobs_per_gpu, mps, device_kind)
     daemon = MpsDaemon() if mps and not dry_run else None  # no control program: said before planning
@@ -290,6 +290,12 @@ def apart_flags(learners_apart: bool, env_learners: str | None) -> tuple[str, ..
                          "--learners-apart too")
     if not learners_apart:
         return ()
+    from bulbjax.learners import learner_names as known
+
+    unknown = [n for n in (env_learners or "none").split(",") if n not in ("auto", "none", *known())]
+    if unknown:
+        raise ValueError(f"--apart-env-learners {env_learners}: no learner {', '.join(unknown)}; give auto, none "
+                         "or learners' names joined by commas (e.g. pred)")
     return ("--overlap", "apart", *(("--apart-env-learners", env_learners) if env_learners else ()))
 
 
