@@ -52,21 +52,20 @@ def gather(out: str, sources: Sequence[str], log: Callable[[str], None] = print,
                     if job.id not in found["kept"] + found["taken"]:
                         found["kept"].append(job.id)
                     continue
-                if os.path.isdir(J.job_dir(out, job)) and os.listdir(J.job_dir(out, job)):
+                if J.begun(out, job):
                     log(f"{job.id}: {out} held it unfinished (epoch {J.epochs_done(out, job)} of {job.epochs}); "
                         f"replaced by the finished one from {src}")
                 if not dry_run:
                     _copy_job(src, out, job)
                 found["taken"].append(job.id)
-            elif os.path.isdir(J.job_dir(src, job)) and os.listdir(J.job_dir(src, job)):
+            elif J.begun(src, job):
                 found["unfinished"].append(job.id)
         for name in ([] if dry_run else _copy_summaries(src, out)):
             log(f"{src}: stretch summary {name}")
     done_here = {j.id for j in jobs if J.is_done(out, j)}
     found["unfinished"] = [i for i in dict.fromkeys(found["unfinished"])
                            if i not in done_here and i not in found["taken"]]
-    begun = done_here | set(found["taken"]) | set(found["unfinished"]) | {
-        j.id for j in jobs if os.path.isdir(J.job_dir(out, j)) and os.listdir(J.job_dir(out, j))}
+    begun = done_here | set(found["taken"]) | set(found["unfinished"]) | {j.id for j in jobs if J.begun(out, j)}
     found["not_begun"] = [j.id for j in jobs if j.id not in begun]
     log(f"{'would gather' if dry_run else 'gathered'} into {out}: {len(found['taken'])} job(s) taken"
         + (f" ({', '.join(found['taken'])})" if found["taken"] else "")

@@ -20,6 +20,12 @@ def job_dir(out: str, job: Job) -> str:
     return os.path.join(out, job.run_dir)
 
 
+def begun(out: str, job: Job) -> bool:
+    """Whether `job`'s folder under `out` holds anything (a run begun, finished or not)."""
+    d = job_dir(out, job)
+    return os.path.isdir(d) and bool(os.listdir(d))
+
+
 def epochs_done(out: str, job: Job) -> int:
     """Epochs of `job`'s run kept in its newest complete checkpoint (0: none yet); a recon job
     counts its epochs once its figure is drawn."""
