@@ -74,7 +74,7 @@ def add_parser(sub: argparse._SubParsersAction,
                          "(bulbjax run --overlap apart: the same numbers)")
     rp.add_argument("--apart-env-learners", default=None, metavar="NAMES",
                     help="with --learners-apart: the learners updated on each job's first GPU beside its PPO "
-                         "work (bulbjax run --apart-env-learners: auto, none, or names; default: run's, none)")
+                         "work (bulbjax run --apart-env-learners: auto, none, or names; default: auto)")
     rp.add_argument("--jobs-per-gpu", type=int, default=1, metavar="N",
                     help="N jobs side by side on each GPU, each its own process with 0.75/N of its memory: one "
                          "job's launch-bound rollouts beside another's learners (3 on one H200: 1.14x the "
