@@ -1,13 +1,13 @@
 """Where an epoch with the learners apart (`--overlap apart`) spends its time, per setting of
 `--apart-env-learners`: the epoch as a run calls it (the environment's and the learners' programs
-at once), then each of its programs alone, one after another (`Apart.timings`). The open
-question: with pred updated on the environment's device the sides' sums say ~0.9 s a fig2-ant
-epoch, where every learner on the second GPU takes 1.08 s (two H200s). Updated inside the "env"
-program, pred took 0.48 s there against ~0.22 s among the learners (one seed, 2026-11-30: the
-epoch 1.24 s, `results/apart_sides_fig2-ant_nvidia_h200_20261130_080320.json`); it is now a
-program of its own ("near"). Writes `results/apart_sides_<preset>_<device>_<stamp>.json`.
+at once), then each of its programs alone, one after another (`Apart.timings`, every epoch's
+seconds kept). The open question: the environment's program of a fig2-ant epoch costs more over
+the first epochs than later (a `reproduce` job with pred on its GPU: 1.43-1.58 s an epoch to
+epoch ~55, 0.91-0.97 s after), and alone it measured 1.462 s at one seed (epochs 13-23,
+`results/apart_sides_fig2-ant_nvidia_h200_20261130_103743.json`) against 0.717 s at six
+(`..._075238.json`). Writes `results/apart_sides_<preset>_<device>_<stamp>.json`.
 
-    python benchmarks/diagnostics/apart_sides.py --preset fig2-ant --settings "none;pred" --bf16
+    python benchmarks/diagnostics/apart_sides.py --preset fig2-ant --settings pred --bf16 --epochs 150
 """
 
 from __future__ import annotations
@@ -59,6 +59,7 @@ def measure(preset: str, setting: str, seeds: int, bf16: bool, small: bool, warm
     for i in range(epochs):
         rs, _ = progs.epoch(rs, jax.random.fold_in(key, 100 + i), probe=False)
     out["alone_s"] = {k: statistics.median(v) for k, v in exp.apart.timings.items()}
+    out["alone_times_s"] = {k: [round(t, 4) for t in v] for k, v in exp.apart.timings.items()}
     print(f"{setting}: epoch {out['epoch_s']:.3f} s; alone " +
           ", ".join(f"{k} {v:.3f} s" for k, v in out["alone_s"].items()), flush=True)
     return out
