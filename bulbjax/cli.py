@@ -226,9 +226,9 @@ def main(argv: Sequence[str] | None = None) -> int:
                         "latent (default: none)")
     r.add_argument("--apart-env-learners", default=None, metavar="NAMES",
                    help="with --overlap apart, the learners updated on the environment's GPU "
-                        "beside PPO, on copies of their buffers there: none (default), auto "
-                        "(pred, evening the two GPUs' shares: fig2-ant 0.997 s an epoch against "
-                        "1.132 s on two H200s; reproduce's default), or names joined by commas")
+                        "beside PPO, on copies of their buffers there: auto (default: pred, "
+                        "evening the two GPUs' shares: fig2-ant 0.997 s an epoch against 1.132 s "
+                        "on two H200s), none, or names joined by commas")
     r.add_argument("--small", action="store_true", help="CPU-sized settings (not the paper's)")
     r.add_argument("--bf16", action="store_true", help="bf16 compute in the learners (GPU)")
     r.add_argument("--rnn-unroll", type=int, default=None, metavar="N",

@@ -137,11 +137,11 @@ class ExperimentConfig:
     overlap: str = "none"
     # With overlap "apart": the learners updated on the environment's device after its PPO work,
     # on copies of their buffers kept there (`apart.Apart`), to even the devices' shares of an
-    # epoch: "none" (default), "auto" (pred where the run has it beside three units: PPO ~0.7 s +
-    # pred ~0.2 s against the other learners' ~0.85 s, a locomotion epoch on an H200), or names
-    # joined by commas (a VAE group whole). The same numbers either way. Not the default until
-    # measured (inside the environment's program fig2-ant took 1.40 s an epoch against 1.08 s).
-    apart_env_learners: str = "none"
+    # epoch: "auto" (default: pred where the run has it beside three units; a fig2-ant seed on two
+    # H200s 0.997 s an epoch over 1,000 against 1.132 s with "none"), "none", or names joined by
+    # commas (a VAE group whole). The same numbers either way; without overlap "apart", "auto"
+    # moves nothing.
+    apart_env_learners: str = "auto"
     # Probe-protocol variants (`PROBE_VARIANTS`) computed in the same run beside the present
     # probe, which they leave unchanged (docs/probes.md, "Variants of the protocol"): "common"
     # (every learner's probe fit on the same pairs: a fixed draw of random-policy steps kept from
@@ -217,7 +217,7 @@ class ExperimentConfig:
         if env_side not in (["auto"], ["none"]) and not set(env_side) <= set(self.learners):
             raise ValueError(f"--apart-env-learners {self.apart_env_learners!r}: give auto, none or "
                              f"learners of this run joined by commas ({', '.join(self.learners)})")
-        if env_side != ["none"] and self.overlap != "apart":
+        if env_side not in (["auto"], ["none"]) and self.overlap != "apart":
             raise ValueError(f"--apart-env-learners {self.apart_env_learners} places learners on the environment's "
                              "device of --overlap apart: give --overlap apart too, or leave it out")
         bad = [v for v in self.probe_variants if v not in PROBE_VARIANTS]

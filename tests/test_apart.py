@@ -53,7 +53,7 @@ SCRIPT = textwrap.dedent("""
         return exp, out, jax.device_get(rs.learners), where
 
     _, plain, plain_learners, plain_where = run(cfg, devs[:1])
-    exp, apart, apart_learners, where = run(dataclasses.replace(cfg, overlap="apart"), devs)
+    exp, apart, apart_learners, where = run(dataclasses.replace(cfg, overlap="apart", apart_env_learners="none"), devs)
     # pred updated on the environment's device, on copies of its window buffer kept there
     _, near, near_learners, near_where = run(dataclasses.replace(cfg, overlap="apart", apart_env_learners="pred"), devs)
 
@@ -129,13 +129,13 @@ def test_a_run_with_the_learners_apart_resumes(tmp_path):
 
 
 def test_which_learners_run_on_the_environments_device():
-    """`apart_env_learners`: none by default, auto takes pred where it is a unit of its own beside
+    """`apart_env_learners`: auto by default, which takes pred where it is a unit of its own beside
     three others (a locomotion preset's), a VAE group moves whole or not at all, and a name the
     run does not have is one line that says what to give."""
     from bulbjax.config import ExperimentConfig
     from bulbjax.epoch.apart import near_units
 
-    assert ExperimentConfig(env="CartPole").apart_env_learners == "none"
+    assert ExperimentConfig(env="CartPole").apart_env_learners == "auto"  # and refused by nothing
     fig2 = [("vae", "vae_rpl", "beta_vae"), ("svae",), ("pred",), ("dsa",)]
     assert near_units(fig2, "auto") == [("pred",)]
     assert near_units([("vae",), ("pred",)], "auto") == [] and near_units(fig2, "none") == []
