@@ -15,7 +15,8 @@ ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 HELD = ("bulbjax/cli.py", "bulbjax/run_command.py", "bulbjax/env_commands.py", "bulbjax/epoch/rollouts/policy.py",
         "bulbjax/epoch/rollouts/observations.py", "bulbjax/envs/warp_steps.py", "tests/test_warp_steps.py",
         "tests/test_reproduce_device_kind.py", "benchmarks/bench_split.py", "bulbjax/reproduce/mps.py",
-        "tests/test_reproduce_mps.py", "bulbjax/report/merge.py", "tests/test_reproduce_warm.py")
+        "tests/test_reproduce_mps.py", "bulbjax/report/merge.py", "tests/test_reproduce_warm.py",
+        "bulbjax/epoch/apart.py")
 
 
 def long_lines(text: str, limit: int = LIMIT) -> list[str]:

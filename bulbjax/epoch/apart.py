@@ -42,6 +42,7 @@ from typing import Any, Callable
 
 import jax
 import jax.numpy as jnp
+from flax import struct
 from jax.sharding import SingleDeviceSharding
 
 from bulbjax.epoch import probe_variants as pv
@@ -50,7 +51,23 @@ from bulbjax.epoch.state import EnvBatch, RunState
 
 # the parts of the run state on the learners' device; the rest lie on the environment's
 LEARNER_SIDE = ("learners", "buffers", "windows", "ref_spread", "probe_set", "pending")
-PROGRAMS = ("env", "learn", "near", "finish")  # in trace order (`programs.Programs`); "near": with near learners
+# in trace order (`programs.Programs`); "near": with near learners
+PROGRAMS = ("env", "learn", "near", "finish")
+
+
+@struct.dataclass
+class EnvOut:
+    """What the "env" program hands on: PPO's state and the worlds after epoch t+1's environment
+    work, epoch t's held-out rollouts (blanks where it does not probe), the policy histories of the
+    train and current-policy streams, and epoch t+1's frames (`batch`: "near" and "finish" insert
+    them)."""
+    ppo: Any
+    train_env: Any
+    curr_env: Any
+    rand_env: Any
+    held_out: Any
+    histories: dict
+    batch: EnvBatch
 
 
 class Apart:
@@ -78,10 +95,12 @@ class Apart:
         # programs one after another and appends each one's seconds under its name
         self.timings: dict[str, list[float]] | None = None
         # donated: what a program replaces (the environment's state; the buffers inserted into)
-        self.jits = {"env": jit(self._env_side, donate_argnums=(0, 1, 2, 3, 4, 5), out_shardings=self.on_env),
-                     "learn": jit(self._learn_side, out_shardings=self.on_learners),
-                     "near": jit(self._near_side, donate_argnums=(1,), out_shardings=self.on_env),
-                     "finish": jit(self._finish, donate_argnums=(1, 2), out_shardings=self.on_learners)}
+        self.jits = {
+            "env": jit(self._env_side, donate_argnums=(0, 1, 2, 3, 4, 5),
+                       out_shardings=self.on_env),
+            "learn": jit(self._learn_side, out_shardings=self.on_learners),
+            "near": jit(self._near_side, donate_argnums=(1,), out_shardings=self.on_env),
+            "finish": jit(self._finish, donate_argnums=(1, 2), out_shardings=self.on_learners)}
 
     # ------------------------------------------------------------------ the state's layout
     def state_shardings(self, rs: RunState) -> RunState:
@@ -89,8 +108,10 @@ class Apart:
         the rest on the environment's."""
         def side(f: str, tree: Any) -> Any:
             if f == "learners":
-                return {n: jax.tree.map(lambda _, s=self._learner_side(n): s, t) for n, t in tree.items()}
-            return jax.tree.map(lambda _, s=(self.on_learners if f in LEARNER_SIDE else self.on_env): s, tree)
+                return {n: jax.tree.map(lambda _, s=self._learner_side(n): s, t)
+                        for n, t in tree.items()}
+            where = self.on_learners if f in LEARNER_SIDE else self.on_env
+            return jax.tree.map(lambda _: where, tree)
         return RunState(**{f: side(f, getattr(rs, f)) for f in RunState.__dataclass_fields__})
 
     def _learner_side(self, name: str) -> SingleDeviceSharding:
@@ -101,18 +122,21 @@ class Apart:
         has near learners)."""
         exp = self.exp
         rs, hist = exp.abstract_state(), exp.abstract_state().policy_history
-        k_env, k_learn = (jax.ShapeDtypeStruct((2,), jnp.uint32, sharding=s) for s in (self.on_env, self.on_learners))
-        f_env, f_learn = (jax.ShapeDtypeStruct((), jnp.bool_, sharding=s) for s in (self.on_env, self.on_learners))
+        sides = (self.on_env, self.on_learners)
+        k_env, k_learn = (jax.ShapeDtypeStruct((2,), jnp.uint32, sharding=s) for s in sides)
+        f_env, f_learn = (jax.ShapeDtypeStruct((), jnp.bool_, sharding=s) for s in sides)
         near, far = self._parts(rs.learners)
         mirror = _on(self._mirror_part(rs.buffers, rs.windows), self.on_env)
-        env = self.jits["env"].trace(rs.ppo, rs.train_env, rs.curr_env, rs.rand_env, hist.get("train"),
-                                     hist.get("curr"), k_env, k_env, f_env)
+        env = self.jits["env"].trace(rs.ppo, rs.train_env, rs.curr_env, rs.rand_env,
+                                     hist.get("train"), hist.get("curr"), k_env, k_env, f_env)
         out = {"env": env, "learn": self.jits["learn"].trace(far, rs.buffers, rs.windows, k_learn)}
         if self.near:
-            out["near"] = self.jits["near"].trace(near, mirror, k_env, env.out_info[6])
-        held, batch = (_on(x, self.on_learners) for x in (env.out_info[4], env.out_info[6]))
-        out["finish"] = self.jits["finish"].trace(_on(rs.learners, self.on_learners), rs.buffers, rs.windows, held,
-                                                  rs.pending, rs.probe_set, batch, rs.ref_spread, f_learn)
+            out["near"] = self.jits["near"].trace(near, mirror, k_env, env.out_info.batch)
+        held, batch = (_on(x, self.on_learners) for x in (env.out_info.held_out,
+                                                         env.out_info.batch))
+        out["finish"] = self.jits["finish"].trace(
+            _on(rs.learners, self.on_learners), rs.buffers, rs.windows, held, rs.pending,
+            rs.probe_set, batch, rs.ref_spread, f_learn)
         return out
 
     # ------------------------------------------------------------------ the programs
@@ -123,53 +147,64 @@ class Apart:
 
     def _mirror_part(self, buffers: dict, windows: dict) -> tuple[dict, dict]:
         """The buffers the near learners read (frames, windows)."""
-        return ({k: buffers[k] for k in self.mirror_keys[0]}, {k: windows[k] for k in self.mirror_keys[1]})
+        frames, seqs = self.mirror_keys
+        return {k: buffers[k] for k in frames}, {k: windows[k] for k in seqs}
 
-    def _units(self, units: list, learners: dict, buffers: dict, windows: dict, key: jax.Array) -> tuple[dict, dict]:
+    def _units(self, units: list, learners: dict, buffers: dict, windows: dict, key: jax.Array
+               ) -> tuple[dict, dict]:
         """`Learning.learn_unit` of each unit of `units`: their new states and metrics."""
         out: tuple[dict, dict] = ({}, {})
+        learn_unit = self.exp.learning.learn_unit
         for unit in units:
-            for d, part in zip(out, self.exp.learning.learn_unit(unit, learners, buffers, key, windows)):
+            for d, part in zip(out, learn_unit(unit, learners, buffers, key, windows)):
                 d.update(part)
         return out
 
-    def _env_side(self, ppo: Any, train_env: Any, curr_env: Any, rand_env: Any, train_hist: Any, curr_hist: Any,
-                  key: jax.Array, k_eval: jax.Array, flag: jax.Array) -> tuple:
+    def _env_side(self, ppo: Any, train_env: Any, curr_env: Any, rand_env: Any, train_hist: Any,
+                  curr_hist: Any, key: jax.Array, k_eval: jax.Array, flag: jax.Array) -> EnvOut:
         """Epoch t's held-out rollouts where `flag` (`lax.cond`; blanks and the worlds unmoved
         else), with PPO's state of epoch t; then epoch t+1's environment work (`key`: its key)
-        up to its frames: (ppo, train_env, curr_env, rand_env, held_out, histories, batch)."""
+        up to its frames."""
         exp = self.exp
 
         def evaluate(ops: tuple) -> tuple:
             return exp.eval_stage(ppo, ops[0], ops[1], None, ops[2], k_eval)
 
         ops = (curr_env, rand_env, curr_hist)
-        shapes = jax.eval_shape(evaluate, ops)
-        curr_env, rand_env, held_out, curr_hist = jax.lax.cond(
-            flag, evaluate, lambda ops: (ops[0], ops[1], jax.tree.map(_blank, shapes[2]), ops[2]), ops)
-        ppo, train_env, train_hist, batch = exp.env_data(ppo, train_env, train_hist, None, key)
-        return ppo, train_env, curr_env, rand_env, held_out, {"train": train_hist, "curr": curr_hist}, batch
+        shapes = jax.eval_shape(evaluate, ops)[2]
 
-    def _near_side(self, near: dict, mirror: tuple[dict, dict], k_learn: jax.Array, batch: EnvBatch) -> tuple:
+        def skip(ops: tuple) -> tuple:
+            return ops[0], ops[1], jax.tree.map(_blank, shapes), ops[2]
+
+        curr_env, rand_env, held_out, curr_hist = jax.lax.cond(flag, evaluate, skip, ops)
+        ppo, train_env, train_hist, batch = exp.env_data(ppo, train_env, train_hist, None, key)
+        return EnvOut(ppo=ppo, train_env=train_env, curr_env=curr_env, rand_env=rand_env,
+                      held_out=held_out, histories={"train": train_hist, "curr": curr_hist},
+                      batch=batch)
+
+    def _near_side(self, near: dict, mirror: tuple[dict, dict], k_learn: jax.Array, batch: EnvBatch
+                   ) -> tuple:
         """Epoch t's updates of the near learners on the copies of their buffers (`k_learn`:
         epoch t's learning key), then epoch t+1's `batch` into the copies: (near, its metrics,
         the copies)."""
         near, near_m = self._units(self.near, near, *mirror, k_learn)
         return near, near_m, self.exp.insert_buffers(*mirror, batch)
 
-    def _learn_side(self, learners: dict, buffers: dict, windows: dict, k_learn: jax.Array) -> tuple:
+    def _learn_side(self, learners: dict, buffers: dict, windows: dict, k_learn: jax.Array
+                    ) -> tuple:
         """Epoch t's updates of the learners other than the near ones."""
         return self._units(self.far, learners, buffers, windows, k_learn)
 
-    def _finish(self, learners: dict, buffers: dict, windows: dict, held_out: Any, pending: dict, probe_set: Any,
-                batch: EnvBatch, ref_spread: jax.Array, flag: jax.Array) -> tuple:
+    def _finish(self, learners: dict, buffers: dict, windows: dict, held_out: Any, pending: dict,
+                probe_set: Any, batch: EnvBatch, ref_spread: jax.Array, flag: jax.Array) -> tuple:
         """Epoch t's probes where `flag` (blanks else), then epoch t+1's frames and windows into
         the buffers: (probes, buffers, windows, epoch t+1's `pending`)."""
         exp = self.exp
         common = pv.common_set(probe_set, pending.get("fresh")) if exp.common_probes else None
 
         def probes(_: Any) -> Any:
-            return exp.probing.probe_phase(learners, buffers, held_out, pending["k_probe"], windows, common)
+            return exp.probing.probe_phase(learners, buffers, held_out, pending["k_probe"], windows,
+                                           common)
 
         shapes = jax.eval_shape(probes, None)
         out = jax.lax.cond(flag, probes, lambda _: jax.tree.map(_blank, shapes), None)
@@ -183,8 +218,10 @@ class Apart:
         named executable (`PROGRAMS`)."""
         rs = rs.replace(**{f: jax.device_put(getattr(rs, f), self.on_learners) for f in LEARNER_SIDE
                            if f not in ("pending", "learners")})
-        rs = rs.replace(learners={n: jax.device_put(s, self._learner_side(n)) for n, s in rs.learners.items()})
-        blank = jax.device_put(jax.tree.map(_blank, self.exp.abstract_state().pending), self.on_learners)
+        rs = rs.replace(learners={n: jax.device_put(s, self._learner_side(n))
+                                  for n, s in rs.learners.items()})
+        blank = jax.tree.map(_blank, self.exp.abstract_state().pending)
+        blank = jax.device_put(blank, self.on_learners)
         return self._step(rs.replace(pending=blank), key, False, run, learn=False)[0]
 
     def epoch(self, rs: RunState, key: jax.Array, probe: bool, run: Callable[[str], Callable]
@@ -193,23 +230,26 @@ class Apart:
         the state after it and epoch t's metrics (no `probes` where it does not probe)."""
         return self._step(rs, key, probe, run, learn=True)
 
-    def _step(self, rs: RunState, key: jax.Array, probe: bool, run: Callable[[str], Callable], learn: bool
-              ) -> tuple[RunState, dict[str, Any]]:
+    def _step(self, rs: RunState, key: jax.Array, probe: bool, run: Callable[[str], Callable],
+              learn: bool) -> tuple[RunState, dict[str, Any]]:
         p, hist = rs.pending, dict(rs.policy_history)
-        flag_env, flag_learn = (jax.device_put(jnp.asarray(bool(probe)), s) for s in (self.on_env, self.on_learners))
+        flag_env, flag_learn = (jax.device_put(jnp.asarray(bool(probe)), s)
+                                for s in (self.on_env, self.on_learners))
         near, far = self._parts(rs.learners)
-        env_args = (rs.ppo, rs.train_env, rs.curr_env, rs.rand_env, hist.get("train"), hist.get("curr"),
-                    jax.device_put(key, self.on_env), jax.device_put(p["k_eval"], self.on_env), flag_env)
+        env_args = (rs.ppo, rs.train_env, rs.curr_env, rs.rand_env, hist.get("train"),
+                    hist.get("curr"), jax.device_put(key, self.on_env),
+                    jax.device_put(p["k_eval"], self.on_env), flag_env)
         clock = _Clock(self.timings if learn else None)
 
         def env_side() -> tuple:
             """"env", then "near" on its batch (an epoch, near learners): the environment's device's
-            work, dispatched from one thread: (env's outputs, near's states, their metrics, copies)."""
+            work, dispatched from one thread: (env's `EnvOut`, near's states, their metrics, the
+            copies)."""
             outs = clock("env", run("env"), *env_args)
             if not (learn and self.near):
                 return outs, near, {}, None
             k = jax.device_put(p["k_learn"], self.on_env)
-            return outs, *clock("near", run("near"), near, self._mirror_for(rs), k, outs[6])
+            return outs, *clock("near", run("near"), near, self._mirror_for(rs), k, outs.batch)
 
         if learn and self.timings is None:
             with ThreadPoolExecutor(2, thread_name_prefix="bulbjax-apart") as pool:
@@ -224,20 +264,21 @@ class Apart:
             outs, near, near_m, mirror = env_side()
             far_m = {}
         learn_m = {n: {**far_m, **near_m}[n] for n in rs.learners} if learn else {}
-        ppo, train_env, curr_env, rand_env, held, hists, batch = outs
         learners = {n: near[n] if n in near else far[n] for n in rs.learners}
         probes, buffers, windows, pending = clock(
-            "finish", run("finish"), {**learners, **jax.device_put(near, self.on_learners)}, rs.buffers,
-            rs.windows, jax.device_put(held, self.on_learners), p, rs.probe_set,
-            jax.device_put(batch, self.on_learners), rs.ref_spread, flag_learn)
+            "finish", run("finish"), {**learners, **jax.device_put(near, self.on_learners)},
+            rs.buffers, rs.windows, jax.device_put(outs.held_out, self.on_learners), p,
+            rs.probe_set, jax.device_put(outs.batch, self.on_learners), rs.ref_spread, flag_learn)
         self._keep_mirror(mirror, buffers, windows)
         metrics = {**p["metrics"], "learners": learn_m}
         if probe:
             metrics["probes"] = probes
-        hist = {k: v for k, v in hists.items() if v is not None}
-        new = RunState(ppo=ppo, learners=learners, buffers=buffers, windows=windows, train_env=train_env,
-                       curr_env=curr_env, rand_env=rand_env, policy_history=hist, ref_spread=rs.ref_spread,
-                       epoch=rs.epoch + 1 if learn else rs.epoch, probe_set=rs.probe_set, pending=pending)
+        hist = {k: v for k, v in outs.histories.items() if v is not None}
+        new = RunState(ppo=outs.ppo, learners=learners, buffers=buffers, windows=windows,
+                       train_env=outs.train_env, curr_env=outs.curr_env, rand_env=outs.rand_env,
+                       policy_history=hist, ref_spread=rs.ref_spread,
+                       epoch=rs.epoch + 1 if learn else rs.epoch, probe_set=rs.probe_set,
+                       pending=pending)
         return new, metrics
 
     def _mirror_for(self, rs: RunState) -> tuple[dict, dict]:
@@ -255,7 +296,8 @@ class Apart:
         """Keep "near"'s copies as equal to `buffers` and `windows` (None: no copies; the next
         epoch makes them)."""
         leaves = jax.tree.leaves(self._mirror_part(buffers, windows))
-        self._mirror, self._mirror_of = mirror, (leaves[0] if leaves and mirror is not None else None)
+        self._mirror = mirror
+        self._mirror_of = leaves[0] if leaves and mirror is not None else None
 
 
 class _Clock:
@@ -283,7 +325,8 @@ def near_units(units: list[tuple[str, ...]], setting: str) -> list[tuple[str, ..
     names = set(setting.split(","))
     partial = [u for u in units if names & set(u) and not set(u) <= names]
     if partial:
-        raise ValueError(f"--apart-env-learners {setting}: {', '.join(partial[0])} share one update program "
+        raise ValueError(f"--apart-env-learners {setting}: {', '.join(partial[0])} share one "
+                         "update program "
                          "(update_groups): name all of them or none")
     return [u for u in units if set(u) <= names]
 
