@@ -1,7 +1,7 @@
 """Where an epoch with the learners apart (`--overlap apart`) spends its time, per setting of
 `--apart-env-learners`: the epoch as a run calls it (the environment's and the learners' programs
 at once), then each of its programs alone, one after another (`Apart.timings`, every epoch's
-seconds kept). The open question: the environment's program of a fig2-ant epoch costs more over
+seconds kept, beside the train worlds' constraint rows and solver iterations). The open question: the environment's program of a fig2-ant epoch costs more over
 the first epochs than later (a `reproduce` job with pred on its GPU: 1.43-1.58 s an epoch to
 epoch ~55, 0.91-0.97 s after), and alone it measured 1.462 s at one seed (epochs 13-23,
 `results/apart_sides_fig2-ant_nvidia_h200_20261130_103743.json`) against 0.717 s at six
@@ -26,10 +26,20 @@ REPO = os.path.dirname(os.path.dirname(HERE))
 sys.path.insert(0, REPO)
 
 import jax  # noqa: E402
+import numpy as np  # noqa: E402
 
 from bulbjax.epoch.loop import Experiment  # noqa: E402
 from bulbjax.epoch.programs import Programs  # noqa: E402
 from bulbjax.run.settings import resolve  # noqa: E402
+
+
+def physics(data: object) -> dict:
+    """The means over the train worlds of MuJoCo's active constraint rows (`nefc`) and the
+    solver's iterations of the last substep (`solver_niter`), where the data holds them: is the
+    environment's program dearer while its worlds hold more contacts?"""
+    impl = getattr(data, "_impl", None)  # MJX-Warp's own fields (MJX warns on `data.solver_niter`)
+    found = {f: getattr(impl, f, None) for f in ("nefc", "solver_niter")}
+    return {f: round(float(np.mean(jax.device_get(v))), 3) for f, v in found.items() if v is not None}
 
 
 def measure(preset: str, setting: str, seeds: int, bf16: bool, small: bool, warm: int, epochs: int) -> dict:
@@ -56,8 +66,10 @@ def measure(preset: str, setting: str, seeds: int, bf16: bool, small: bool, warm
     out["epoch_times_s"] = times
     print(f"{setting}: start-up {out['startup_s']:.1f} s, epoch {out['epoch_s']:.3f} s", flush=True)
     exp.apart.timings = {}
+    out["physics"] = []  # per alone epoch: the train worlds' constraint rows and solver iterations
     for i in range(epochs):
         rs, _ = progs.epoch(rs, jax.random.fold_in(key, 100 + i), probe=False)
+        out["physics"].append(physics(rs.train_env.data))
     out["alone_s"] = {k: statistics.median(v) for k, v in exp.apart.timings.items()}
     out["alone_times_s"] = {k: [round(t, 4) for t in v] for k, v in exp.apart.timings.items()}
     print(f"{setting}: epoch {out['epoch_s']:.3f} s; alone " +
