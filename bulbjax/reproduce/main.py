@@ -190,8 +190,7 @@ def reproduce(figures: str | Sequence[str] = "all", scale: str = "paper", out: s
     _check_options(share, overwrite, max_minutes, device_kind, dry_run, fit_minutes)
     names = learner_names(add_learners)
     run_flags = apart_flags(learners_apart, apart_env_learners)
-    if learners_apart and apart_env_learners is None:
-        apart_env_learners = "auto"
+    env_side = run_flags[-1] if run_flags else None  # the jobs' --apart-env-learners (auto unless given)
     all_jobs = plan_jobs(figs, scale, list(add_learners))
     host = host_of(gpus, learners_apart, jobs_per_gpu, mps, device_kind)
     daemon = MpsDaemon() if mps and not dry_run else None  # no control program: said before planning
@@ -212,7 +211,7 @@ def reproduce(figures: str | Sequence[str] = "all", scale: str = "paper", out: s
                                "times_of": host.times_kind, "estimated_wall_s": est.wall_s,
                                "estimated_gpu_s": est.gpu_s * host.gpu_share, "shard": list(share) if share else None,
                                "jobs_planned": len(mine), "learners_apart": learners_apart,
-                               "apart_env_learners": apart_env_learners,
+                               "apart_env_learners": env_side,
                                "jobs_per_gpu": jobs_per_gpu, "mps": mps}
     if dry_run:
         return summary
