@@ -1,13 +1,17 @@
 """Where an epoch with the learners apart (`--overlap apart`) spends its time, per setting of
 `--apart-env-learners`: the epoch as a run calls it (the environment's and the learners' programs
 at once), then each of its programs alone, one after another (`Apart.timings`, every epoch's
-seconds kept, beside the train worlds' constraint rows and solver iterations). The open question: the environment's program of a fig2-ant epoch costs more over
-the first epochs than later (a `reproduce` job with pred on its GPU: 1.43-1.58 s an epoch to
-epoch ~55, 0.91-0.97 s after), and alone it measured 1.462 s at one seed (epochs 13-23,
-`results/apart_sides_fig2-ant_nvidia_h200_20261130_103743.json`) against 0.717 s at six
-(`..._075238.json`). Writes `results/apart_sides_<preset>_<device>_<stamp>.json`.
+seconds kept, beside the train worlds' constraint rows and solver iterations (mean, and the
+largest: a batch's captured solver loops until its slowest world converges), and MuJoCo Warp's
+handler calls, CUDA-graph captures and host seconds per epoch). The open question: the
+environment's program of a locomotion epoch costs more over the first ~50 epochs than later
+(`reproduce` jobs with pred on its GPU: fig2-ant 1.43-1.58 s an epoch to epoch ~55, 0.91-0.97 s
+after; fig2-halfcheetah alike). Alone, on Ant at one seed, it took 1.17-1.59 s at epochs 43-50 and
+0.66-0.82 s at 51-82 while the worlds' mean constraint rows and solver iterations did not change
+(`results/apart_sides_fig2-ant_nvidia_h200_20261130_132154.json`); the slowest world's iterations
+and the captures per epoch are what this script now also records. Writes `results/apart_sides_<preset>_<device>_<stamp>.json`.
 
-    python benchmarks/diagnostics/apart_sides.py --preset fig2-ant --settings pred --bf16 --epochs 150
+    python benchmarks/diagnostics/apart_sides.py --preset fig2-ant --settings pred --bf16 --warm 0 --epochs 40
 """
 
 from __future__ import annotations
@@ -24,6 +28,7 @@ import time
 HERE = os.path.dirname(os.path.abspath(__file__))
 REPO = os.path.dirname(os.path.dirname(HERE))
 sys.path.insert(0, REPO)
+sys.path.insert(0, os.path.dirname(HERE))  # benchmarks/: warp_ffi_stats
 
 import jax  # noqa: E402
 import numpy as np  # noqa: E402
@@ -31,15 +36,29 @@ import numpy as np  # noqa: E402
 from bulbjax.epoch.loop import Experiment  # noqa: E402
 from bulbjax.epoch.programs import Programs  # noqa: E402
 from bulbjax.run.settings import resolve  # noqa: E402
+import warp_ffi_stats  # noqa: E402
 
 
 def physics(data: object) -> dict:
-    """The means over the train worlds of MuJoCo's active constraint rows (`nefc`) and the
-    solver's iterations of the last substep (`solver_niter`), where the data holds them: is the
-    environment's program dearer while its worlds hold more contacts?"""
+    """Over the train worlds, at the epoch's last substep: the mean of MuJoCo's active constraint
+    rows (`nefc`) and of the solver's iterations (`solver_niter`), and the largest iteration count
+    (`solver_niter_max`: with `opt.graph_conditional` the captured solver loops until the slowest
+    world of the batch converges, so it, not the mean, sets the cost). Is the environment's program
+    dearer while some world is hard to solve?"""
     impl = getattr(data, "_impl", None)  # MJX-Warp's own fields (MJX warns on `data.solver_niter`)
     found = {f: getattr(impl, f, None) for f in ("nefc", "solver_niter")}
-    return {f: round(float(np.mean(jax.device_get(v))), 3) for f, v in found.items() if v is not None}
+    out = {f: round(float(np.mean(jax.device_get(v))), 3) for f, v in found.items() if v is not None}
+    if found["solver_niter"] is not None:
+        out["solver_niter_max"] = int(np.max(jax.device_get(found["solver_niter"])))
+    return out
+
+
+def _warp_totals(before: dict) -> dict:
+    """MuJoCo Warp's FFI handler calls, CUDA-graph captures and host seconds since `before`: does
+    the environment's program cost more early because Warp captures graphs for buffer addresses it
+    has not seen (each capture records and instantiates hundreds of kernels on the host)?"""
+    total = warp_ffi_stats.delta(warp_ffi_stats.snapshot(), before)["total"]
+    return {"calls": int(total["calls"]), "captures": int(total["captures"]), "host_s": round(total["host_s"], 4)}
 
 
 def measure(preset: str, setting: str, seeds: int, bf16: bool, small: bool, warm: int, epochs: int) -> dict:
@@ -54,10 +73,12 @@ def measure(preset: str, setting: str, seeds: int, bf16: bool, small: bool, warm
     rs = progs.prime(progs.init(key), jax.random.fold_in(key, 1))
     out: dict = {"setting": setting, "near": [list(u) for u in exp.apart.near]}
     times = []
+    out["warp"] = []  # per epoch at once, then per alone epoch: Warp's captures and handler seconds
     for i in range(warm + epochs):
-        t = time.perf_counter()
+        t, snap = time.perf_counter(), warp_ffi_stats.snapshot()
         rs, _ = progs.epoch(rs, jax.random.fold_in(key, 10 + i), probe=False)
         jax.block_until_ready(rs)
+        out["warp"].append(_warp_totals(snap))
         if i == 0:
             out["startup_s"] = time.perf_counter() - t0
         if i >= warm:
@@ -68,8 +89,10 @@ def measure(preset: str, setting: str, seeds: int, bf16: bool, small: bool, warm
     exp.apart.timings = {}
     out["physics"] = []  # per alone epoch: the train worlds' constraint rows and solver iterations
     for i in range(epochs):
+        snap = warp_ffi_stats.snapshot()
         rs, _ = progs.epoch(rs, jax.random.fold_in(key, 100 + i), probe=False)
         out["physics"].append(physics(rs.train_env.data))
+        out["warp"].append(_warp_totals(snap))
     out["alone_s"] = {k: statistics.median(v) for k, v in exp.apart.timings.items()}
     out["alone_times_s"] = {k: [round(t, 4) for t in v] for k, v in exp.apart.timings.items()}
     print(f"{setting}: epoch {out['epoch_s']:.3f} s; alone " +
@@ -88,6 +111,7 @@ def main() -> None:
     p.add_argument("--epochs", type=int, default=10)
     p.add_argument("--out-dir", default=os.path.join(os.path.dirname(HERE), "results"))
     a = p.parse_args()
+    warp_ffi_stats.install()  # before any env is built: Warp binds the handler when it makes a callable
     res = {"seeds": a.seeds, "preset": a.preset, "bf16": a.bf16, "device": jax.devices()[0].device_kind, "runs": []}
     stamp = dt.datetime.now(dt.timezone.utc).strftime("%Y%m%d_%H%M%S")
     kind = res["device"].lower().replace(" ", "_")
