@@ -4,7 +4,7 @@ session to the next:
 
 1. in each folder brought back (a plan folder of `bulbjax reproduce` without its checkpoints), the
    runs it finished that the committed folder lacks get their metrics reduced as the committed
-   runs' are (`reduce_results.py --unprobed minimal --probed-every 100`), written gzipped
+   runs' are (`reduce_results.py --unprobed minimal --probed-every 100 --entries read`), written gzipped
    (`metrics.jsonl.gz`), and lose their own `fig2.png` (the page draws each preset's merged one);
 2. `bulbjax reproduce --out DEST --gather SRC,...` takes them, with the stretches' summaries, and
    writes the results page again (a preset whose seeds are all in is merged and drawn);
@@ -48,11 +48,11 @@ def shrink(run_dir: str, rr=None) -> None:
     rr = rr or _reduce_results()
     plain = os.path.join(run_dir, "metrics.jsonl")
     if os.path.exists(plain):
-        rr.reduce_metrics(plain, unprobed="minimal", probed_every=PROBED_EVERY)
+        rr.reduce_metrics(plain, unprobed="minimal", probed_every=PROBED_EVERY, entries="read")
         rr._replace(plain + ".gz", rr.encode(rr.read_records(plain), gz=True))
         os.remove(plain)
     elif os.path.exists(plain + ".gz"):
-        rr.reduce_metrics(plain + ".gz", unprobed="minimal", probed_every=PROBED_EVERY)
+        rr.reduce_metrics(plain + ".gz", unprobed="minimal", probed_every=PROBED_EVERY, entries="read")
     png = os.path.join(run_dir, "fig2.png")
     if os.path.exists(png):
         os.remove(png)

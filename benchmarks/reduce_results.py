@@ -26,7 +26,11 @@ bytes):
   stays: the reports count epochs and drop epochs missing a seed. `--probed-every N` (runs that
   probed every epoch, ~200 KB a record on the Rearrange scenes) keeps whole only the probed
   records of every Nth epoch and those the tables and findings read (`kept_probed_epochs`),
-  merged reports beside the run included (`merged_read_epochs`).
+  merged reports beside the run included (`merged_read_epochs`). `--entries read` keeps each
+  state entry's errors (`entries`, ~70% of a probed record) only in the probed records the reports
+  read them from (`entry_epochs`: the first, the last 3, in scenes with objects the object
+  findings' early ones); the other probed records keep their group and overall errors, what the
+  curves plot (the campaign's locomotion seeds: ~365 KB to ~140 KB each).
 
 PNGs: quantised to a 256-colour palette (no dithering; Pillow's median cut or fast octree,
 whichever file is smaller), kept only when it stays faithful (mean error per channel at most
@@ -48,7 +52,7 @@ import json
 import math
 import os
 import sys
-from typing import Any, Iterable
+from typing import Any, Iterable, Sequence
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 sys.path.insert(0, ROOT)  # kept_probed_epochs reads bulbjax.report.findings_objects
@@ -56,6 +60,8 @@ DEFAULT_PATHS = ("docs/results", "docs/images")
 SCALARS = ("epoch", "seed", "rl_return", "rl_episodes", "nonfinite_resets", "ppo", "learners", "replay_dropped",
            "probes")
 MINIMAL = ("epoch", "seed", "rl_return", "rl_episodes", "probes")
+PROBE_KEYS = ("probes", "linear_probes")  # and the variants' `probes_*`: what `without_entries` strips
+ENTRIES = ("all", "read")  # `--entries`: which probed records keep their per-entry errors
 
 
 # ---------------------------------------------------------------------------- metrics
@@ -162,21 +168,72 @@ def merged_read_epochs(run_dir: str, every: int) -> set[int]:
     return out
 
 
+def read_epochs(path: str, records: Sequence[dict[str, Any]], every: int) -> set[int]:
+    """The probed epochs of one metrics file that `--probed-every every` keeps whole:
+    `kept_probed_epochs`, and for a run folder's file the epochs merged folders beside it read
+    (`merged_read_epochs`)."""
+    keep = kept_probed_epochs([r["epoch"] for r in records if "epoch" in r and is_probed(r)], every)
+    if os.path.basename(path).startswith("metrics.jsonl"):  # a run folder's: merges may read it
+        keep |= merged_read_epochs(os.path.dirname(path), every)
+    return keep
+
+
+def entry_epochs(path: str, records: Sequence[dict[str, Any]]) -> set[int]:
+    """The probed epochs whose per-entry errors the reports read: the first (the object findings
+    take the objects' names from it), the last 3 (the tables and findings), and in a scene with
+    objects (entries `obj*`) the object findings' early ones; for a run folder's file, also what
+    merged folders beside it read (`merged_read_epochs`, no multiples). `excluded_groups` needs
+    any one record."""
+    from bulbjax.report.findings_objects import early_epochs
+
+    recs = [r for r in records if "epoch" in r and is_probed(r)]
+    epochs = sorted({r["epoch"] for r in recs})
+    if not epochs:
+        return set()
+    keep = {epochs[0]} | set(epochs[-3:])
+    names = {n for r in recs[:1] for k in PROBE_KEYS for st in (r.get(k) or {}).values()
+             for x in st.values() if isinstance(x, dict) for n in x.get("entries", {})}
+    if any(n.startswith("obj") for n in names):
+        keep |= set(early_epochs(epochs))
+    if os.path.basename(path).startswith("metrics.jsonl"):
+        keep |= merged_read_epochs(os.path.dirname(path), sys.maxsize)
+    return keep
+
+
+def without_entries(record: dict[str, Any]) -> dict[str, Any]:
+    """`record` with each probe's per-entry errors (`entries`, under `probes`, `linear_probes` and
+    the variants' `probes_*`) left out; groups, overall and the excluded entries' names stay."""
+    def strip(probes: Any) -> Any:
+        if not isinstance(probes, dict):
+            return probes
+        return {name: {stream: {k: v for k, v in x.items() if k != "entries"} if isinstance(x, dict) else x
+                       for stream, x in streams.items()} if isinstance(streams, dict) else streams
+                for name, streams in probes.items()}
+
+    return {k: strip(v) if k in PROBE_KEYS or k.startswith("probes_") else v for k, v in record.items()}
+
+
 def reduce_metrics(path: str, digits: int = 5, unprobed: str = "scalars", report_digits: int | None = 7,
-                   dry_run: bool = False, probed_every: int = 0) -> tuple[int, int]:
+                   dry_run: bool = False, probed_every: int = 0, entries: str = "all") -> tuple[int, int]:
     """Rewrite one metrics file reduced (same name and format); returns (bytes before, after).
     `probed_every` > 0: probed records outside `kept_probed_epochs` (and outside the epochs
     merged folders beside the run read of it, `merged_read_epochs`) are reduced as unprobed
     ones (long runs; runs that probed every epoch, whose per-entry errors are ~200 KB a record
-    on the Rearrange scenes)."""
+    on the Rearrange scenes). `entries="read"`: the probed records kept keep their per-entry
+    errors only where the reports read them (`entry_epochs`); elsewhere their groups and overall
+    stay (the curves)."""
+    if entries not in ENTRIES:
+        raise ValueError(f"entries must be one of {', '.join(ENTRIES)}, got {entries!r}")
     before = os.path.getsize(path)
     records = read_records(path)
     if probed_every > 0:
-        keep = kept_probed_epochs([r["epoch"] for r in records if "epoch" in r and is_probed(r)], probed_every)
-        if os.path.basename(path).startswith("metrics.jsonl"):  # a run folder's: merges may read it
-            keep |= merged_read_epochs(os.path.dirname(path), probed_every)
+        keep = read_epochs(path, records, probed_every)
         # outside `keep`: no probes and no objects, so reduce_record keeps only the unprobed keys
         records = [r if "epoch" not in r or r["epoch"] in keep else {**r, "probes": {}, "objects": {}}
+                   for r in records]
+    if entries == "read":
+        whole = entry_epochs(path, records)
+        records = [r if "epoch" not in r or r["epoch"] in whole or not is_probed(r) else without_entries(r)
                    for r in records]
     records = [reduce_record(r, digits, unprobed, report_digits) for r in records]
     data = encode(records, path.endswith(".gz"))
@@ -276,6 +333,10 @@ def main(argv: list[str] | None = None) -> int:
                     help="keep whole only the probed records of every Nth epoch, the last 3 and the 3 the object "
                          "findings compare them with; reduce the other probed ones as unprobed (long runs, runs "
                          "that probed every epoch; default 0: keep every probed record)")
+    ap.add_argument("--entries", choices=ENTRIES, default="all",
+                    help="which probed records keep each state entry's errors: all (default), or read: only "
+                         "those the reports read them from (the first and last 3 probed epochs, with objects "
+                         "the object findings' early ones); the others keep their group and overall errors")
     ap.add_argument("--no-metrics", action="store_true", help="leave the metrics files alone")
     ap.add_argument("--no-png", action="store_true", help="leave the PNGs alone")
     ap.add_argument("--max-mean-error", type=float, default=2.0,
@@ -293,7 +354,8 @@ def main(argv: list[str] | None = None) -> int:
     for path in files_under(paths):
         name = os.path.basename(path)
         if is_metrics(name) and not a.no_metrics:
-            b, n = reduce_metrics(path, a.digits, a.unprobed, a.report_digits, a.dry_run, a.probed_every)
+            b, n = reduce_metrics(path, a.digits, a.unprobed, a.report_digits, a.dry_run, a.probed_every,
+                                  a.entries)
             what = "metrics"
         elif name.lower().endswith(".png") and not a.no_png:
             b, n, what = reduce_png(path, a.max_mean_error, a.max_off_share, a.dry_run)

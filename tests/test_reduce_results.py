@@ -188,3 +188,34 @@ def test_probed_every_keeps_what_a_merge_beside_reads(tmp_path) -> None:
     merge.merge_seeds(merge.merge_sources(merged), again, figures=False)
     for name, text in before.items():
         assert open(os.path.join(again, name)).read() == text, name
+
+
+def test_entries_read_keeps_per_entry_errors_where_the_reports_read_them(tmp_path) -> None:
+    """`--entries read`: per-entry errors only in the first and last 3 probed records (no objects
+    here, so no early ones); every probed record keeps its groups and overall (the curves); the
+    tables, findings and excluded groups come out as from the full file."""
+    rr = _module()
+    probed = (0, 2, 4, 6, 8, 10, 12, 14, 16, 18, 19)
+    full = _fake_run(str(tmp_path / "full"), epochs=20, probed=probed)
+    small = str(tmp_path / "small")
+    shutil.copytree(full, small)
+    path = os.path.join(small, "metrics.jsonl.gz")
+    assert rr.main([small, "--no-png", "--entries", "read"]) == 0
+    before, after = records.read_jsonl(os.path.join(full, "metrics.jsonl.gz")), records.read_jsonl(path)
+    assert os.path.getsize(path) < 0.7 * rr.reduce_metrics(os.path.join(full, "metrics.jsonl.gz"), dry_run=True)[1]
+    with_entries = {r["epoch"] for r in after if r["probes"] and "entries" in r["probes"]["vae"]["curr"]}
+    assert with_entries == {0, 16, 18, 19}
+    for b, a in zip(before, after):
+        if b["epoch"] in probed:
+            for name, streams in b["probes"].items():
+                for s, x in streams.items():
+                    y = a["probes"][name][s]
+                    assert y["overall"]["mae_norm"] == pytest.approx(x["overall"]["mae_norm"], rel=1e-6)
+                    assert y["groups"].keys() == x["groups"].keys()
+    assert records.excluded_groups(after) == records.excluded_groups(before)
+    for d in (full, small):
+        report.redraw(d, figures=False)
+    for name in ("table.md", "findings.md"):
+        assert open(os.path.join(small, name)).read() == open(os.path.join(full, name)).read(), name
+    with pytest.raises(ValueError, match="entries must be one of"):
+        rr.reduce_metrics(path, entries="some")

@@ -365,11 +365,15 @@ def excluded_groups(records: Sequence[dict[str, Any]]) -> set[str]:
     """The groups none of whose entries could be normalised in any probed record: every entry's
     reference spread ~0 (`probe.normalisable`; e.g. `object_static` on one fixed version, whose
     object properties never change, or a sphere's major-axis angle). Their normalised errors are
-    NaN by construction: reports say "excluded" instead of a number."""
+    NaN by construction: reports say "excluded" instead of a number. Records without per-entry
+    errors (committed runs keep them only where the reports read them: `reduce_results.py
+    --entries read`) are passed over."""
     out: set[str] | None = None
     for r in probed(records):
         for streams in r["probes"].values():
             for x in streams.values():
+                if "entries" not in x:
+                    continue
                 gone = {g for g, v in x["groups"].items() if not np.isfinite(v.get("mae_norm", np.nan))
                         and all(x["entries"][n]["group"] != g or n in x["excluded"] for n in x["entries"])}
                 out = gone if out is None else out & gone
