@@ -2,14 +2,14 @@
 `--apart-env-learners`: the epoch as a run calls it (the environment's and the learners' programs
 at once), then each of its programs alone, one after another (`Apart.timings`, every epoch's
 seconds kept, beside the train worlds' constraint rows and solver iterations (mean, and the
-largest: a batch's captured solver loops until its slowest world converges), and MuJoCo Warp's
-handler calls, CUDA-graph captures and host seconds per epoch). The open question: the
-environment's program of a locomotion epoch costs more over the first ~50 epochs than later
-(`reproduce` jobs with pred on its GPU: fig2-ant 1.43-1.58 s an epoch to epoch ~55, 0.91-0.97 s
-after; fig2-halfcheetah alike). Alone, on Ant at one seed, it took 1.17-1.59 s at epochs 43-50 and
-0.66-0.82 s at 51-82 while the worlds' mean constraint rows and solver iterations did not change
-(`results/apart_sides_fig2-ant_nvidia_h200_20261130_132154.json`); the slowest world's iterations
-and the captures per epoch are what this script now also records. Writes `results/apart_sides_<preset>_<device>_<stamp>.json`.
+largest), and MuJoCo Warp's handler calls, CUDA-graph captures and host seconds per epoch). The
+open question: the environment's program of a locomotion epoch costs more over the first ~50 epochs
+than later (`reproduce` jobs with pred on its GPU: fig2-ant 1.43-1.58 s an epoch to epoch ~55,
+0.91-0.97 s after; fig2-halfcheetah alike). Alone, on Ant at one seed, it took 1.17-1.59 s at
+epochs 43-50 and 0.66-0.82 s at 51-82 while the worlds' mean constraint rows and solver iterations
+did not change (`results/apart_sides_fig2-ant_nvidia_h200_20261130_132154.json`), and the solver is
+capped at 4 iterations; Warp's captures per epoch (new buffer addresses) are what this script now
+records. Writes `results/apart_sides_<preset>_<device>_<stamp>.json`.
 
     python benchmarks/diagnostics/apart_sides.py --preset fig2-ant --settings pred --bf16 --warm 0 --epochs 40
 """
