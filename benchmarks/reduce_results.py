@@ -192,7 +192,7 @@ def entry_epochs(path: str, records: Sequence[dict[str, Any]]) -> set[int]:
         return set()
     keep = {epochs[0]} | set(epochs[-3:])
     names = {n for r in recs[:1] for k in PROBE_KEYS for st in (r.get(k) or {}).values()
-             for x in st.values() if isinstance(x, dict) for n in x.get("entries", {})}
+             for x in st.values() for n in x.get("entries", {})}
     if any(n.startswith("obj") for n in names):
         keep |= set(early_epochs(epochs))
     if os.path.basename(path).startswith("metrics.jsonl"):
@@ -203,11 +203,8 @@ def entry_epochs(path: str, records: Sequence[dict[str, Any]]) -> set[int]:
 def without_entries(record: dict[str, Any]) -> dict[str, Any]:
     """`record` with each probe's per-entry errors (`entries`, under `probes`, `linear_probes` and
     the variants' `probes_*`) left out; groups, overall and the excluded entries' names stay."""
-    def strip(probes: Any) -> Any:
-        if not isinstance(probes, dict):
-            return probes
-        return {name: {stream: {k: v for k, v in x.items() if k != "entries"} if isinstance(x, dict) else x
-                       for stream, x in streams.items()} if isinstance(streams, dict) else streams
+    def strip(probes: dict) -> dict:  # {learner: {stream: {entries, groups, overall, ...}}}
+        return {name: {stream: {k: v for k, v in x.items() if k != "entries"} for stream, x in streams.items()}
                 for name, streams in probes.items()}
 
     return {k: strip(v) if k in PROBE_KEYS or k.startswith("probes_") else v for k, v in record.items()}

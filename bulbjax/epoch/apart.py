@@ -326,8 +326,7 @@ def near_units(units: list[tuple[str, ...]], setting: str) -> list[tuple[str, ..
     partial = [u for u in units if names & set(u) and not set(u) <= names]
     if partial:
         raise ValueError(f"--apart-env-learners {setting}: {', '.join(partial[0])} share one "
-                         "update program "
-                         "(update_groups): name all of them or none")
+                         "update program (update_groups): name all of them or none")
     return [u for u in units if set(u) <= names]
 
 
