@@ -204,7 +204,8 @@ def without_entries(record: dict[str, Any]) -> dict[str, Any]:
     """`record` with each probe's per-entry errors (`entries`, under `probes`, `linear_probes` and
     the variants' `probes_*`) left out; groups, overall and the excluded entries' names stay."""
     def strip(probes: dict) -> dict:  # {learner: {stream: {entries, groups, overall, ...}}}
-        return {name: {stream: {k: v for k, v in x.items() if k != "entries"} for stream, x in streams.items()}
+        return {name: {stream: {k: v for k, v in x.items() if k != "entries"}
+                       for stream, x in streams.items()}
                 for name, streams in probes.items()}
 
     return {k: strip(v) if k in PROBE_KEYS or k.startswith("probes_") else v for k, v in record.items()}
