@@ -27,8 +27,8 @@ CAMPAIGN = os.path.join(ROOT, "docs", "results", "paper_h200")
 # with pred on the environment's GPU), the fifteenth (HalfCheetah seed 2 the same way)
 LATER = ("runs/fig2-cartpole/seed4", "runs/fig2-cartpole/seed5", "runs/fig2-invpend", "fig4", "runs/fp32", "fig2",
          "probe_protocol", "runs/fig2-halfcheetah", "runs/fig2-ant")
-LATER_JOBS = ["fig2-ant/seed0", "fig2-ant/seed1", "fig2-cartpole/seed4", "fig2-cartpole/seed5",
-              "fig2-halfcheetah/seed0", "fig2-halfcheetah/seed1", "fig2-halfcheetah/seed2",
+LATER_JOBS = ["fig2-ant/seed0", "fig2-ant/seed1", "fig2-ant/seed2", "fig2-cartpole/seed4",
+              "fig2-cartpole/seed5", "fig2-halfcheetah/seed0", "fig2-halfcheetah/seed1", "fig2-halfcheetah/seed2",
               "fig2-invpend/seed0", "fig2-invpend/seed1", "fig2-invpend/seed2",
               "fig2-invpend/seed3", "fig2-invpend/seed4", "fig2-invpend/seed5", "fig4/fig2-ant",
               "fig4/fig2-halfcheetah", "fig4/fig2-invpend", "fp32/fig2-invpend/seed0",
