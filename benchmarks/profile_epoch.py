@@ -7,9 +7,10 @@ PPO rollout and update (`Policy.rl_phase`), rendering and writing replay frames
 (`Streams.replay_phase`), cutting and rendering windows (`Streams.window_phase`), each learner's
 `learner_batches` updates (`Learning.learn_phase` restricted to that learner), the held-out
 rollouts (`Streams.eval_phase`), each learner's probe fit and evaluation (`Probing.probe_phase`
-for that learner). Then the whole jitted
-epoch with and without probing (compile time, then the median call), the host transfer of
-its metrics (`jax.device_get`) and the host-side record building (`records.epoch_records`).
+for that learner); with the learners apart (`--overlap apart`) the phases are the epoch's
+programs, each alone (`apart_programs`). Then the whole jitted epoch with and without probing
+(compile time, then the median call), the host transfer of its metrics (`jax.device_get`) and
+the host-side record building (`records.epoch_records`).
 The phases timed one by one add up to more than the fused epoch (no overlap between them,
 one dispatch each): their shares say what to make cheaper, the fused numbers what a run costs.
 
@@ -75,6 +76,9 @@ def add_config_args(p: argparse.ArgumentParser) -> None:
                    help="the next epoch's PPO work beside this epoch's learner updates (ExperimentConfig.overlap; apart: "
                         "the learners on a second device, two devices visible; "
                         "default: the preset's)")
+    p.add_argument("--graph-mode", default="", help="how MJX-Warp's calls use CUDA graphs on a GPU "
+                   "(ExperimentConfig.graph_mode: warp, jax, warp_staged, warp_staged_ex, none; "
+                   "default: MJX's, warp)")
     p.add_argument("--no-shared-updates", action="store_true",
                    help="one update and probe program per frame VAE, not one for vae/vae_rpl/beta_vae "
                         "(ExperimentConfig.shared_updates)")
@@ -96,6 +100,8 @@ def build_config(a: argparse.Namespace) -> ExperimentConfig:
         overrides["programs"] = a.programs
     if getattr(a, "overlap", ""):
         overrides["overlap"] = a.overlap
+    if getattr(a, "graph_mode", ""):
+        overrides["graph_mode"] = a.graph_mode
     learner: dict[str, Any] = {}
     if a.bf16:
         learner["compute_dtype"] = "bfloat16"
@@ -273,9 +279,14 @@ def profile(cfg: ExperimentConfig, repeats: int, warm_epochs: int, trace_dir: st
                 jax.block_until_ready(rs)
         out["trace_dir"] = trace_dir
 
-    if exp.apart is not None and phases:  # the phases alone would take inputs from both devices
-        log("phases one by one: not timed with --overlap apart (time them with --overlap none)")
-    if not phases or exp.apart is not None:
+    if not phases:
+        out["done"] = True
+        save(out)
+        return out
+    if exp.apart is not None:  # its phases: the programs, each alone (they take both devices' inputs)
+        out["phases"], out["apart_warp_ffi"] = apart_programs(exp, progs, rs, key, repeats, warp_stats)
+        _shares(out["phases"])
+        out["phases_sum_s"] = sum(v["median_s"] for v in out["phases"].values())
         out["done"] = True
         save(out)
         return out
@@ -303,13 +314,40 @@ def profile(cfg: ExperimentConfig, repeats: int, warm_epochs: int, trace_dir: st
         ph[f"probe {name}"] = time_fn(lambda: pr(sub, rs.buffers, held, keys[5], rs.windows), repeats)
         log(f"  learn {name} {ph[f'learn {name}']['median_s']:.3f} s, probe {ph[f'probe {name}']['median_s']:.3f} s")
         save(out)
-    total = sum(v["median_s"] for v in ph.values())
-    for v in ph.values():
-        v["share"] = v["median_s"] / total if total else float("nan")
-    out["phases_sum_s"] = total
+    out["phases_sum_s"] = _shares(ph)
     out["done"] = True
     save(out)
     return out
+
+
+def apart_programs(exp: Experiment, progs: Programs, rs: Any, key: jax.Array, repeats: int,
+                   warp_stats: bool) -> tuple[dict[str, dict[str, Any]], list[dict[str, Any]]]:
+    """The phases of an epoch with the learners apart: its programs ("env", "near", "learn",
+    "finish"), each run alone and waited for (`Apart.timings`), over `repeats` epochs that do not
+    probe: the epoch itself runs the two devices' programs at once, so their sum exceeds it. With
+    `warp_stats` also each epoch's MuJoCo Warp totals: an epoch whose buffer addresses Warp has
+    not met captures its CUDA graphs again (a locomotion epoch's ~40 captures cost the environment's
+    program ~0.5 s on an H200, over a run's first ~50 epochs: docs/performance.md)."""
+    exp.apart.timings, ffi = {}, []
+    try:
+        for i in range(repeats):
+            snap = warp_ffi_stats.snapshot() if warp_stats else None
+            rs, _ = progs.epoch(rs, jax.random.fold_in(key, 400 + i), probe=False)
+            if warp_stats:
+                ffi.append(warp_ffi_stats.delta(warp_ffi_stats.snapshot(), snap)["total"])
+        timings = exp.apart.timings
+    finally:
+        exp.apart.timings = None
+    return {name: {"first_s": ts[0], "median_s": statistics.median(ts), "min_s": min(ts), "times_s": ts}
+            for name, ts in timings.items()}, ffi
+
+
+def _shares(phases: dict[str, dict[str, Any]]) -> float:
+    """Give each phase its share of the phases' summed medians; returns the sum."""
+    total = sum(v["median_s"] for v in phases.values())
+    for v in phases.values():
+        v["share"] = v["median_s"] / total if total else float("nan")
+    return total
 
 
 def _what(out: dict[str, Any]) -> str:

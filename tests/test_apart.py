@@ -34,7 +34,7 @@ SCRIPT = textwrap.dedent("""
     devs = jax.devices()
     assert len(devs) == 2, devs
 
-    def run(c, devices):
+    def run(c, devices, timed_last=False):
         exp = Experiment(c, devices=devices)
         progs = Programs(exp, (True, False))
         rs = progs.init(jax.random.PRNGKey(0))
@@ -44,8 +44,12 @@ SCRIPT = textwrap.dedent("""
         out = []
         for t, probe in enumerate((True, False, True)):
             k = keys[t + 1] if exp.pipelined else keys[t]
+            if timed_last and t == 2:  # the programs one after another, each timed (profile_epoch.py)
+                exp.apart.timings = {}
             rs, m = progs.epoch(rs, k, probe=probe)
             out.append(jax.device_get(m))
+        if timed_last:
+            run.timings = {n: len(v) for n, v in exp.apart.timings.items()}
         where = {f: sorted({d.id for leaf in jax.tree.leaves(getattr(rs, f)) for d in leaf.devices()})
                  for f in ("ppo", "train_env", "learners", "buffers", "windows", "pending")}
         where.update({f"learners.{n}": sorted({d.id for leaf in jax.tree.leaves(s) for d in leaf.devices()})
@@ -55,7 +59,8 @@ SCRIPT = textwrap.dedent("""
     _, plain, plain_learners, plain_where = run(cfg, devs[:1])
     exp, apart, apart_learners, where = run(dataclasses.replace(cfg, overlap="apart", apart_env_learners="none"), devs)
     # pred updated on the environment's device, on copies of its window buffer kept there
-    _, near, near_learners, near_where = run(dataclasses.replace(cfg, overlap="apart", apart_env_learners="pred"), devs)
+    _, near, near_learners, near_where = run(dataclasses.replace(cfg, overlap="apart", apart_env_learners="pred"), devs,
+                                             timed_last=True)
 
     def diff(a, b):
         return max((float(np.max(np.abs(np.asarray(x, np.float64) - np.asarray(y, np.float64)))) if np.size(x) else 0.0)
@@ -67,6 +72,7 @@ SCRIPT = textwrap.dedent("""
            "near_structure": [jax.tree.structure(a) == jax.tree.structure(p) for a, p in zip(near, plain)],
            "near_metrics": [diff(a, p) for a, p in zip(near, plain)],
            "near_learners": diff(near_learners, plain_learners), "near_where": near_where,
+           "near_timed": run.timings,
            "nan_probes": [bool(np.all(np.isnan(m["probes"]["vae"]["curr"]["mae"]))) if "probes" in m else None
                           for m in apart]}
     print("RESULT " + json.dumps(res))
@@ -90,7 +96,9 @@ def test_the_learners_apart_give_the_plain_epochs(tmp_path):
     assert res["where"]["learners"] == res["where"]["buffers"] == res["where"]["windows"] == [learner_dev], res["where"]
     assert res["where"]["pending"] == [learner_dev]
     assert res["plain_where"]["learners"] == [env_dev]  # the plain run: one device for all
-    # pred on the environment's side (--apart-env-learners pred): the same numbers, pred's state there
+    # pred on the environment's side (--apart-env-learners pred): the same numbers, pred's state there,
+    # and its third epoch, each program run alone and timed, the same numbers too
+    assert res["near_timed"] == {"env": 1, "near": 1, "learn": 1, "finish": 1}, res["near_timed"]
     assert all(res["near_structure"]), res
     assert max(res["near_metrics"]) <= 1e-4 and res["near_learners"] <= 1e-5, res
     near = res["near_where"]

@@ -91,8 +91,8 @@ class Apart:
                                          if team.sequential[n] == seq}) for seq in (False, True))
         self._mirror: tuple[dict, dict] | None = None
         self._mirror_of: Any = None  # the learners' buffer leaf the copies equal
-        # a diagnosis (benchmarks/diagnostics/apart_sides.py): where a dict, each epoch runs its
-        # programs one after another and appends each one's seconds under its name
+        # a diagnosis (benchmarks/profile_epoch.py --overlap apart): where a dict, each epoch runs
+        # its programs one after another and appends each one's seconds under its name
         self.timings: dict[str, list[float]] | None = None
         # donated: what a program replaces (the environment's state; the buffers inserted into)
         self.jits = {
