@@ -65,7 +65,7 @@ def gather(out: str, sources: Sequence[str], log: Callable[[str], None] = print,
     done_here = {j.id for j in jobs if J.is_done(out, j)}
     found["unfinished"] = [i for i in dict.fromkeys(found["unfinished"])
                            if i not in done_here and i not in found["taken"]]
-    begun = done_here | set(found["taken"]) | set(found["unfinished"]) | {j.id for j in jobs if J.begun(out, j)}
+    begun = set(found["taken"]) | set(found["unfinished"]) | {j.id for j in jobs if J.begun(out, j)}
     found["not_begun"] = [j.id for j in jobs if j.id not in begun]
     log(f"{'would gather' if dry_run else 'gathered'} into {out}: {len(found['taken'])} job(s) taken"
         + (f" ({', '.join(found['taken'])})" if found["taken"] else "")
