@@ -148,7 +148,8 @@ def test_a_dry_run_checks_the_ycb_models_as_the_run_does(tmp_path, monkeypatch) 
         reproduce("fig5", "tiny", str(out), dry_run=True, log=lambda s: None)
     assert str(caught.value) == (f"Fig. 5 (fig5-rearrange-ycb) reads the YCB models from ${YCB_DIR_ENV}, "
                                  "which is not set: set it to the YCB google_16k folder, or leave Fig. 5 "
-                                 "out (--figures fig2,fig3,fig4,fp32)")
+                                 "out (--figures fig2,fig3,fig4,fp32 for a new plan; --jobs or "
+                                 "--fit-minutes picks a share of one that holds Fig. 5)")
     assert not out.exists()
     models = tmp_path / "ycb"
     models.mkdir()

@@ -121,7 +121,8 @@ def _check_ycb(jobs: Sequence[Job]) -> None:
                    f"({d}) lacks {len(missing)} of its {len(YCB_INFO)} models (first: {missing[0]}/{OBJ_FILE})")
             raise ValueError(f"Fig. 5 (fig5-rearrange-ycb) reads the YCB models from ${YCB_DIR_ENV}, which "
                              f"{why}: set it to the YCB google_16k folder, or leave Fig. 5 out "
-                             "(--figures fig2,fig3,fig4,fp32)")
+                             "(--figures fig2,fig3,fig4,fp32 for a new plan; --jobs or --fit-minutes "
+                             "picks a share of one that holds Fig. 5)")
 
 
 def _open_out(out: str, record: dict, overwrite: bool, dry_run: bool) -> list[str]:
