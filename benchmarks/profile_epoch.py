@@ -285,8 +285,7 @@ def profile(cfg: ExperimentConfig, repeats: int, warm_epochs: int, trace_dir: st
         return out
     if exp.apart is not None:  # its phases: the programs, each alone (they take both devices' inputs)
         out["phases"], out["apart_warp_ffi"] = apart_programs(exp, progs, rs, key, repeats, warp_stats)
-        _shares(out["phases"])
-        out["phases_sum_s"] = sum(v["median_s"] for v in out["phases"].values())
+        out["phases_sum_s"] = _shares(out["phases"])
         out["done"] = True
         save(out)
         return out

@@ -24,7 +24,8 @@ CAMPAIGN = os.path.join(ROOT, "docs", "results", "paper_h200")
 # learners on a second GPU, and its Fig. 4), the eighth (Ant seed 0 the same way, and its Fig. 4), the
 # ninth (HalfCheetah seed 1 the same way), the eleventh (CartPole seed 5, whose gathering merged the
 # preset's six seeds, made before and after bias_grad's default changed), the fourteenth (Ant seed 1
-# with pred on the environment's GPU), the fifteenth (HalfCheetah seed 2 the same way)
+# with pred on the environment's GPU), the fifteenth (HalfCheetah seed 2 the same way), the
+# sixteenth (Ant seed 2 the same way)
 LATER = ("runs/fig2-cartpole/seed4", "runs/fig2-cartpole/seed5", "runs/fig2-invpend", "fig4", "runs/fp32", "fig2",
          "probe_protocol", "runs/fig2-halfcheetah", "runs/fig2-ant")
 LATER_JOBS = ["fig2-ant/seed0", "fig2-ant/seed1", "fig2-ant/seed2", "fig2-cartpole/seed4",
