@@ -140,3 +140,20 @@ def test_fit_cli_end_to_end(tmp_path) -> None:
     # other settings on resume: a clear error (exit 2), nothing overwritten
     assert main(r + ["--resume", "--seed", "1"]) == 2
     assert main(args[:-4] + ["--out", str(tmp_path / "nothing"), "--resume"]) == 2
+
+
+def test_dataset_cache_names_the_object_version(tmp_path) -> None:
+    """Two fits sharing a `--cache-dir` read one file only when it holds their data: a
+    multi-object domain's versions are other scenes (fig3-rearrange-geom against its random
+    version), so the version is in the name; version 0 keeps the names caches already have."""
+    from bulbjax.epoch.offline import Source
+    from bulbjax.run.offline import dataset_path
+
+    src = Source("ReacherRearrangeGeomMulticolour", (), (64, 64, 3), 2, lambda k, n: None)
+    paths = {v: dataset_path(OfflineConfig(base=ExperimentConfig(env="ReacherRearrangeGeom", version=v)),
+                             src, str(tmp_path), "train", 100)
+             for v in (0, 1, "random")}
+    assert len(set(paths.values())) == 3, paths
+    worlds = OfflineConfig(base=ExperimentConfig(env="ReacherRearrangeGeom")).data_worlds
+    assert os.path.basename(paths[0]) == f"ReacherRearrangeGeomMulticolour_64px_{worlds}x100_seed0_train.npz"
+    assert "_vrandom_" in paths["random"] and "_v1_" in paths[1]

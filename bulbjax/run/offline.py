@@ -26,9 +26,13 @@ from bulbjax.run.checkpoint import CHECKPOINT_DIR, Checkpointer
 
 
 def dataset_path(config: OfflineConfig, source: Source, cache_dir: str, kind: str, steps: int) -> str:
-    """Cache file of a dataset, keyed by env, frame size, worlds x steps, seed and kind."""
+    """Cache file of a dataset, keyed by env, object version (where not 0), frame size, worlds x
+    steps, seed and kind: two fits that share a `--cache-dir` read the same file only when it
+    holds their data (the versions of a multi-object domain are other scenes)."""
     r = source.frame_shape[0]
-    tag = f"{source.name}_{r}px_{config.data_worlds}x{steps}_seed{config.data_seed}_{kind}"
+    version = config.base.version
+    name = source.name + (f"_v{version}" if version != 0 else "")
+    tag = f"{name}_{r}px_{config.data_worlds}x{steps}_seed{config.data_seed}_{kind}"
     if config.synthetic:
         m = config.movers_config()
         tag += f"_k{m.num_objects}s{m.size:g}v{m.max_speed:g}e{m.episode_length}"
