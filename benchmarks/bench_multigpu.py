@@ -120,7 +120,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--learners", default=None, help="override the preset's learners (smoke runs)")
     p.add_argument("--bf16", action="store_true", help="bf16 learner compute (GPU)")
     p.add_argument("--rnn-unroll", type=int, default=1,
-                   help="sequential learners' LSTM unroll (24 on the GPU: see benchmarks/README)")
+                   help="sequential learners' LSTM unroll (4 on a GPU: docs/performance.md)")
     p.add_argument("--no-probe", action="store_true",
                    help="time epochs without probing (the epochs between probes; a third of the compile)")
     p.add_argument("--small", action="store_true", help="CPU-sized settings (not the paper's)")

@@ -233,11 +233,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     r.add_argument("--bf16", action="store_true", help="bf16 compute in the learners (GPU)")
     r.add_argument("--rnn-unroll", type=int, default=None, metavar="N",
                    help="LSTM steps per loop iteration in the sequential learners (same function; "
-                        "default 1; on the GPU the sequence length, see benchmarks/README)")
+                        "default 1; on a GPU 4 is as fast as longer unrolls and compiles sooner: "
+                        "docs/performance.md)")
     r.add_argument("--learner-option", action="append", default=None, metavar="KEY=VALUE",
                    help="set a LearnerConfig field (repeatable), e.g. lr=3e-4, or the conv forms "
                         "channel_pad=1 / bias_grad=reduce / edge_layers=strided (same network, "
-                        "other kernels: benchmarks/README)")
+                        "other kernels: docs/performance.md)")
     r.add_argument("--rl-input", default=None,
                    help="what PPO observes: state (default), latent:<learner> (the learner's "
                         "latent of the current frame, its current parameters, no gradient into "
@@ -293,8 +294,9 @@ def main(argv: Sequence[str] | None = None) -> int:
                         "of this host, joined by jax.distributed on localhost; auto's choice with "
                         "several GPUs), groups (one program per device in this process, each on "
                         "its share of the seeds; auto's choice elsewhere), sharded (one program "
-                        "over a mesh: CPU host devices only, refused on GPUs, where it does not "
-                        "compile with MJX-Warp) or single (the first device)")
+                        "over a mesh: CPU host devices only; on GPUs, where it does not compile "
+                        "with MJX-Warp, the run says so and uses groups) or single (the first "
+                        "device)")
     r.add_argument("--coordinator", default=None, metavar="HOST:PORT",
                    help="multi-process run (jax.distributed): process 0's address, the same on "
                         "every process (or JAX_COORDINATOR_ADDRESS); with --num-processes and "

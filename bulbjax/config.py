@@ -120,7 +120,7 @@ class ExperimentConfig:
     # held-out rollouts and each unit's probes as programs of their own, compiled side by side;
     # one device only). The same numbers either way, up to floating-point reassociation. Split
     # does not start sooner on an H100 (2026-11-25: XLA's autotuning of programs compiled side by
-    # side is slower than one after another; benchmarks/README.md, "Split programs"), so fused
+    # side is slower than one after another; docs/performance.md, "What each setting does"), so fused
     # is the default.
     programs: str = "fused"
     # How an epoch's PPO work and its learners' updates are laid out (`loop.Experiment`, "The

@@ -68,7 +68,7 @@ class LearnerConfig:
     # How the decoder's transposed convs are computed (networks.DECONV_IMPLS; same parameters,
     # same function): "transpose" (flax ConvTranspose), "subpixel" (3x3 conv + depth-to-space) or
     # "dgrad" (a stride-2 conv's input gradient, as PyTorch runs ConvTranspose2d; fastest on the
-    # H100 and on the CPU, and the quickest to compile: benchmarks/README.md).
+    # H100 and on the CPU, and the quickest to compile: docs/performance.md).
     deconv_impl: str = "dgrad"
     # How, not what, the conv stacks compute (same parameters, same function; networks.Conv4x4,
     # networks.add_bias): the frames' 3 colour channels padded with zero channels to a multiple of
