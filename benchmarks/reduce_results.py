@@ -168,14 +168,20 @@ def merged_read_epochs(run_dir: str, every: int) -> set[int]:
     return out
 
 
+def _merges_read(path: str, every: int) -> set[int]:
+    """For a run folder's metrics file, the epochs merged folders beside the run read of it
+    (`merged_read_epochs`); for any other file (a fit's curves, a merged folder's), none."""
+    if os.path.basename(path).startswith("metrics.jsonl"):
+        return merged_read_epochs(os.path.dirname(path), every)
+    return set()
+
+
 def read_epochs(path: str, records: Sequence[dict[str, Any]], every: int) -> set[int]:
     """The probed epochs of one metrics file that `--probed-every every` keeps whole:
     `kept_probed_epochs`, and for a run folder's file the epochs merged folders beside it read
     (`merged_read_epochs`)."""
-    keep = kept_probed_epochs([r["epoch"] for r in records if "epoch" in r and is_probed(r)], every)
-    if os.path.basename(path).startswith("metrics.jsonl"):  # a run folder's: merges may read it
-        keep |= merged_read_epochs(os.path.dirname(path), every)
-    return keep
+    probed = [r["epoch"] for r in records if "epoch" in r and is_probed(r)]
+    return kept_probed_epochs(probed, every) | _merges_read(path, every)
 
 
 def entry_epochs(path: str, records: Sequence[dict[str, Any]]) -> set[int]:
@@ -195,9 +201,7 @@ def entry_epochs(path: str, records: Sequence[dict[str, Any]]) -> set[int]:
              for x in st.values() for n in x.get("entries", {})}
     if any(n.startswith("obj") for n in names):
         keep |= set(early_epochs(epochs))
-    if os.path.basename(path).startswith("metrics.jsonl"):
-        keep |= merged_read_epochs(os.path.dirname(path), sys.maxsize)
-    return keep
+    return keep | _merges_read(path, sys.maxsize)
 
 
 def without_entries(record: dict[str, Any]) -> dict[str, Any]:
