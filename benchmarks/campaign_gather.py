@@ -5,7 +5,9 @@ session to the next:
 1. in each folder brought back (a plan folder of `bulbjax reproduce` without its checkpoints), the
    runs it finished that the committed folder lacks get their metrics reduced as the committed
    runs' are (`reduce_results.py --unprobed minimal --probed-every 100 --entries read`), written gzipped
-   (`metrics.jsonl.gz`), and lose their own `fig2.png` (the page draws each preset's merged one);
+   (`metrics.jsonl.gz`), and lose their own `fig2.png` (the page draws each preset's merged one)
+   and their reconstructions and SPAIR's boxes but the last epoch's (`last_pictures_only`; those
+   kept and `objects.png` become palette PNGs where faithful);
 2. `bulbjax reproduce --out DEST --gather SRC,...` takes them, with the stretches' summaries, and
    writes the results page again (a preset whose seeds are all in is merged and drawn);
 3. the consoles it copied (`DEST/logs`) go (not committed), and the merged presets' `fig2.png`
@@ -56,6 +58,27 @@ def shrink(run_dir: str, rr=None) -> None:
     png = os.path.join(run_dir, "fig2.png")
     if os.path.exists(png):
         os.remove(png)
+    for png in last_pictures_only(run_dir):
+        rr.reduce_png(png)
+
+
+def last_pictures_only(run_dir: str) -> list[str]:
+    """A run's pictures as the campaign keeps them: of its reconstructions and SPAIR's boxes only
+    the last epoch's (a Fig. 5 seed draws them every 250 epochs: ~1.4 MB of PNGs a seed, ~0.4 MB
+    kept; the page shows seed 0's last), with `objects.png`; returns those kept, for reduce_png."""
+    from bulbjax.reproduce.results import drawn_pictures
+
+    kept = []
+    for kind in ("recon", "boxes"):
+        drawn = drawn_pictures(run_dir, kind)
+        for epoch, paths in drawn.items():
+            for path in paths:
+                if epoch == max(drawn):
+                    kept.append(path)
+                else:
+                    os.remove(path)
+    objects = os.path.join(run_dir, "objects.png")
+    return kept + ([objects] if os.path.exists(objects) else [])
 
 
 def campaign_gather(dest: str, sources: Sequence[str], log=print) -> list[str]:

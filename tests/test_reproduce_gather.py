@@ -25,15 +25,17 @@ CAMPAIGN = os.path.join(ROOT, "docs", "results", "paper_h200")
 # ninth (HalfCheetah seed 1 the same way), the eleventh (CartPole seed 5, whose gathering merged the
 # preset's six seeds, made before and after bias_grad's default changed), the fourteenth (Ant seed 1
 # with pred on the environment's GPU), the fifteenth (HalfCheetah seed 2 the same way), the
-# sixteenth (Ant seed 2 the same way)
-LATER = ("runs/fig2-cartpole/seed4", "runs/fig2-cartpole/seed5", "runs/fig2-invpend", "fig4", "runs/fp32", "fig2",
-         "probe_protocol", "runs/fig2-halfcheetah", "runs/fig2-ant")
-LATER_JOBS = ["fig2-ant/seed0", "fig2-ant/seed1", "fig2-ant/seed2", "fig2-cartpole/seed4",
+# sixteenth (Ant seed 2 the same way), the seventeenth (Fig. 5's seed 0; CartPole seed 0 again,
+# with its Fig. 4)
+LATER = ("runs/fig2-cartpole/seed0", "runs/fig2-cartpole/seed4", "runs/fig2-cartpole/seed5", "runs/fig2-invpend",
+         "fig4", "runs/fp32", "fig2", "probe_protocol", "runs/fig2-halfcheetah", "runs/fig2-ant",
+         "runs/fig5-rearrange-ycb")
+LATER_JOBS = ["fig2-ant/seed0", "fig2-ant/seed1", "fig2-ant/seed2", "fig2-cartpole/seed0", "fig2-cartpole/seed4",
               "fig2-cartpole/seed5", "fig2-halfcheetah/seed0", "fig2-halfcheetah/seed1", "fig2-halfcheetah/seed2",
               "fig2-invpend/seed0", "fig2-invpend/seed1", "fig2-invpend/seed2",
               "fig2-invpend/seed3", "fig2-invpend/seed4", "fig2-invpend/seed5", "fig4/fig2-ant",
-              "fig4/fig2-halfcheetah", "fig4/fig2-invpend", "fp32/fig2-invpend/seed0",
-              "fp32/fig2-invpend/seed1"]
+              "fig4/fig2-cartpole", "fig4/fig2-halfcheetah", "fig4/fig2-invpend", "fig5-rearrange-ycb/seed0",
+              "fp32/fig2-invpend/seed0", "fp32/fig2-invpend/seed1"]
 
 def _before_second(dest: str) -> str:
     """The campaign folder as it was before its second allocation: without what that one and the
@@ -178,12 +180,43 @@ def test_a_plan_of_fewer_figures_gathers_into_the_whole_and_the_whole_into_it(tm
     said.clear()
     found = gather(str(small), [out], log=said.append)
     assert json.loads((small / "plan.json").read_text()) == whole
-    assert f"{len(whole['jobs']) - 6} job(s) added" in said[0] and "fig2-cartpole/seed0" in found["taken"]
+    assert f"{len(whole['jobs']) - 6} job(s) added" in said[0] and "fig2-cartpole/seed1" in found["taken"]
 
     changed = dict(part, jobs=[dict(part["jobs"][0], epochs=10), *part["jobs"][1:]])
     (host / "plan.json").write_text(json.dumps(changed))
     with pytest.raises(ValueError, match="its plan differs from"):
         gather(str(tmp_path / "out"), [str(host)], log=lambda _: None)
+
+
+def _campaign_gather():
+    import importlib.util
+
+    path = os.path.join(ROOT, "benchmarks", "campaign_gather.py")
+    spec = importlib.util.spec_from_file_location("campaign_gather", path)
+    cg = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(cg)
+    return cg
+
+
+def test_a_run_keeps_its_last_epoch_s_pictures(tmp_path) -> None:
+    """A Fig. 5 run draws its reconstructions and SPAIR's boxes every 250 epochs: the campaign
+    keeps the last epoch's (by number: recon_1000 sorts before recon_250 by name) and
+    objects.png, and the page's "last drawn" is that epoch's."""
+    from PIL import Image
+
+    from bulbjax.reproduce.results import drawn_pictures
+
+    names = ["recon_250.png", "recon_1000.png", "boxes_250_spair.png", "boxes_1000_spair.png",
+             "boxes_1000_spair6.png", "objects.png", "fig2.png"]
+    for name in names:
+        Image.new("RGB", (8, 8), (200, 30, 30)).save(tmp_path / name)
+    assert sorted(drawn_pictures(str(tmp_path), "recon")) == [250, 1000]
+    kept = _campaign_gather().last_pictures_only(str(tmp_path))
+    assert [os.path.basename(p) for p in kept] == ["recon_1000.png", "boxes_1000_spair.png",
+                                                   "boxes_1000_spair6.png", "objects.png"]
+    assert sorted(os.listdir(tmp_path)) == sorted([os.path.basename(p) for p in kept] + ["fig2.png"])
+    assert {k: [os.path.basename(p) for p in v] for k, v in drawn_pictures(str(tmp_path), "boxes").items()} \
+        == {1000: ["boxes_1000_spair.png", "boxes_1000_spair6.png"]}
 
 
 def test_campaign_gather_commits_an_allocation_as_the_readme_says(tmp_path) -> None:
@@ -192,14 +225,10 @@ def test_campaign_gather_commits_an_allocation_as_the_readme_says(tmp_path) -> N
     reduced and gzipped, without their fig2.png; Fig. 4's grids as palette PNGs; no logs; the
     page is the committed one; a second pass takes nothing and changes nothing."""
     import gzip
-    import importlib.util
 
     from PIL import Image
 
-    path = os.path.join(ROOT, "benchmarks", "campaign_gather.py")
-    spec = importlib.util.spec_from_file_location("campaign_gather", path)
-    cg = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(cg)
+    cg = _campaign_gather()
     out = _before_second(str(tmp_path / "out"))
     host = str(tmp_path / "host")
     shutil.copytree(CAMPAIGN, host)

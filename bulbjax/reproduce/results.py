@@ -177,12 +177,25 @@ def _preset_section(out: str, fig: str, preset: str, seeds: Sequence[Job], dest:
         lines += [f"![{preset} objects]({rel}/objects.png)", ""]
     lines += [_body(os.path.join(dest, "findings.md")), "", ppo_returns(dest), "",
               f"Errors per learner and state group: [{rel}/table.md]({rel}/table.md).", ""]
-    boxes = sorted(glob.glob(os.path.join(glob.escape(J.job_dir(out, seeds[0])), "boxes_*.png")))
-    recon = sorted(glob.glob(os.path.join(glob.escape(J.job_dir(out, seeds[0])), "recon_*.png")))
-    for label, pngs in (("reconstructions", recon), ("SPAIR's boxes", boxes)):
-        if pngs:
-            lines += [f"Seed 0's {label}, last drawn: ![{label}]({os.path.relpath(pngs[-1], out)})", ""]
+    for label, kind in (("reconstructions", "recon"), ("SPAIR's boxes", "boxes")):
+        drawn = drawn_pictures(J.job_dir(out, seeds[0]), kind)
+        if drawn:
+            last = max(drawn)
+            links = " ".join(f"![{label}]({os.path.relpath(p, out)})" for p in drawn[last])
+            lines += [f"Seed 0's {label}, last drawn (epoch {last}): {links}", ""]
     return lines
+
+
+def drawn_pictures(run_dir: str, kind: str) -> dict[int, list[str]]:
+    """A run's pictures of one kind by the epoch they show: `recon_<epoch>.png`, or
+    `boxes_<epoch>_<learner>.png` (one per learner with boxes), each epoch's paths sorted. By
+    number, not by name: recon_1000 sorts before recon_250."""
+    found: dict[int, list[str]] = {}
+    for path in sorted(glob.glob(os.path.join(glob.escape(run_dir), f"{kind}_*.png"))):
+        epoch = os.path.basename(path)[len(kind) + 1: -len(".png")].split("_", 1)[0]
+        if epoch.isdigit():
+            found.setdefault(int(epoch), []).append(path)
+    return found
 
 
 def _protocol_section(out: str, dirs: Sequence[str], fp32: Sequence[str] = ()) -> list[str]:
