@@ -320,8 +320,9 @@ def _check_options(share: tuple[int, int] | None, overwrite: bool, max_minutes: 
 def _select(out: str, all_jobs: list[Job], host: Host, share: tuple[int, int] | None,
             named: Sequence[Job] | None, fit_minutes: float, overwrite: bool,
             log: Callable[[str], None]) -> list[Job]:
-    """This stretch's jobs: the shard's (`--shard K/N`, by estimated cost), those `--jobs` named,
-    less a Fig. 4 job whose run finished on another host (said), and of the unfinished rest those
+    """This stretch's jobs: the shard's (`--shard K/N`, by estimated cost), those `--jobs` named
+    (those done here said: they do not run again), less a Fig. 4 job whose run finished on another
+    host (said), and of the unfinished rest those
     that fit `fit_minutes` here (`estimate.fit_jobs`)."""
     mine = all_jobs
     if share is not None:
@@ -333,6 +334,9 @@ def _select(out: str, all_jobs: list[Job], host: Host, share: tuple[int, int] | 
                 "(an array of fewer tasks covers it)")
     if named is not None:
         mine = [j for j in mine if j in named]
+        for j in [] if overwrite else [j for j in mine if J.is_done(out, j)]:
+            log(f"{j.id} (picked by --jobs) is done here already and does not run again: delete "
+                f"{J.job_dir(out, j)} to run it again")
     lost = [] if overwrite else [j for j in mine if not J.is_done(out, j) and j.after
                                  and J.finished_elsewhere(out, _job(all_jobs, j.after))]
     for j in lost:  # its run finished on a host whose disk (and the checkpoint) went with it
