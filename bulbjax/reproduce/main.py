@@ -191,7 +191,7 @@ def reproduce(figures: str | Sequence[str] = "all", scale: str = "paper", out: s
     _check_options(share, overwrite, max_minutes, device_kind, dry_run, fit_minutes)
     names = learner_names(add_learners)
     run_flags = apart_flags(learners_apart, apart_env_learners)
-    env_side = run_flags[-1] if run_flags else None  # the jobs' --apart-env-learners (auto unless given)
+    env_side = (apart_env_learners or "auto") if learners_apart else None  # the jobs' --apart-env-learners
     all_jobs = plan_jobs(figs, scale, list(add_learners))
     host = host_of(gpus, learners_apart, jobs_per_gpu, mps, device_kind)
     daemon = MpsDaemon() if mps and not dry_run else None  # no control program: said before planning
