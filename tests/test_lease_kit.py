@@ -36,11 +36,11 @@ def test_the_kit_runs_a_stretch_and_brings_it_back(tmp_path) -> None:
     out.mkdir()
     env = {**os.environ, "LEASE_ROOT": str(lease), "LEASE_PYTHON": sys.executable, "HOME": str(home),
            "OUT": str(out)}
-    # this machine's caches, as its compiles and Warp's builds leave them
+    # what was on this machine before the launch (as a set carried here): not brought back again
     (lease / "bjcache" / "jax").mkdir(parents=True)
-    (lease / "bjcache" / "jax" / "entry").write_text("program")
+    (lease / "bjcache" / "jax" / "carried").write_text("old program")
     (home / ".cache" / "warp").mkdir(parents=True)
-    (home / ".cache" / "warp" / "kernel").write_text("kernel")
+    (home / ".cache" / "warp" / "carried_kernel").write_text("old kernel")
     said = _sh("launch.sh", "--jobs fig2-ant/seed1 --learners-apart --dry-run --device-kind 'NVIDIA H200' "
                "--gpus 2", env=env)
     assert "install: no parts" in said and "launched" in said
@@ -54,24 +54,43 @@ def test_the_kit_runs_a_stretch_and_brings_it_back(tmp_path) -> None:
     ckpt = lease / "res" / "paper" / "runs" / "fig2-ant" / "seed0" / "checkpoints"
     ckpt.mkdir()
     (ckpt / "state.bin").write_bytes(b"x")
+    # this machine's additions, as its compiles and Warp's builds leave them after the launch
+    t0 = os.path.getmtime(lease / "res" / "t0")
+    for path, text in ((lease / "bjcache" / "jax" / "entry", "program"), (home / ".cache" / "warp" / "kernel", "kernel")):
+        path.write_text(text)
+        os.utime(path, (t0 + 5, t0 + 5))
     _sh("collect.sh", env=env)
     with tarfile.open(out / "paper.tgz") as t:
         names = t.getnames()
     assert "paper/plan.json" in names and "reproduce.log" in names and "rc" in names
     assert not any("checkpoints" in n for n in names)
+    pieces = sorted(os.listdir(out / "caches"))
+    name = f"caches-{(lease / 'res' / 't0').read_text().strip()}.tgz"
+    assert pieces == [f"{name}.aa"], pieces
+    with tarfile.open(out / "caches" / pieces[0]) as t:
+        assert sorted(n for n in t.getnames() if t.getmember(n).isfile()) == ["./jax/entry", "./warp/kernel"]
 
-    # a later machine: the caches collect.sh brought back, carried beside the scripts
+    # a later machine: that set and an earlier one carried beside the scripts, merged
     later, home2 = tmp_path / "later", tmp_path / "home2"
     _stage(later)
-    for piece in os.listdir(out / "caches"):
+    for piece in pieces:
         shutil.copy(out / "caches" / piece, later / "stage" / piece)
+    earlier = tmp_path / "earlier"
+    (earlier / "jax").mkdir(parents=True)
+    (earlier / "jax" / "carried").write_text("old program")
+    (earlier / "warp").mkdir()
+    (earlier / "warp" / "carried_kernel").write_text("old kernel")
+    with tarfile.open(later / "stage" / "caches-1.tgz.aa", "w:gz") as t:
+        t.add(earlier, arcname=".")
     env2 = {**env, "LEASE_ROOT": str(later), "HOME": str(home2)}
     # ... and a finished run dropped to run again (CartPole's seed 0, for its Fig. 4)
     env2["DROP"] = "runs/fig2-cartpole/seed0"
     said = _sh("launch.sh", "--jobs fig2-cartpole/seed0 --dry-run --device-kind 'NVIDIA H200'", env=env2)
-    assert "caches unpacked" in said
+    assert "caches unpacked (2 set(s))" in said
     assert (later / "bjcache" / "jax" / "entry").read_text() == "program"
+    assert (later / "bjcache" / "jax" / "carried").read_text() == "old program"
     assert (home2 / ".cache" / "warp" / "kernel").read_text() == "kernel"
+    assert (home2 / ".cache" / "warp" / "carried_kernel").read_text() == "old kernel"
     assert "rc: 0" in _sh("poll.sh", "240", env=env2)
     with open(later / "res" / "jobs.out") as f:
         assert "dropped runs/fig2-cartpole/seed0: it runs again" in f.read()

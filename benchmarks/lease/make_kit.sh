@@ -5,8 +5,9 @@
 # into parts p1..pN of PART_MB (default 38) so that a part and the tracked tree (~20 MB) fit the 64
 # MiB one call carries; the last part also holds install.sh and launch.sh, jobs.sh, poll.sh,
 # collect.sh from this folder. With $BULBJAX_YCB_DIR set the YCB folder travels too (as ycb.tgz,
-# ~26 MB: Fig. 5's jobs read it). Build it anew each session; an earlier machine's caches in
-# .lease/caches/ (collect.sh's pieces) get a call of their own, printed below.
+# ~26 MB: Fig. 5's jobs read it). Build it anew each session; each set of caches an earlier
+# machine added, in a folder of its own (.lease/caches*/, collect.sh's pieces), gets a call of its
+# own, printed below (carry the sets the jobs need: Ant's, Fig. 5's, ...).
 #   bash benchmarks/lease/make_kit.sh     (needs PyPI; BULBJAX_SHARED: the shared folder)
 set -euo pipefail
 top=$(git rev-parse --show-toplevel)
@@ -37,7 +38,7 @@ PY
 if [ -n "${BULBJAX_YCB_DIR:-}" ]; then
   tar czf "$w/ycb.tgz" -C "$(dirname "$BULBJAX_YCB_DIR")" "$(basename "$BULBJAX_YCB_DIR")"
 fi
-rm -rf .lease/p[0-9]* .lease/part_* && mkdir -p .lease  # .lease/caches (carried caches) stays
+rm -rf .lease/p[0-9]* .lease/part_* && mkdir -p .lease  # .lease/caches*/ (carried caches) stay
 (cd "$w" && tar cf - .) | split -b "${PART_MB:-38}M" - .lease/part_
 rm -rf "$w"
 n=0
@@ -48,9 +49,12 @@ cat <<MSG
 calls (carry one part each, back to back):
   1..$((n - 1)): carry [".lease/pK"]: mkdir -p /tmp/stage && cp .lease/pK/* /tmp/stage/
 MSG
-if ls .lease/caches/caches.tgz.* >/dev/null 2>&1; then
-  echo "  then: carry [\".lease/caches\"]: mkdir -p /tmp/stage && cp .lease/caches/* /tmp/stage/ ($(du -sh .lease/caches | cut -f1): an earlier machine's compile cache and Warp's kernels, which launch.sh unpacks)"
-fi
+for d in .lease/caches*/; do  # each set of caches an earlier machine added (collect.sh), a call each
+  d=${d%/}
+  if ls "$d"/caches*.tgz.* >/dev/null 2>&1; then
+    echo "  then: carry [\"$d\"]: mkdir -p /tmp/stage && cp $d/* /tmp/stage/ ($(du -sh "$d" | cut -f1): an earlier machine's compile cache and Warp's kernels, which launch.sh unpacks)"
+  fi
+done
 cat <<MSG
   $n: carry [".lease/p$n"]: mkdir -p /tmp/stage && cp .lease/p$n/* /tmp/stage/ && bash /tmp/stage/launch.sh "REPRODUCE FLAGS" && sleep 60 && bash /tmp/stage/poll.sh 150
   then: bash /tmp/stage/poll.sh 540 (timeout_s 600) until it says rc 0; last: bash /tmp/stage/collect.sh
