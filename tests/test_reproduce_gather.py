@@ -39,7 +39,8 @@ LATER_JOBS = ["fig2-ant/seed0", "fig2-ant/seed1", "fig2-ant/seed2", "fig2-cartpo
 
 def _before_second(dest: str) -> str:
     """The campaign folder as it was before its second allocation: without what that one and the
-    later ones ran, its plan the 34 jobs of before the fp32 entry."""
+    later ones ran (and without CartPole's seed 0, which the seventeenth ran again), its plan the
+    34 jobs of before the fp32 entry."""
     shutil.copytree(CAMPAIGN, dest, ignore=shutil.ignore_patterns("results.md"))
     for rel in LATER:
         shutil.rmtree(os.path.join(dest, rel))
@@ -204,13 +205,17 @@ def test_a_run_keeps_its_last_epoch_s_pictures(tmp_path) -> None:
     objects.png, and the page's "last drawn" is that epoch's."""
     from PIL import Image
 
-    from bulbjax.reproduce.results import drawn_pictures
+    from bulbjax.reproduce.results import drawn_pictures, last_drawn
 
     names = ["recon_250.png", "recon_1000.png", "boxes_250_spair.png", "boxes_1000_spair.png",
              "boxes_1000_spair6.png", "objects.png", "fig2.png"]
     for name in names:
         Image.new("RGB", (8, 8), (200, 30, 30)).save(tmp_path / name)
     assert sorted(drawn_pictures(str(tmp_path), "recon")) == [250, 1000]
+    assert last_drawn(str(tmp_path.parent), str(tmp_path)) == [
+        f"Seed 0's reconstructions, last drawn (epoch 1000): ![reconstructions]({tmp_path.name}/recon_1000.png)", "",
+        f"Seed 0's SPAIR's boxes, last drawn (epoch 1000): ![spair's boxes]({tmp_path.name}/boxes_1000_spair.png) "
+        f"![spair6's boxes]({tmp_path.name}/boxes_1000_spair6.png)", ""]
     kept = _campaign_gather().last_pictures_only(str(tmp_path))
     assert [os.path.basename(p) for p in kept] == ["recon_1000.png", "boxes_1000_spair.png",
                                                    "boxes_1000_spair6.png", "objects.png"]

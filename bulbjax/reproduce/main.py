@@ -335,7 +335,7 @@ def _select(out: str, all_jobs: list[Job], host: Host, share: tuple[int, int] | 
     if named is not None:
         mine = [j for j in mine if j in named]
         for j in [] if overwrite else [j for j in mine if J.is_done(out, j)]:
-            log(f"{j.id} (picked by --jobs) is done here already and does not run again: delete "
+            log(f"{j.id} is done here already and does not run again: delete "
                 f"{J.job_dir(out, j)} to run it again")
     lost = [] if overwrite else [j for j in mine if not J.is_done(out, j) and j.after
                                  and J.finished_elsewhere(out, _job(all_jobs, j.after))]

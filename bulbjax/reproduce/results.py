@@ -139,9 +139,9 @@ def write(out: str, summary: dict[str, Any] | None = None, out_name: str | None 
             for preset, seeds in mine.items():
                 lines += precision_section(out, preset, by_preset.get(("fig2", preset), []), seeds)
         for j in recon:
-            pngs = sorted(glob.glob(os.path.join(glob.escape(J.job_dir(out, j)), "recon_*.png")))
-            if pngs:
-                rel = os.path.relpath(pngs[-1], out)
+            drawn = drawn_pictures(J.job_dir(out, j), "recon")
+            if drawn:
+                rel = os.path.relpath(drawn[max(drawn)][-1], out)
                 lines += [f"### {j.preset}: seed 0 after {j.epochs} epochs", "", f"![{j.preset}]({rel})", ""]
             else:
                 lines += [f"### {j.preset}", "", _undrawn(out, j, jobs), ""]
@@ -177,13 +177,27 @@ def _preset_section(out: str, fig: str, preset: str, seeds: Sequence[Job], dest:
         lines += [f"![{preset} objects]({rel}/objects.png)", ""]
     lines += [_body(os.path.join(dest, "findings.md")), "", ppo_returns(dest), "",
               f"Errors per learner and state group: [{rel}/table.md]({rel}/table.md).", ""]
+    return lines + last_drawn(out, J.job_dir(out, seeds[0]))
+
+
+def last_drawn(out: str, run_dir: str) -> list[str]:
+    """The page's lines for a run's last drawn reconstructions and SPAIR's boxes (those of the
+    largest epoch drawn, each boxes picture named by its learner), links relative to `out`."""
+    lines = []
     for label, kind in (("reconstructions", "recon"), ("SPAIR's boxes", "boxes")):
-        drawn = drawn_pictures(J.job_dir(out, seeds[0]), kind)
+        drawn = drawn_pictures(run_dir, kind)
         if drawn:
             last = max(drawn)
-            links = " ".join(f"![{label}]({os.path.relpath(p, out)})" for p in drawn[last])
+            links = " ".join(f"![{_picture_name(p, kind, label)}]({os.path.relpath(p, out)})"
+                             for p in drawn[last])
             lines += [f"Seed 0's {label}, last drawn (epoch {last}): {links}", ""]
     return lines
+
+
+def _picture_name(path: str, kind: str, label: str) -> str:
+    """`boxes_<epoch>_<learner>.png` -> "<learner>'s boxes"; otherwise `label`."""
+    parts = os.path.basename(path)[: -len(".png")].split("_", 2)
+    return f"{parts[2]}'s boxes" if kind == "boxes" and len(parts) == 3 else label
 
 
 def drawn_pictures(run_dir: str, kind: str) -> dict[int, list[str]]:
@@ -193,7 +207,7 @@ def drawn_pictures(run_dir: str, kind: str) -> dict[int, list[str]]:
     found: dict[int, list[str]] = {}
     for path in sorted(glob.glob(os.path.join(glob.escape(run_dir), f"{kind}_*.png"))):
         epoch = os.path.basename(path)[len(kind) + 1: -len(".png")].split("_", 1)[0]
-        if epoch.isdigit():
+        if epoch.isdecimal():
             found.setdefault(int(epoch), []).append(path)
     return found
 
