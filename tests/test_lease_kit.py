@@ -56,7 +56,8 @@ def test_the_kit_runs_a_stretch_and_brings_it_back(tmp_path) -> None:
     (ckpt / "state.bin").write_bytes(b"x")
     # this machine's additions, as its compiles and Warp's builds leave them after the launch
     t0 = os.path.getmtime(lease / "res" / "t0")
-    for path, text in ((lease / "bjcache" / "jax" / "entry", "program"), (home / ".cache" / "warp" / "kernel", "kernel")):
+    for path, text in ((lease / "bjcache" / "jax" / "entry", "program"),
+                       (home / ".cache" / "warp" / "kernel", "kernel")):
         path.write_text(text)
         os.utime(path, (t0 + 5, t0 + 5))
     _sh("collect.sh", env=env)

@@ -1,7 +1,8 @@
 # On the GPU machine, from the checkout's root (where a call runs): install the wheels, unpack
 # the caches brought from earlier machines (each set's pieces caches*.tgz.* beside the wheels, as
-# collect.sh split them; several sets merge), copy the tree to $R/bj (a later call lays the tree again under anything that runs from
-# it) and start jobs.sh detached with reproduce's flags "$1". LEASE_ROOT (default /tmp) moves it.
+# collect.sh split them; several sets merge), copy the tree to $R/bj (a later call lays the tree
+# again under anything that runs from it) and start jobs.sh detached with reproduce's flags "$1".
+# LEASE_ROOT (default /tmp) moves it.
 set -e
 R=${LEASE_ROOT:-/tmp}
 warp=${WARP_CACHE_DIR:-$HOME/.cache/warp}

@@ -322,8 +322,8 @@ def _select(out: str, all_jobs: list[Job], host: Host, share: tuple[int, int] | 
             log: Callable[[str], None]) -> list[Job]:
     """This stretch's jobs: the shard's (`--shard K/N`, by estimated cost), those `--jobs` named
     (those done here said: they do not run again), less a Fig. 4 job whose run finished on another
-    host (said), and of the unfinished rest those
-    that fit `fit_minutes` here (`estimate.fit_jobs`)."""
+    host (said), and of the unfinished rest those that fit `fit_minutes` here
+    (`estimate.fit_jobs`)."""
     mine = all_jobs
     if share is not None:
         k, n = share
