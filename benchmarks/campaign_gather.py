@@ -71,12 +71,10 @@ def last_pictures_only(run_dir: str) -> list[str]:
     kept = []
     for kind in ("recon", "boxes"):
         drawn = drawn_pictures(run_dir, kind)
-        for epoch, paths in drawn.items():
-            for path in paths:
-                if epoch == max(drawn):
-                    kept.append(path)
-                else:
-                    os.remove(path)
+        last = max(drawn, default=None)
+        kept += drawn.get(last, [])
+        for path in (p for epoch, paths in drawn.items() if epoch != last for p in paths):
+            os.remove(path)
     objects = os.path.join(run_dir, "objects.png")
     return kept + ([objects] if os.path.exists(objects) else [])
 

@@ -191,7 +191,7 @@ def reproduce(figures: str | Sequence[str] = "all", scale: str = "paper", out: s
     _check_options(share, overwrite, max_minutes, device_kind, dry_run, fit_minutes)
     names = learner_names(add_learners)
     run_flags = apart_flags(learners_apart, apart_env_learners)
-    env_side = (apart_env_learners or "auto") if learners_apart else None  # the jobs' --apart-env-learners
+    env_side = dict(zip(run_flags[::2], run_flags[1::2])).get("--apart-env-learners")  # as the jobs run
     all_jobs = plan_jobs(figs, scale, list(add_learners))
     host = host_of(gpus, learners_apart, jobs_per_gpu, mps, device_kind)
     daemon = MpsDaemon() if mps and not dry_run else None  # no control program: said before planning
@@ -334,7 +334,8 @@ def _select(out: str, all_jobs: list[Job], host: Host, share: tuple[int, int] | 
                 "(an array of fewer tasks covers it)")
     if named is not None:
         mine = [j for j in mine if j in named]
-        for j in [] if overwrite else [j for j in mine if J.is_done(out, j)]:
+        done = [] if overwrite else [j for j in mine if J.is_done(out, j)]  # --overwrite runs them again
+        for j in done:
             log(f"{j.id} is done here already and does not run again: delete "
                 f"{J.job_dir(out, j)} to run it again")
     lost = [] if overwrite else [j for j in mine if not J.is_done(out, j) and j.after
