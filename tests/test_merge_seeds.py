@@ -120,3 +120,54 @@ def test_a_merged_folder_without_its_metrics_pools_its_runs_again(tmp_path) -> N
     os.rename(moved / "runs" / "p" / "seed1", moved / "runs" / "p" / "other")
     with pytest.raises(ValueError, match="base seed 1 .* neither beside it, at that path, nor under a folder above"):
         merge.merge_sources(str(moved / "fig2" / "p"))
+
+
+def _regions(run_dir: str, epoch: int, seeds: int, level: float, radius: float = 6.4) -> None:
+    """A run's `regions_<epoch>.json` as `RunFigures.draw` writes it: every seed's ratio per
+    object `level` + the seed index / 10."""
+    rows = [[level + s / 10, level + s / 10 + 0.01] for s in range(seeds)]
+    with open(os.path.join(run_dir, f"regions_{epoch}.json"), "w") as f:
+        json.dump({"epoch": epoch, "objects": ["obj0", "obj1"], "radius_px": radius, "frames": 64,
+                   "seeds": seeds, "clear_below": 0.5,
+                   "learners": {"spair": {"ratio": rows, "error": rows, "baseline": rows}}}, f)
+
+
+def test_a_merge_pools_the_runs_region_errors(tmp_path) -> None:
+    """Fig. 5's campaign runs a job a seed: the merged folder's findings read the per-object
+    reconstruction errors of every seed, so the merge pools the runs' `regions_<epoch>.json` of
+    the latest epoch all of them measured, seeds in the records' order (the first merged pages
+    said "not tested" beside three runs that had measured it); runs that measured differently
+    pool nothing, and a merge again replaces what the one before wrote."""
+    from bulbjax.eval import regions
+
+    a = _run_dir(str(tmp_path / "a"), 2, 0, 0.5)
+    b = _run_dir(str(tmp_path / "b"), 1, 2, 0.9)
+    for epoch in (250, 500):
+        _regions(a, epoch, 2, 0.1)
+        _regions(b, epoch, 1, 0.7)
+    _regions(a, 750, 2, 0.2)  # b has not reached it: not pooled
+    out = str(tmp_path / "m")
+    merge.merge_seeds([a, b], out, figures=False)
+    assert sorted(n for n in os.listdir(out) if n.startswith("regions_")) == ["regions_500.json"]
+    got = regions.newest(out)
+    assert got["epoch"] == 500 and got["seeds"] == 3 and got["objects"] == ["obj0", "obj1"]
+    assert np.allclose(got["learners"]["spair"]["ratio"], [[0.1, 0.11], [0.2, 0.21], [0.7, 0.71]])
+    _regions(b, 500, 1, 0.7, radius=3.2)  # measured with other discs: nothing to pool
+    merge.merge_seeds([a, b], out, figures=False)
+    assert regions.pooled([a, b]) is None and regions.newest(out) is None
+
+
+def test_a_plan_s_one_seed_merge_keeps_its_region_errors(tmp_path) -> None:
+    """A plan preset of one seed is merged by copying its run's reports: its region errors go
+    with them, so the merged folder's findings can be drawn again from it."""
+    from bulbjax.reproduce import results
+    from bulbjax.reproduce.plan import Job
+
+    out = str(tmp_path / "plan")
+    run = _run_dir(os.path.join(out, "runs", "p", "seed0"), 1, 0, 0.5)
+    _regions(run, 2, 1, 0.3)
+    job = Job(id="p/seed0", figure="fig2", kind="run", preset="p", seed=0, epochs=3,
+              run_dir="runs/p/seed0", probe_every=1, recon_every=0, flags=(), after=None, seeds=1,
+              checkpoint_every=0)
+    dest = results.merge(out, "fig2", "p", [job])
+    assert dest is not None and "regions_2.json" in os.listdir(dest)

@@ -67,10 +67,41 @@ def region_scores(frames: np.ndarray, recon: np.ndarray, positions: np.ndarray, 
             "pixels": pixels.astype(int).tolist()}
 
 
+def _epochs(run_dir: str) -> dict[int, str]:
+    """{epoch: path} of the `regions_<epoch>.json` files in `run_dir`."""
+    files = glob.glob(os.path.join(run_dir, FILE.format(epoch="*")))
+    return {int(os.path.basename(f).split("_")[1].split(".")[0]): f for f in files}
+
+
 def newest(run_dir: str) -> dict[str, Any] | None:
     """The region errors of the latest epoch in `run_dir` (`regions_<epoch>.json`), or None."""
-    files = glob.glob(os.path.join(run_dir, FILE.format(epoch="*")))
+    files = _epochs(run_dir)
     if not files:
         return None
-    with open(max(files, key=lambda f: int(os.path.basename(f).split("_")[1].split(".")[0]))) as f:
+    with open(files[max(files)]) as f:
         return json.load(f)
+
+
+def pooled(run_dirs: list[str]) -> dict[str, Any] | None:
+    """The region errors of several runs' seeds as one run's, as `merge.merge_seeds` pools their
+    records: of the latest epoch that every run measured, each learner's per-seed lists
+    concatenated run after run. None when some run measured no epoch that all did, or the runs
+    measured differently (objects, disc radius, frames, learners): nothing is pooled then, and the
+    merged findings say the claim is not tested, as for a run without the files."""
+    found = [_epochs(d) for d in run_dirs]
+    common = set.intersection(*(set(f) for f in found)) if found else set()
+    if not common:
+        return None
+    epoch = max(common)
+    runs = []
+    for f in found:
+        with open(f[epoch]) as fh:
+            runs.append(json.load(fh))
+    how = ("objects", "radius_px", "frames", "clear_below")
+    if any([r.get(k) for k in how] != [runs[0].get(k) for k in how]
+           or sorted(r["learners"]) != sorted(runs[0]["learners"]) for r in runs):
+        return None
+    learners = {name: {key: [row for r in runs for row in r["learners"][name][key]]
+                       for key in scores}
+                for name, scores in runs[0]["learners"].items()}
+    return {**runs[0], "seeds": sum(int(r["seeds"]) for r in runs), "learners": learners}

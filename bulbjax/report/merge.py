@@ -8,11 +8,13 @@ Imports the report (`report.write_reports`) and the layers below; the report nev
 from __future__ import annotations
 
 import dataclasses
+import glob
 import json
 import os
 from typing import Any, Sequence
 
 from bulbjax.config import computed_config, form_of, read_run_config, run_options_of
+from bulbjax.eval import regions
 from bulbjax.report.records import metrics_path, read_jsonl, write_jsonl_atomic
 from bulbjax.report.report import report_spec, write_reports
 
@@ -83,12 +85,25 @@ def merge_seeds(run_dirs: Sequence[str], out_dir: str, figures: bool = True) -> 
     stale = os.path.join(out_dir, "metrics.jsonl.gz")  # a compressed copy of an earlier merge
     if os.path.exists(stale):
         os.remove(stale)
+    _pool_regions(run_dirs, out_dir)
     cls = env_class(cfg.env)
     names = ", ".join(f"{s['run_dir']} (seed {s['base_seed']}: {s['seeds']} seeds)"
                       for s in sources)
     footer = f"seeds of {len(run_dirs)} runs merged by `bulbjax report --merge-seeds`: {names}"
     return write_reports(out_dir, merged, cfg, report_spec(cls.state_spec, merged),
                          cls.solved_return, footer=footer, figures=figures)
+
+
+def _pool_regions(run_dirs: Sequence[str], out_dir: str) -> None:
+    """The runs' per-object reconstruction errors (`regions_<epoch>.json`) pooled into `out_dir`,
+    whose findings read them (Fig. 5's "no reconstruction is clear" over every seed); an earlier
+    merge's files there are replaced (merging again gives the same folder)."""
+    for old in glob.glob(os.path.join(out_dir, regions.FILE.format(epoch="*"))):
+        os.remove(old)
+    pooled = regions.pooled(list(run_dirs))
+    if pooled is not None:
+        with open(os.path.join(out_dir, regions.FILE.format(epoch=pooled["epoch"])), "w") as f:
+            json.dump(pooled, f)
 
 
 def is_merged(run_dir: str) -> bool:

@@ -49,8 +49,9 @@ def merged_dir(out: str, figure: str, preset: str) -> str:
 
 
 def merge(out: str, figure: str, preset: str, seeds: Sequence[Job]) -> str | None:
-    """Merge the finished seeds of one preset into `OUT/<figure>/<preset>` (their reports there);
-    returns that folder, or None while any seed is unfinished. One seed: its reports copied."""
+    """Merge the finished seeds of one preset into `OUT/<figure>/<preset>` (their reports there,
+    with their region errors pooled: `merge.merge_seeds`); returns that folder, or None while any
+    seed is unfinished. One seed: its reports and region errors copied."""
     if not all(J.is_done(out, j) for j in seeds):
         return None
     dest = merged_dir(out, figure, preset)
@@ -60,7 +61,9 @@ def merge(out: str, figure: str, preset: str, seeds: Sequence[Job]) -> str | Non
     else:
         redraw(dirs[0])
         os.makedirs(dest, exist_ok=True)
-        for name in ("config.json", "fig2.png", "table.md", "findings.md", "objects.png"):
+        names = ["config.json", "fig2.png", "table.md", "findings.md", "objects.png"]
+        names += [os.path.basename(p) for p in glob.glob(os.path.join(dirs[0], "regions_*.json"))]
+        for name in names:  # the region errors too: the copied findings were read from them
             if os.path.exists(os.path.join(dirs[0], name)):
                 shutil.copy2(os.path.join(dirs[0], name), os.path.join(dest, name))
         shutil.copy2(metrics_path(dirs[0]), os.path.join(dest, os.path.basename(metrics_path(dirs[0]))))
