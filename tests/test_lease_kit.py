@@ -61,7 +61,8 @@ def test_the_kit_runs_a_stretch_and_brings_it_back(tmp_path) -> None:
         path.write_text(text)
         os.utime(path, (t0 + 5, t0 + 5))
     _sh("collect.sh", env=env)
-    with tarfile.open(out / "paper.tgz") as t:
+    assert sorted(n for n in os.listdir(out) if n.startswith("paper")) == ["paper.tgz.aa"]  # 15 MB pieces
+    with tarfile.open(out / "paper.tgz.aa") as t:
         names = t.getnames()
     assert "paper/plan.json" in names and "reproduce.log" in names and "rc" in names
     assert not any("checkpoints" in n for n in names)
