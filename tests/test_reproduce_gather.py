@@ -29,13 +29,14 @@ CAMPAIGN = os.path.join(ROOT, "docs", "results", "paper_h200")
 # with its Fig. 4)
 LATER = ("runs/fig2-cartpole/seed0", "runs/fig2-cartpole/seed4", "runs/fig2-cartpole/seed5", "runs/fig2-invpend",
          "fig4", "runs/fp32", "fig2", "probe_protocol", "runs/fig2-halfcheetah", "runs/fig2-ant",
-         "runs/fig5-rearrange-ycb")
+         "runs/fig5-rearrange-ycb", "fig5")
 LATER_JOBS = ["fig2-ant/seed0", "fig2-ant/seed1", "fig2-ant/seed2", "fig2-cartpole/seed0", "fig2-cartpole/seed4",
               "fig2-cartpole/seed5", "fig2-halfcheetah/seed0", "fig2-halfcheetah/seed1", "fig2-halfcheetah/seed2",
               "fig2-invpend/seed0", "fig2-invpend/seed1", "fig2-invpend/seed2",
               "fig2-invpend/seed3", "fig2-invpend/seed4", "fig2-invpend/seed5", "fig4/fig2-ant",
               "fig4/fig2-cartpole", "fig4/fig2-halfcheetah", "fig4/fig2-invpend", "fig5-rearrange-ycb/seed0",
-              "fp32/fig2-invpend/seed0", "fp32/fig2-invpend/seed1"]
+              "fig5-rearrange-ycb/seed1", "fig5-rearrange-ycb/seed2", "fp32/fig2-invpend/seed0",
+              "fp32/fig2-invpend/seed1"]
 
 def _before_second(dest: str) -> str:
     """The campaign folder as it was before its second allocation: without what that one and the
