@@ -1,7 +1,9 @@
 """Summarise a JAX profiler trace (`*.xplane.pb`, e.g. from `profile_epoch.py --trace DIR`) into a
-small JSON: for every GPU, the time its streams were busy against the traced span, and the XLA
-ops and kernels that took the most device time. A trace is tens of MB and needs TensorBoard to
-read; this keeps what decides where an epoch's time goes, small enough to bring back from the GPU.
+small JSON: for every GPU, the time its streams were busy against the traced span, the XLA
+ops and kernels that took the most device time, and the runtime's copies and fills by the op
+that made them, with their mean size where the tracer records it (`copies`). A trace is tens of
+MB and needs TensorBoard to read; this keeps what decides where an epoch's time goes, small
+enough to bring back from the GPU.
 
     python benchmarks/trace_summary.py TRACE_DIR --out summary.json [--top 40]
 
@@ -99,6 +101,27 @@ def _scope_of(ev: Any, scopes: dict[str, str]) -> str:
     return next((cls for part, cls in _CLASSES if part in ev.name), "(unscoped)")
 
 
+_BYTES_RE = re.compile(r"\b(?:size|num_bytes|bytes)[:=]\s*(\d+)")
+
+
+def copy_key(ev: Any, scope: str) -> tuple[str, str, int | None]:
+    """(kind, the XLA op that made it or "(no op)", bytes or None) of a runtime copy or fill
+    event: which copies an epoch makes, and how big they are (a Fig. 5 epoch's 77 us copies,
+    docs/performance.md), from its `hlo_op` stat and the size its tracer records (an int stat
+    named size/num_bytes/bytes, or `size:N` in a string stat such as `memcpy_details`)."""
+    op, size = "(no op)", None
+    for k, v in ev.stats:
+        if k == "hlo_op" and isinstance(v, str):
+            op = v.lstrip("%")
+        elif isinstance(v, int) and k in ("size", "num_bytes", "bytes"):
+            size = int(v)
+        elif isinstance(v, str) and size is None:
+            m = _BYTES_RE.search(v)
+            if m:
+                size = int(m.group(1))
+    return ev.name, f"{op} [{scope}]", size
+
+
 def _op_events(plane: Any) -> Iterator[tuple[str, Any]]:
     """(line name, event) of the plane's ops: GPU kernel streams, or on the CPU the thunks that
     carry an `hlo_op` stat (so the same summary runs on a CPU trace)."""
@@ -146,6 +169,7 @@ def summarise(path: str, top: int = 40, scopes: dict[str, str] | None = None,
         kernels: list[tuple[int, int]] = []
         by_scope: dict[str, list[tuple[int, int]]] = collections.defaultdict(list)
         unscoped: collections.Counter = collections.Counter()
+        copies: dict[tuple[str, str], list[int]] = collections.defaultdict(lambda: [0, 0, 0, 0])
         for line in plane.lines:  # non-kernel lines (XLA Ops, XLA Modules) summed by name
             if not line.name.startswith("Stream") and plane.name.startswith("/device:GPU"):
                 for ev in line.events:
@@ -164,6 +188,13 @@ def summarise(path: str, top: int = 40, scopes: dict[str, str] | None = None,
             by_scope[scope].append(iv)
             if scope == "(unscoped)":
                 unscoped[ev.name] += ev.duration_ns
+            if ev.name.startswith(("Memcpy", "Memset")):
+                kind, where, size = copy_key(ev, scope)
+                c = copies[(kind, where)]  # count, ns, bytes, events with a size
+                c[0] += 1
+                c[1] += ev.duration_ns
+                c[2] += size or 0
+                c[3] += size is not None
         span = (max(e for _, e in kernels) - min(s for s, _ in kernels)) if kernels else 0
         dev: dict[str, Any] = {"span_ms": span / 1e6, "busy_ms": _merge(kernels) / 1e6,
                                "kernel_launches": len(kernels), "lines": {}, "scopes": {}}
@@ -175,6 +206,9 @@ def summarise(path: str, top: int = 40, scopes: dict[str, str] | None = None,
             dev["scopes"][scope] = {"kernel_ms": sum(e - s for s, e in ivs) / 1e6,
                                     "busy_ms": _merge(ivs) / 1e6, "launches": len(ivs)}
         dev["unscoped_top"] = [{"name": k[:160], "ms": v / 1e6} for k, v in unscoped.most_common(top)]
+        dev["copies"] = [{"kind": kind, "op": where[:160], "count": c[0], "ms": c[1] / 1e6,
+                          "mean_bytes": (c[2] / c[3]) if c[3] else None}
+                         for (kind, where), c in sorted(copies.items(), key=lambda kv: -kv[1][1])[:top]]
         out["devices"][plane.name] = dev
     if wins:
         out["windows"] = {"name": window, "count": len(wins), "total_ms": sum(e - s for s, e in wins) / 1e6}
@@ -216,6 +250,9 @@ def main() -> None:
             print(f"  [{line}] total {v['total_ms']:.0f} ms")
             for row in v["top"][:15]:
                 print(f"    {row['ms']:9.1f} ms x{row['count']:<6} {row['name'][:110]}")
+        for row in d["copies"][:8]:
+            size = "size not recorded" if row["mean_bytes"] is None else f"{row['mean_bytes'] / 1e6:.3f} MB each"
+            print(f"  copies {row['ms']:9.1f} ms x{row['count']:<6} {row['kind']} by {row['op'][:70]} ({size})")
 
 
 if __name__ == "__main__":

@@ -88,3 +88,15 @@ def test_warp_devices_follow_jax() -> None:
     gpus = [SimpleNamespace(platform="gpu", local_hardware_id=i) for i in (1, 0)]
     assert warp_devices(gpus) == ["cuda:1", "cuda:0"]
     assert warp_devices(gpus[:1]) == ["cuda:1"]
+
+
+def test_copies_are_named_by_their_op_and_size() -> None:
+    """The runtime's copies and fills are counted by the XLA op that made them and the size the
+    tracer records (an int stat, or `size:N` in a string one), so a trace says which copies an
+    epoch makes and how big they are."""
+    ts = _trace_summary()
+    ev = lambda name, **stats: SimpleNamespace(name=name, stats=list(stats.items()))  # noqa: E731
+    assert ts.copy_key(ev("MemcpyD2D", hlo_op="%ffi_call.169", memcpy_details="kind_src:device size:4096 async:1"),
+                       "bj.rl") == ("MemcpyD2D", "ffi_call.169 [bj.rl]", 4096)
+    assert ts.copy_key(ev("MemcpyD2D", num_bytes=512), "(memcpy)") == ("MemcpyD2D", "(no op) [(memcpy)]", 512)
+    assert ts.copy_key(ev("Memset 3", correlation_id=7), "(memset)")[2] is None
