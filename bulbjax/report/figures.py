@@ -101,6 +101,32 @@ def _take(batch: Windows, n: int) -> tuple[Windows, np.ndarray]:
     return w, frames
 
 
+_JITTED: dict[tuple[int, str], tuple[Any, Any, bool]] = {}  # (learner, its call, jit it)
+
+
+def jitted(learner: Any, method: str) -> Any:
+    """`learner.<method>` under `jax.jit`, made once per learner and method. Called eagerly, a
+    learner's forward pass compiles each of its operations on first use: a run's first pictures
+    on an H200 took ~55-100 s (Fig. 5's SPAIR decoders) and later ones seconds; jitted, each is one
+    program, which the compile cache also keeps for the next process. A method that does not
+    trace (host code: NumPy on its inputs) runs as it is, from its first call on."""
+    key = (id(learner), method)
+    hit = _JITTED.get(key)
+    if hit is None or hit[0] is not learner:  # an id reused by a new learner: make it afresh
+        plain, fast = getattr(learner, method), jax.jit(getattr(learner, method))
+
+        def call(*args: Any) -> Any:
+            if _JITTED[key][2]:
+                try:
+                    return fast(*args)
+                except (jax.errors.TracerArrayConversionError, jax.errors.ConcretizationTypeError):
+                    _JITTED[key] = (learner, call, False)
+            return plain(*args)
+
+        hit = _JITTED[key] = (learner, call, True)
+    return hit[1]
+
+
 def reconstructions(learners: Mapping[str, Any], params: Mapping[str, Any],
                     batch: Windows | np.ndarray, n: int = 8) -> tuple[np.ndarray, dict[str, np.ndarray]]:
     """True frames float [n', H, W, 3] in [0, 1] (the first `n` frames of `batch`, window by
@@ -115,11 +141,11 @@ def reconstructions(learners: Mapping[str, Any], params: Mapping[str, Any],
         if is_sequential(learner):
             if not isinstance(batch, Windows):
                 raise ValueError(f"sequential learner {name!r} reconstructs windows: pass Windows")
-            rec = np.asarray(learner.reconstruct(params[name], jax.tree.map(np.asarray, w)))
+            rec = np.asarray(jitted(learner, "reconstruct")(params[name], jax.tree.map(np.asarray, w)))
             rec = rec[:, : w.frames.shape[1]]  # PRED appends its forecast
             rec = rec.reshape((-1,) + rec.shape[2:])[:n_]
         else:
-            rec = np.asarray(learner.reconstruct(params[name], frames))
+            rec = np.asarray(jitted(learner, "reconstruct")(params[name], frames))
         out[name] = np.clip(rec.astype(np.float32), 0.0, 1.0)
     return frames.astype(np.float32) / 255.0, out
 
@@ -130,10 +156,10 @@ def spair_outputs(spair: Any, params: Any, batch: Windows | np.ndarray, n: int =
     if not hasattr(spair, "boxes"):
         raise ValueError(f"{type(spair).__name__} has no boxes: the boxes figure is SPAIR's")
     _, frames = _take(batch, n)
-    centres, sizes, pres = (np.asarray(a) for a in spair.boxes(params, frames))
+    centres, sizes, pres = (np.asarray(a) for a in jitted(spair, "boxes")(params, frames))
     return {"frames": frames.astype(np.float32) / 255.0, "centres": centres, "sizes": sizes,
-            "pres": pres, "recon": np.clip(np.asarray(spair.reconstruct(params, frames)), 0, 1),
-            "background": np.clip(np.asarray(spair.background(params, frames)), 0, 1)}
+            "pres": pres, "recon": np.clip(np.asarray(jitted(spair, "reconstruct")(params, frames)), 0, 1),
+            "background": np.clip(np.asarray(jitted(spair, "background")(params, frames)), 0, 1)}
 
 
 # ---------------------------------------------------------------------------- images
