@@ -112,7 +112,7 @@ def jitted(learner: Any, method: str) -> Any:
     trace (host code: NumPy on its inputs) runs as it is, from its first call on."""
     key = (id(learner), method)
     hit = _JITTED.get(key)
-    if hit is None or hit[0] is not learner:  # an id reused by a new learner: make it afresh
+    if hit is None:  # (the entry keeps its learner alive, so no other learner takes its id)
         plain, fast = getattr(learner, method), jax.jit(getattr(learner, method))
 
         def call(*args: Any) -> Any:
