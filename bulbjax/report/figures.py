@@ -101,7 +101,7 @@ def _take(batch: Windows, n: int) -> tuple[Windows, np.ndarray]:
     return w, frames
 
 
-_JITTED: dict[tuple[int, str], tuple[Any, Any, bool]] = {}  # (learner, its call, jit it)
+_JITTED: dict[tuple[int, str], tuple[Any, Any]] = {}  # (learner, its call)
 
 
 def jitted(learner: Any, method: str) -> Any:
@@ -109,22 +109,23 @@ def jitted(learner: Any, method: str) -> Any:
     learner's forward pass compiles each of its operations on first use: a run's first pictures
     on an H200 took ~55-100 s (Fig. 5's SPAIR decoders) and later ones seconds; jitted, each is one
     program, which the compile cache also keeps for the next process. A method that does not
-    trace (host code: NumPy on its inputs) runs as it is, from its first call on."""
+    trace (host code: NumPy on its inputs) runs as it is, from its first call on. The entry keeps
+    its learner alive, so no other learner takes its id."""
     key = (id(learner), method)
-    hit = _JITTED.get(key)
-    if hit is None:  # (the entry keeps its learner alive, so no other learner takes its id)
+    if key not in _JITTED:
         plain, fast = getattr(learner, method), jax.jit(getattr(learner, method))
+        traces = [True]
 
         def call(*args: Any) -> Any:
-            if _JITTED[key][2]:
+            if traces[0]:
                 try:
                     return fast(*args)
                 except (jax.errors.TracerArrayConversionError, jax.errors.ConcretizationTypeError):
-                    _JITTED[key] = (learner, call, False)
+                    traces[0] = False
             return plain(*args)
 
-        hit = _JITTED[key] = (learner, call, True)
-    return hit[1]
+        _JITTED[key] = (learner, call)
+    return _JITTED[key][1]
 
 
 def reconstructions(learners: Mapping[str, Any], params: Mapping[str, Any],

@@ -16,6 +16,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
+from bulbjax.eval import regions
 from bulbjax.report import band, ci90, last_returns, merge_seeds, metrics_path, probed, read_jsonl, redraw
 from bulbjax.reproduce import claims
 from bulbjax.reproduce import jobs as J
@@ -62,7 +63,7 @@ def merge(out: str, figure: str, preset: str, seeds: Sequence[Job]) -> str | Non
         redraw(dirs[0])
         os.makedirs(dest, exist_ok=True)
         names = ["config.json", "fig2.png", "table.md", "findings.md", "objects.png"]
-        names += [os.path.basename(p) for p in glob.glob(os.path.join(dirs[0], "regions_*.json"))]
+        names += [os.path.basename(p) for p in glob.glob(os.path.join(dirs[0], regions.FILE.format(epoch="*")))]
         for name in names:  # the region errors too: the copied findings were read from them
             if os.path.exists(os.path.join(dirs[0], name)):
                 shutil.copy2(os.path.join(dirs[0], name), os.path.join(dest, name))
