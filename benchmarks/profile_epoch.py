@@ -396,16 +396,21 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     p.add_argument("--compile-cache", default="",
                    help="JAX persistent compilation cache folder (default: none, so compile times are cold)")
     p.add_argument("--warp-stats", action="store_true",
-                   help="count MuJoCo Warp's FFI calls, graph captures and their host time per epoch")
+                   help="count MuJoCo Warp's FFI calls, graph captures and their host time per epoch "
+                        "(not with --trace: its traces show copies its untraced epochs do not pay)")
     p.add_argument("--warp-graph-cache", default="",
                    help="captured CUDA graphs kept per Warp callable (an int, or none: unbounded; default: "
                         "bulbjax.envs.warp_graphs.GRAPH_CACHE_MAX; Warp's own default is 32)")
     p.add_argument("--separate-substeps", action="store_true",
                    help="step the physics in MJX's separate calls (EnvConfig.fuse_substeps=False): "
                         "the before of issue 63's one-call-per-env-step measurement")
+    p.add_argument("--pose-branch", choices=("cond", "select"), default="cond",
+                   help="how step gives reset worlds their poses (EnvConfig.reset_pose_branch): a lax.cond, "
+                        "whose predicate a GPU reads on the host each step, or a select")
     a = p.parse_args(argv)
-    if a.separate_substeps:  # the experiment builds its env through bulbjax.make
-        bulbjax.make = functools.partial(bulbjax.make, fuse_substeps=False)
+    if a.separate_substeps or a.pose_branch != "cond":  # the experiment builds its env through bulbjax.make
+        bulbjax.make = functools.partial(bulbjax.make, fuse_substeps=not a.separate_substeps,
+                                         reset_pose_branch=a.pose_branch)
     if a.warp_stats or a.warp_graph_cache:
         gcm = a.warp_graph_cache
         warp_ffi_stats.install("default" if not gcm else None if gcm == "none" else int(gcm))
@@ -419,7 +424,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
                            "platform": jax.default_backend(), "jax": jax.__version__,
                            "compile_cache": a.compile_cache or None,
                            "warp_graph_cache": a.warp_graph_cache or "default",
-                           "fuse_substeps": not a.separate_substeps,
+                           "fuse_substeps": not a.separate_substeps, "reset_pose_branch": a.pose_branch,
                            # settings given by the environment (XLA_FLAGS, JAX_* such as
                            # JAX_THREEFRY_GPU_KERNEL_LOWERING), so that a result says what it ran
                            "env": {k: v for k, v in os.environ.items()

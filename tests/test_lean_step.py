@@ -63,3 +63,23 @@ def test_graph_mode_is_checked_and_has_no_effect_on_the_cpu():
     class Gpu:
         platform = "gpu"
     assert int(warp_graphs.graph_mode("warp_staged", Gpu())) == 3, "Warp's JaxCallableGraphMode.WARP_STAGED"
+
+
+def test_the_pose_pass_as_a_select_gives_the_cond_s_episodes_with_one_branch_fewer():
+    """`EnvConfig.reset_pose_branch`: "select" runs the pose pass in every step and keeps it where
+    some world was reset, so a GPU never reads that predicate on the host; the episodes are the
+    cond's bit for bit (poses included) and the step holds one `lax.cond` fewer."""
+    make = lambda branch: bulbjax.make("InvertedPendulum", num_envs=N, render=False,  # noqa: E731
+                                       reset_pose_branch=branch)
+    cond, select = make("cond"), make("select")
+    assert select._pose_select and not cond._pose_select
+    assert not bulbjax.make("InvertedPendulum", num_envs=2, render=False)._pose_select, "the cond by default"
+    a, b = _rollout(select), _rollout(cond)
+    assert 0 < a["done"].sum() < a["done"].size, "some steps must reset a world and some not"
+    for k in a:
+        np.testing.assert_array_equal(a[k], b[k], err_msg=k)
+    state, act = cond.reset(jax.random.PRNGKey(0)), np.zeros((N, cond.action_size), np.float32)
+    branches = lambda env: jax.jit(env.step).lower(state, act).as_text().count("stablehlo.case")  # noqa: E731
+    assert branches(cond) == branches(select) + 1
+    with pytest.raises(ValueError, match="reset_pose_branch must be one of"):
+        make("where")

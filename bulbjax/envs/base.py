@@ -164,6 +164,7 @@ class MjxPixelEnv:
         # worlds it resets (`_poses`): the template Data they start from holds the view's poses.
         static = static_view(self.mj_model)
         self._pose_pass = "kinematics" if static and not self.forward_after_step else "forward"
+        self._pose_select = config.reset_pose_branch == "select"  # `_poses`: no host read of its predicate
         view = ({k: jax.device_put(np.asarray(v, np.float32), device) for k, v in view_poses(self.mj_model).items()}
                 if static else {})
         self._data0 = mjx.make_data(self.mj_model, device=device, impl="warp", njmax=self.njmax,
@@ -387,7 +388,9 @@ class MjxPixelEnv:
         a body, or `forward_after_step`) it is MJX's full forward pass, the only Warp call that
         also places cameras, at the cost of a physics step. It runs on every world when frames
         are rendered, unless `physics` has just computed the kinematics every other world needs:
-        then, as without frames, only in steps where some world was reset. Neither changes what
+        then, as without frames, its result is kept only in steps where some world was reset
+        (`EnvConfig.reset_pose_branch`: computed only then, or in every step, so that a GPU's
+        host never waits to read whether a world was reset). Neither changes what
         the next step computes: `mjx.step` starts with its own forward pass, and only its
         integration writes the solver's warm start."""
         kinematics = self._pose_pass == "kinematics"
@@ -396,6 +399,9 @@ class MjxPixelEnv:
         rendered = self._renders_steps or self.point_renderer is not None
         if rendered and not (kinematics and self.kinematics_after_step):
             return poses(data)
+        if self._pose_select:  # EnvConfig.reset_pose_branch: no predicate read on the host
+            some, new = done.any(), poses(data)
+            return jax.tree.map(lambda a, b: jnp.where(some, a, b), new, data)
         return jax.lax.cond(done.any(), poses, lambda d: d, data)
 
     def _reward_terminated_batch(self, data: mjx.Data, lowdim: jax.Array, action: jax.Array,

@@ -58,8 +58,17 @@ class EnvConfig:
     # numbers bit for bit, one host callback per env step instead of `frame_skip` + 1 (the
     # locomotion domains: 5). False: MJX's separate calls. A speed setting.
     fuse_substeps: bool = True
+    # How `step` gives the worlds it resets their poses (`MjxPixelEnv._poses`), where it does not
+    # pass every world through the pose pass anyway: "cond", a `lax.cond` that runs the pass only
+    # in steps where some world was reset, or "select", the pass in every step and its result
+    # taken by `jnp.where` in those steps: the same numbers. On a GPU XLA reads a cond's predicate
+    # on the host, a sync each step; the select pays a pose pass each step instead (HalfCheetah's
+    # is the full forward pass: 1.830 s an epoch on one H200 against the cond's 1.726, measured on
+    # another: docs/performance.md). A speed setting.
+    reset_pose_branch: str = "cond"
 
 
+POSE_BRANCHES = ("cond", "select")
 GRAPH_MODES = ("none", "jax", "warp", "warp_staged", "warp_staged_ex")
 
 
@@ -79,6 +88,8 @@ def check_config(config: EnvConfig) -> None:
         raise ValueError(f"graph_mode must be None (MJX's default) or one of {GRAPH_MODES}, got {config.graph_mode!r}")
     if not isinstance(config.fuse_substeps, (bool, np.bool_)):
         raise ValueError(f"fuse_substeps must be True or False, got {config.fuse_substeps!r}")
+    if config.reset_pose_branch not in POSE_BRANCHES:
+        raise ValueError(f"reset_pose_branch must be one of {POSE_BRANCHES}, got {config.reset_pose_branch!r}")
     seg = config.pool_segments
     if (isinstance(seg, (bool, np.bool_)) or not isinstance(seg, (int, np.integer)) or seg < 1
             or config.num_envs % seg):

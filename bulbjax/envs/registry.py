@@ -33,7 +33,8 @@ def make(name: str, num_envs: int = 64, resolution: int = 64, render: bool | str
          multicolour: bool = False, render_steps: bool = True, version: int | str = 0,
          ycb_dir: str | None = None, num_points: int = 1024, show_targets: bool = False,
          reset_chunk: int | None = None, reset_pool: int | None = None, pool_segments: int = 1,
-         graph_mode: str | None = None, fuse_substeps: bool = True) -> MjxPixelEnv:
+         graph_mode: str | None = None, fuse_substeps: bool = True,
+         reset_pose_branch: str = "cond") -> MjxPixelEnv:
     """A batched environment of `num_envs` worlds with `resolution`x`resolution` RGB frames.
 
     `name` is a registered domain (see `env_names()`); a `Multicolour` suffix, or
@@ -52,7 +53,8 @@ def make(name: str, num_envs: int = 64, resolution: int = 64, render: bool | str
     domain's default, 0: no pool; see `EnvConfig.reset_pool`), kept per block of
     `num_envs / pool_segments` consecutive worlds (the experiment: one block per seed).
     `graph_mode` is how MJX-Warp's calls use CUDA graphs on a GPU (`EnvConfig.graph_mode`);
-    `fuse_substeps=False` steps the physics in MJX's separate calls (`EnvConfig.fuse_substeps`)."""
+    `fuse_substeps=False` steps the physics in MJX's separate calls (`EnvConfig.fuse_substeps`);
+    `reset_pose_branch` how reset worlds get their poses (`EnvConfig.reset_pose_branch`)."""
     base = name
     if name.endswith(MULTICOLOUR_SUFFIX):
         base, multicolour = name[: -len(MULTICOLOUR_SUFFIX)], True
@@ -69,7 +71,8 @@ def make(name: str, num_envs: int = 64, resolution: int = 64, render: bool | str
                     render_steps=render_steps and observation != "pointcloud", multicolour=multicolour,
                     observation=observation, num_points=num_points, version=version, ycb_dir=ycb_dir,
                     show_targets=show_targets, reset_chunk=reset_chunk, reset_pool=reset_pool,
-                    pool_segments=pool_segments, graph_mode=graph_mode, fuse_substeps=fuse_substeps)
+                    pool_segments=pool_segments, graph_mode=graph_mode, fuse_substeps=fuse_substeps,
+                    reset_pose_branch=reset_pose_branch)
     return _REGISTRY[base](cfg)
 
 
