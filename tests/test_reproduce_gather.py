@@ -26,7 +26,8 @@ CAMPAIGN = os.path.join(ROOT, "docs", "results", "paper_h200")
 # preset's six seeds, made before and after bias_grad's default changed), the fourteenth (Ant seed 1
 # with pred on the environment's GPU), the fifteenth (HalfCheetah seed 2 the same way), the
 # sixteenth (Ant seed 2 the same way), the seventeenth (Fig. 5's seed 0; CartPole seed 0 again,
-# with its Fig. 4)
+# with its Fig. 4), the eighteenth (Fig. 5's seeds 1 and 2), the twenty-second (fp32 seeds 2 and 3
+# under MPS)
 LATER = ("runs/fig2-cartpole/seed0", "runs/fig2-cartpole/seed4", "runs/fig2-cartpole/seed5", "runs/fig2-invpend",
          "fig4", "runs/fp32", "fig2", "probe_protocol", "runs/fig2-halfcheetah", "runs/fig2-ant",
          "runs/fig5-rearrange-ycb", "fig5")
@@ -36,7 +37,8 @@ LATER_JOBS = ["fig2-ant/seed0", "fig2-ant/seed1", "fig2-ant/seed2", "fig2-cartpo
               "fig2-invpend/seed3", "fig2-invpend/seed4", "fig2-invpend/seed5", "fig4/fig2-ant",
               "fig4/fig2-cartpole", "fig4/fig2-halfcheetah", "fig4/fig2-invpend", "fig5-rearrange-ycb/seed0",
               "fig5-rearrange-ycb/seed1", "fig5-rearrange-ycb/seed2", "fp32/fig2-invpend/seed0",
-              "fp32/fig2-invpend/seed1"]
+              "fp32/fig2-invpend/seed1", "fp32/fig2-invpend/seed2", "fp32/fig2-invpend/seed3"]
+LATER_SUMMARIES = ("summary_20261129", "summary_20261130", "summary_20261201")
 
 def _before_second(dest: str) -> str:
     """The campaign folder as it was before its second allocation: without what that one and the
@@ -46,7 +48,7 @@ def _before_second(dest: str) -> str:
     for rel in LATER:
         shutil.rmtree(os.path.join(dest, rel))
     for name in os.listdir(dest):
-        if name.startswith(("summary_20261129", "summary_20261130")):
+        if name.startswith(LATER_SUMMARIES):
             os.remove(os.path.join(dest, name))
     with open(os.path.join(dest, "plan.json")) as f:
         plan = json.load(f)
@@ -70,9 +72,8 @@ def test_gathering_the_allocations_gives_the_committed_page(tmp_path) -> None:
     found = gather(out, [host], log=said.append)
     assert sorted(found["taken"]) == LATER_JOBS
     assert "fig2-cartpole/seed3" in found["kept"] and found["unfinished"] == []
-    later = ("summary_20261129", "summary_20261130")
-    assert sorted(n for n in os.listdir(out) if n.startswith(later)) == sorted(
-        n for n in os.listdir(CAMPAIGN) if n.startswith(later))
+    assert sorted(n for n in os.listdir(out) if n.startswith(LATER_SUMMARIES)) == sorted(
+        n for n in os.listdir(CAMPAIGN) if n.startswith(LATER_SUMMARIES))
     results.write(out, results.read_summary(out), out_name="docs/results/paper_h200")
     with open(os.path.join(CAMPAIGN, "results.md")) as f, open(os.path.join(out, "results.md")) as g:
         assert f.read() == g.read()
