@@ -63,8 +63,8 @@ class EnvConfig:
     # in steps where some world was reset, or "select", the pass in every step and its result
     # taken by `jnp.where` in those steps: the same numbers. On a GPU XLA reads a cond's predicate
     # on the host, a sync each step; the select pays a pose pass each step instead (HalfCheetah's
-    # is the full forward pass: 1.830 s an epoch on one H200 against the cond's 1.726, measured on
-    # another: docs/performance.md). A speed setting.
+    # is the full forward pass, and the select measured slower there: docs/performance.md,
+    # "What each setting does"). A speed setting.
     reset_pose_branch: str = "cond"
 
 
