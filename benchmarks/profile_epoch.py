@@ -48,6 +48,7 @@ import warp_ffi_stats  # noqa: E402
 from timing import time_fn  # noqa: E402
 
 from bulbjax.config import ExperimentConfig  # noqa: E402
+from bulbjax.envs.env_config import POSE_BRANCHES  # noqa: E402
 from bulbjax.epoch.loop import Experiment  # noqa: E402
 from bulbjax.epoch.programs import Programs, without_probes  # noqa: E402
 from bulbjax.report.records import epoch_records  # noqa: E402
@@ -404,7 +405,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     p.add_argument("--separate-substeps", action="store_true",
                    help="step the physics in MJX's separate calls (EnvConfig.fuse_substeps=False): "
                         "the before of issue 63's one-call-per-env-step measurement")
-    p.add_argument("--pose-branch", choices=("cond", "select"), default="cond",
+    p.add_argument("--pose-branch", choices=POSE_BRANCHES, default="cond",
                    help="how step gives reset worlds their poses (EnvConfig.reset_pose_branch): a lax.cond, "
                         "whose predicate a GPU reads on the host each step, or a select")
     a = p.parse_args(argv)
