@@ -410,6 +410,11 @@ def test_jobs_per_gpu_shares_each_gpu_and_counts_it_once(tmp_path, monkeypatch) 
     mps = estimate.shared_times(times, 2, mps=True)  # measured at 2 jobs per H200 under MPS: 1.51x
     assert mps["fig2-invpend"].epoch_s == pytest.approx(times["fig2-invpend"].epoch_s * 2 / estimate.MPS_GAIN)
     assert mps["fig2-invpend"].startup_warm_s == times["fig2-invpend"].startup_warm_s
+    # the measured fp32 row gains less under MPS (1.27-1.29x); time-sliced, every row the same gain
+    fp32 = "fig2-invpend fp32"
+    assert mps[fp32].epoch_s == pytest.approx(times[fp32].epoch_s * 2 / estimate.MPS_GAIN_FP32)
+    assert shared[fp32].epoch_s == pytest.approx(times[fp32].epoch_s * 3 / estimate.SHARED_GAIN)
+    assert estimate.SHARED_GAIN < estimate.MPS_GAIN_FP32 < estimate.MPS_GAIN
     assert estimate.MPS_GAIN > estimate.SHARED_GAIN
     one = reproduce("fig2-cartpole", "paper", str(tmp_path / "a"), dry_run=True, log=lambda _: None)
     three = reproduce("fig2-cartpole", "paper", str(tmp_path / "b"), dry_run=True, jobs_per_gpu=3,

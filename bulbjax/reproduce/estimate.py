@@ -98,31 +98,38 @@ def timing_of(job: Job, times: dict[str, Timing]) -> Timing:
 # is taken as it is and the cold one x SHARED_STARTUP (not measured under MPS). Seeds 4 and 5 the
 # same way (the sixth allocation): 0.533 s each, 1.54x, start-ups 38-41 s warm; MPS_GAIN keeps the
 # lower of the two. Other N are taken at the same gains (an estimate, said in --dry-run). The fp32
-# pendulum gains less (2026-12-01, fp32 seeds 2 and 3: 0.869-0.871 s each against 0.562 s alone,
-# 1.29x; their start-ups, fully cold, 205-206 s against 159 x 1.53 = 243; the estimate 8% short
-# in all), kept as one gain while that is within the plan's 15%.
+# pendulum gains less under MPS (2026-12-01, fp32 seeds 2 and 3: 0.869-0.871 s each against
+# 0.562 s alone, 1.29x, start-ups fully cold 205-206 s against 159 x 1.53 = 243; seeds 4 and 5,
+# warm: 0.888 s each, 1.27x, start-ups 36 s): with MPS_GAIN those two pairs' estimates were 8% and
+# 14% short, so a measured fp32 row (`<preset> fp32`) takes MPS_GAIN_FP32, the lower of the two;
+# an fp32 row derived from a bf16 one (`timing_of`) keeps its bf16 row's gain.
 SHARED_GAIN = 1.14
 SHARED_STARTUP = 1.53
 MPS_GAIN = 1.51
+MPS_GAIN_FP32 = 1.27
 
 
 def shared_times(times: dict[str, Timing], jobs_per_gpu: int, mps: bool = False) -> dict[str, Timing]:
     """The table's times for a job running beside `jobs_per_gpu - 1` others on its GPU: its
     epochs `jobs_per_gpu / gain` times as long (`MPS_GAIN` under an MPS daemon, else
-    `SHARED_GAIN`), its cold start-up `SHARED_STARTUP` times, its warm one too unless under MPS
-    (measured so); unchanged for 1."""
+    `SHARED_GAIN`; a measured fp32 row under MPS `MPS_GAIN_FP32`), its cold start-up
+    `SHARED_STARTUP` times, its warm one too unless under MPS (measured so); unchanged for 1."""
     if jobs_per_gpu <= 1:
         return times
-    gain = MPS_GAIN if mps else SHARED_GAIN
-    slow = jobs_per_gpu / gain
     warm = 1.0 if mps else SHARED_STARTUP
-    note = (f"{jobs_per_gpu} jobs per GPU{' under MPS' if mps else ''}: epochs x {slow:.2f}, "
-            f"start-ups x {SHARED_STARTUP} cold / x {warm} warm (estimate.{'MPS' if mps else 'SHARED'}_GAIN)")
-    return {k: dataclasses.replace(t, epoch_s=t.epoch_s * slow, extra_seed_s=t.extra_seed_s * slow,
+
+    def shared(key: str, t: Timing) -> Timing:
+        fp32 = mps and key.endswith(FP32_ROW.format(preset=""))
+        gain = (MPS_GAIN_FP32 if fp32 else MPS_GAIN) if mps else SHARED_GAIN
+        slow = jobs_per_gpu / gain
+        name = "MPS_GAIN_FP32" if fp32 else "MPS_GAIN" if mps else "SHARED_GAIN"
+        note = (f"{jobs_per_gpu} jobs per GPU{' under MPS' if mps else ''}: epochs x {slow:.2f}, "
+                f"start-ups x {SHARED_STARTUP} cold / x {warm} warm (estimate.{name})")
+        return dataclasses.replace(t, epoch_s=t.epoch_s * slow, extra_seed_s=t.extra_seed_s * slow,
                                    startup_cold_s=t.startup_cold_s * SHARED_STARTUP,
                                    startup_warm_s=t.startup_warm_s * warm,
                                    derived="; ".join(x for x in (t.derived, note) if x))
-            for k, t in times.items()}
+    return {k: shared(k, t) for k, t in times.items()}
 
 
 # A job whose learners run on a second GPU (`--learners-apart`, `bulbjax run --overlap apart`):
