@@ -37,7 +37,8 @@ LATER_JOBS = ["fig2-ant/seed0", "fig2-ant/seed1", "fig2-ant/seed2", "fig2-cartpo
               "fig2-invpend/seed3", "fig2-invpend/seed4", "fig2-invpend/seed5", "fig4/fig2-ant",
               "fig4/fig2-cartpole", "fig4/fig2-halfcheetah", "fig4/fig2-invpend", "fig5-rearrange-ycb/seed0",
               "fig5-rearrange-ycb/seed1", "fig5-rearrange-ycb/seed2", "fp32/fig2-invpend/seed0",
-              "fp32/fig2-invpend/seed1", "fp32/fig2-invpend/seed2", "fp32/fig2-invpend/seed3"]
+              "fp32/fig2-invpend/seed1", "fp32/fig2-invpend/seed2", "fp32/fig2-invpend/seed3",
+              "fp32/fig2-invpend/seed4", "fp32/fig2-invpend/seed5"]
 LATER_SUMMARIES = ("summary_20261129", "summary_20261130", "summary_20261201")
 
 def _before_second(dest: str) -> str:
