@@ -405,11 +405,12 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     p.add_argument("--separate-substeps", action="store_true",
                    help="step the physics in MJX's separate calls (EnvConfig.fuse_substeps=False): "
                         "the before of issue 63's one-call-per-env-step measurement")
-    p.add_argument("--pose-branch", choices=POSE_BRANCHES, default="cond",
+    p.add_argument("--pose-branch", choices=POSE_BRANCHES, default="auto",
                    help="how step gives reset worlds their poses (EnvConfig.reset_pose_branch): a lax.cond, "
-                        "whose predicate a GPU reads on the host each step, or a select")
+                        "whose predicate a GPU reads on the host each step, a select, or auto (the select "
+                        "on a GPU where the pose pass is the kinematics pass)")
     a = p.parse_args(argv)
-    if a.separate_substeps or a.pose_branch != "cond":  # the experiment builds its env through bulbjax.make
+    if a.separate_substeps or a.pose_branch != "auto":  # the experiment builds its env through bulbjax.make
         bulbjax.make = functools.partial(bulbjax.make, fuse_substeps=not a.separate_substeps,
                                          reset_pose_branch=a.pose_branch)
     if a.warp_stats or a.warp_graph_cache:

@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 import bulbjax
+from bulbjax.envs.env_config import pose_select
 
 N, STEPS = 4, 24  # GeomOnIncline episodes last ~16 steps under random pushes: every world resets
 
@@ -73,7 +74,7 @@ def test_the_pose_pass_as_a_select_gives_the_cond_s_episodes_with_one_branch_few
                                        reset_pose_branch=branch)
     cond, select = make("cond"), make("select")
     assert select._pose_select and not cond._pose_select
-    assert not bulbjax.make("InvertedPendulum", num_envs=2, render=False)._pose_select, "the cond by default"
+    assert not bulbjax.make("InvertedPendulum", num_envs=2, render=False)._pose_select, "auto on a CPU: the cond"
     a, b = _rollout(select), _rollout(cond)
     assert 0 < a["done"].sum() < a["done"].size, "some steps must reset a world and some not"
     for k in a:
@@ -83,3 +84,15 @@ def test_the_pose_pass_as_a_select_gives_the_cond_s_episodes_with_one_branch_few
     assert branches(cond) == branches(select) + 1
     with pytest.raises(ValueError, match="reset_pose_branch must be one of"):
         make("where")
+
+
+def test_auto_picks_the_select_on_a_gpu_where_the_pose_pass_is_the_kinematics_pass():
+    """`EnvConfig.reset_pose_branch` "auto": the select where it measured faster (a GPU, the
+    kinematics pass: Fig. 5), the cond where the pass is MJX's forward pass (HalfCheetah: the
+    select measured slower) and on a CPU (no predicate read on a host)."""
+    assert pose_select("auto", "kinematics", "gpu")
+    assert not pose_select("auto", "forward", "gpu")
+    assert not pose_select("auto", "kinematics", "cpu")
+    assert pose_select("select", "forward", "cpu") and not pose_select("cond", "kinematics", "gpu")
+    assert bulbjax.make("GeomOnIncline", num_envs=1, render=False)._pose_pass == "kinematics"
+    assert bulbjax.make("InvertedPendulum", num_envs=1, render=False)._pose_pass == "forward"

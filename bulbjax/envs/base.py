@@ -22,7 +22,7 @@ from bulbjax.envs import warp_graphs, warp_steps
 from bulbjax.envs.batch import add_counts, nonfinite, prng_key, where_tree
 from bulbjax.envs.camera import PAN_CAMERAS, CameraConfig, add_bulb_camera, pan_cameras, static_view, view_poses
 from bulbjax.envs.colours import NUM_SCHEMES, scheme_table
-from bulbjax.envs.env_config import EnvConfig, check_config
+from bulbjax.envs.env_config import EnvConfig, check_config, pose_select
 from bulbjax.envs.models import asset_dir
 from bulbjax.envs.render import PointCloudRenderer, Renderer, exclude_from_pointcloud
 from bulbjax.envs.resets import (chunk_size, make_pool, pool_keys_at_reset, pool_multiple, reset_from_pool,
@@ -164,7 +164,7 @@ class MjxPixelEnv:
         # worlds it resets (`_poses`): the template Data they start from holds the view's poses.
         static = static_view(self.mj_model)
         self._pose_pass = "kinematics" if static and not self.forward_after_step else "forward"
-        self._pose_select = config.reset_pose_branch == "select"  # `_poses`: no host read of its predicate
+        self._pose_select = pose_select(config.reset_pose_branch, self._pose_pass, device.platform)  # `_poses`
         view = ({k: jax.device_put(np.asarray(v, np.float32), device) for k, v in view_poses(self.mj_model).items()}
                 if static else {})
         self._data0 = mjx.make_data(self.mj_model, device=device, impl="warp", njmax=self.njmax,

@@ -62,13 +62,23 @@ class EnvConfig:
     # pass every world through the pose pass anyway: "cond", a `lax.cond` that runs the pass only
     # in steps where some world was reset, or "select", the pass in every step and its result
     # taken by `jnp.where` in those steps: the same numbers. On a GPU XLA reads a cond's predicate
-    # on the host, a sync each step; the select pays a pose pass each step instead (HalfCheetah's
-    # is the full forward pass, and the select measured slower there: docs/performance.md,
-    # "What each setting does"). A speed setting.
-    reset_pose_branch: str = "cond"
+    # on the host, a sync each step; the select pays a pose pass each step instead. "auto"
+    # (`pose_select`): the select on a GPU where the pass is the kinematics pass alone (Fig. 5's
+    # epoch measured 3% faster), else the cond (HalfCheetah's pass is the full forward pass, and
+    # the select measured 6% slower there; a CPU reads no predicate): docs/performance.md, "What
+    # each setting does". A speed setting.
+    reset_pose_branch: str = "auto"
 
 
-POSE_BRANCHES = ("cond", "select")
+POSE_BRANCHES = ("auto", "cond", "select")
+
+
+def pose_select(branch: str, pose_pass: str, platform: str) -> bool:
+    """Whether `step` gives reset worlds their poses by a select (`EnvConfig.reset_pose_branch`):
+    "auto" picks it on a GPU ("gpu" `platform`) where `pose_pass` is "kinematics"."""
+    if branch == "auto":
+        return platform == "gpu" and pose_pass == "kinematics"
+    return branch == "select"
 GRAPH_MODES = ("none", "jax", "warp", "warp_staged", "warp_staged_ex")
 
 

@@ -34,7 +34,7 @@ def make(name: str, num_envs: int = 64, resolution: int = 64, render: bool | str
          ycb_dir: str | None = None, num_points: int = 1024, show_targets: bool = False,
          reset_chunk: int | None = None, reset_pool: int | None = None, pool_segments: int = 1,
          graph_mode: str | None = None, fuse_substeps: bool = True,
-         reset_pose_branch: str = "cond") -> MjxPixelEnv:
+         reset_pose_branch: str = "auto") -> MjxPixelEnv:
     """A batched environment of `num_envs` worlds with `resolution`x`resolution` RGB frames.
 
     `name` is a registered domain (see `env_names()`); a `Multicolour` suffix, or
