@@ -415,7 +415,6 @@ def test_jobs_per_gpu_shares_each_gpu_and_counts_it_once(tmp_path, monkeypatch) 
     assert mps[fp32].epoch_s == pytest.approx(times[fp32].epoch_s * 2 / estimate.MPS_GAIN_FP32)
     assert shared[fp32].epoch_s == pytest.approx(times[fp32].epoch_s * 3 / estimate.SHARED_GAIN)
     assert estimate.SHARED_GAIN < estimate.MPS_GAIN_FP32 < estimate.MPS_GAIN
-    assert estimate.MPS_GAIN > estimate.SHARED_GAIN
     one = reproduce("fig2-cartpole", "paper", str(tmp_path / "a"), dry_run=True, log=lambda _: None)
     three = reproduce("fig2-cartpole", "paper", str(tmp_path / "b"), dry_run=True, jobs_per_gpu=3,
                       log=lambda _: None)

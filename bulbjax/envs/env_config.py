@@ -71,6 +71,7 @@ class EnvConfig:
 
 
 POSE_BRANCHES = ("auto", "cond", "select")
+GRAPH_MODES = ("none", "jax", "warp", "warp_staged", "warp_staged_ex")
 
 
 def pose_select(branch: str, pose_pass: str, platform: str) -> bool:
@@ -79,7 +80,6 @@ def pose_select(branch: str, pose_pass: str, platform: str) -> bool:
     if branch == "auto":
         return platform == "gpu" and pose_pass == "kinematics"
     return branch == "select"
-GRAPH_MODES = ("none", "jax", "warp", "warp_staged", "warp_staged_ex")
 
 
 def check_config(config: EnvConfig) -> None:

@@ -119,10 +119,13 @@ def shared_times(times: dict[str, Timing], jobs_per_gpu: int, mps: bool = False)
     warm = 1.0 if mps else SHARED_STARTUP
 
     def shared(key: str, t: Timing) -> Timing:
-        fp32 = mps and key.endswith(FP32_ROW.format(preset=""))
-        gain = (MPS_GAIN_FP32 if fp32 else MPS_GAIN) if mps else SHARED_GAIN
+        if not mps:
+            gain, name = SHARED_GAIN, "SHARED_GAIN"
+        elif key.endswith(FP32_ROW.format(preset="")):
+            gain, name = MPS_GAIN_FP32, "MPS_GAIN_FP32"
+        else:
+            gain, name = MPS_GAIN, "MPS_GAIN"
         slow = jobs_per_gpu / gain
-        name = "MPS_GAIN_FP32" if fp32 else "MPS_GAIN" if mps else "SHARED_GAIN"
         note = (f"{jobs_per_gpu} jobs per GPU{' under MPS' if mps else ''}: epochs x {slow:.2f}, "
                 f"start-ups x {SHARED_STARTUP} cold / x {warm} warm (estimate.{name})")
         return dataclasses.replace(t, epoch_s=t.epoch_s * slow, extra_seed_s=t.extra_seed_s * slow,
