@@ -4,6 +4,7 @@ brought it back and gathered again, it gives the committed page."""
 
 from __future__ import annotations
 
+import glob
 import json
 import os
 import shutil
@@ -27,10 +28,10 @@ CAMPAIGN = os.path.join(ROOT, "docs", "results", "paper_h200")
 # with pred on the environment's GPU), the fifteenth (HalfCheetah seed 2 the same way), the
 # sixteenth (Ant seed 2 the same way), the seventeenth (Fig. 5's seed 0; CartPole seed 0 again,
 # with its Fig. 4), the eighteenth (Fig. 5's seeds 1 and 2), the twenty-second (fp32 seeds 2 and 3
-# under MPS)
+# under MPS), the twenty-third (fp32 seeds 4 and 5, whose gathering merged the fp32 entry's six)
 LATER = ("runs/fig2-cartpole/seed0", "runs/fig2-cartpole/seed4", "runs/fig2-cartpole/seed5", "runs/fig2-invpend",
          "fig4", "runs/fp32", "fig2", "probe_protocol", "runs/fig2-halfcheetah", "runs/fig2-ant",
-         "runs/fig5-rearrange-ycb", "fig5")
+         "runs/fig5-rearrange-ycb", "fig5", "fp32")
 LATER_JOBS = ["fig2-ant/seed0", "fig2-ant/seed1", "fig2-ant/seed2", "fig2-cartpole/seed0", "fig2-cartpole/seed4",
               "fig2-cartpole/seed5", "fig2-halfcheetah/seed0", "fig2-halfcheetah/seed1", "fig2-halfcheetah/seed2",
               "fig2-invpend/seed0", "fig2-invpend/seed1", "fig2-invpend/seed2",
@@ -301,3 +302,17 @@ def test_a_folder_started_from_a_host_s_copy_takes_its_summaries_once(tmp_path) 
     before = sorted(os.listdir(out))
     gather(out, [str(host)], log=lambda _: None)
     assert sorted(os.listdir(out)) == before
+
+
+def test_merged_presets_keep_their_pooled_metrics_out_of_git() -> None:
+    """A plan folder's merged preset (`<figure>/<preset>`, fp32 included) is read again from its
+    runs, so its pooled `metrics.jsonl` (3.6 MB for six pendulum seeds) stays untracked: every such
+    path of the campaign's folder is one .gitignore ignores."""
+    if not os.path.isdir(os.path.join(ROOT, ".git")):
+        pytest.skip("not a git checkout")
+    merged = sorted(os.path.join(d, "metrics.jsonl") for d in glob.glob(os.path.join(CAMPAIGN, "*", "*"))
+                    if os.path.isfile(os.path.join(d, "config.json")) and os.sep + "runs" + os.sep not in d)
+    assert any(os.sep + "fp32" + os.sep in m for m in merged) and len(merged) >= 4
+    ignored = subprocess.run(["git", "check-ignore", "--no-index", *merged], cwd=ROOT, capture_output=True,
+                             text=True).stdout.split()
+    assert sorted(ignored) == merged
