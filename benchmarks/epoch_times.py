@@ -5,7 +5,9 @@ finds the first's programs in the compile cache and starts warm), and with `--ex
 two seeds (what one more seed in a process adds to an epoch), each for `--epochs` epochs with the
 plan's settings (bf16, probes every 10th epoch; on the CPU the tiny scale's `--small` runs). The
 jobs go through the plan's own queue (`bulbjax.reproduce.queue`), which measures each one's
-start-up (launch to first epoch) and seconds per epoch. Or `--from-summary OUT/summary.json` takes
+start-up (launch to first epoch) and seconds per epoch (from its first record to its last: the
+last checkpoint and the exit after them, its `end_s`, are left out, ~10 s that a short job would
+spread over its few epochs). Or `--from-summary OUT/summary.json` takes
 the same figures from a `bulbjax reproduce` run. Writes `results/epoch_times_<device>_<stamp>.json`;
 `--write` also rewrites the device's entries of the package table (and docs/reproduce.md's copy
 of it), marking each `measured`.
