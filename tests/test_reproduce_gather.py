@@ -13,6 +13,7 @@ import sys
 
 import pytest
 
+from bulbjax.report.merge import is_merged
 from bulbjax.reproduce.gather import gather
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
@@ -310,8 +311,8 @@ def test_merged_presets_keep_their_pooled_metrics_out_of_git() -> None:
     path of the campaign's folder is one .gitignore ignores."""
     if not os.path.isdir(os.path.join(ROOT, ".git")):
         pytest.skip("not a git checkout")
-    merged = sorted(os.path.join(d, "metrics.jsonl") for d in glob.glob(os.path.join(CAMPAIGN, "*", "*"))
-                    if os.path.isfile(os.path.join(d, "config.json")) and os.sep + "runs" + os.sep not in d)
+    merged = sorted(os.path.join(d, "metrics.jsonl") for d in glob.glob(os.path.join(CAMPAIGN, "**"), recursive=True)
+                    if is_merged(d))
     assert any(os.sep + "fp32" + os.sep in m for m in merged) and len(merged) >= 4
     ignored = subprocess.run(["git", "check-ignore", "--no-index", *merged], cwd=ROOT, capture_output=True,
                              text=True).stdout.split()
