@@ -78,7 +78,9 @@ def test_the_queue_notes_a_job_at_its_first_epoch_once(tmp_path, cache) -> None:
     assert seen == [job.id] and t.startup_s is not None
 
 
-def test_a_job_s_epoch_time_runs_from_its_first_record_to_its_last(tmp_path, cache, monkeypatch) -> None:
+def test_a_job_s_epoch_time_runs_from_its_first_record_to_its_last(
+    tmp_path, cache, monkeypatch
+) -> None:
     """An ended job's `epoch_s` is its rate between its records, and what follows its last record
     (the last checkpoint, the exit) is `end_s`: spread over the epochs, those ~9 s made a 30-epoch
     fig3-rearrange-geom job on an H200 read 0.89 s an epoch against 0.55 s by its progress lines."""
@@ -86,7 +88,9 @@ def test_a_job_s_epoch_time_runs_from_its_first_record_to_its_last(tmp_path, cac
 
     clock = [0.0]
     monkeypatch.setattr(Q.time, "monotonic", lambda: clock[0])
-    job = Job("fig2-cartpole/seed0", "fig2", "run", "fig2-cartpole", 0, 10, "runs/fig2-cartpole/seed0")
+    job = Job(
+        "fig2-cartpole/seed0", "fig2", "run", "fig2-cartpole", 0, 10, "runs/fig2-cartpole/seed0"
+    )
     q = Queue(str(tmp_path), [job], [job], [Slot("cpu0", None)], estimate.load_times("cpu")[0])
     t = q.tracks[job.id]
     t.status, t.slot, t.started = "running", q.slots[0], 0.0
